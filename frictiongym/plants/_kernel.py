@@ -1,0 +1,339 @@
+"""Compiled zero-order-hold step of ``J x'' + B x' = u - F(x', u)`` with true stick/slip.
+
+One element function, :func:`advance`, steps one plant over one control period; the batch
+kernel :func:`step_batch` loops it over N plants. The single env and the vector env call the
+same kernel, so a plant stepped alone and inside a batch follow bit-identical trajectories.
+
+Integrators (research/friction.md §4):
+
+* **Exact** (static law with a ``step`` or ``linear`` decay, which covers none and
+  Coulomb): friction is affine in ``v`` on each of at most two speed ranges, so each
+  sliding phase has a closed form. Velocity is monotone within a phase (a 1-D autonomous
+  ODE), so a step holds at most four events (leave the decay range, stop, break away the
+  other way, enter the Coulomb range), each located exactly in time. A body stays
+  *bit-exactly* at rest while the input lies in the break-away band.
+* **Split** (``smooth`` and ``exponential`` decays): sub-stepped, implicit in the viscous
+  term, with the zero crossing located by linear interpolation inside the substep, then
+  the stick-or-reverse test (first order in the substep).
+* **LuGre**: bristle state advanced by its exact exponential update at frozen velocity,
+  mechanics semi-implicit, sub-stepped.
+
+The input is held over the step (ZOH). An optional first-order actuator lag is applied per
+substep by holding the lag output at its exact substep average.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit
+
+from frictiongym.friction import _core as fc
+
+# Plant row: [J, B, u_max, lag] followed by the friction row.
+I_J = 0
+I_B = 1
+I_UMAX = 2
+I_LAG = 3
+F0 = 4  #: offset of the friction row inside a plant row
+ROW_SIZE = F0 + fc.ROW_SIZE
+
+# State columns.
+S_X = 0  #: position
+S_V = 1  #: velocity (exactly 0.0 while stuck)
+S_Z = 2  #: LuGre bristle deflection
+S_LAG = 3  #: actuator-lag output
+S_FRICTION = 4  #: friction force averaged over the last step (nonlinear + viscous part of the law)
+S_COMMAND = 5  #: last command after saturation
+S_STUCK = 6  #: 1.0 if the body ended the last step stuck
+STATE_SIZE = 7
+
+_MAX_SEGMENTS = 8  # at most 4 events + the final phase + a stuck phase; 8 leaves margin
+_SERIES_LIMIT = 1e-2
+
+
+@njit(cache=True)
+def _phi12(ell: float) -> tuple[float, float]:
+    """Return ``E1 = (1 - e^-l)/l`` and ``E2 = (l - 1 + e^-l)/l^2``, accurate near l = 0."""
+    if abs(ell) < _SERIES_LIMIT:
+        e1 = 1.0 - ell * (1 / 2 - ell * (1 / 6 - ell * (1 / 24 - ell * (1 / 120 - ell / 720))))
+        e2 = 1 / 2 - ell * (1 / 6 - ell * (1 / 24 - ell * (1 / 120 - ell * (1 / 720 - ell / 5040))))
+        return e1, e2
+    em1 = math.expm1(-ell)
+    return -em1 / ell, (ell + em1) / (ell * ell)
+
+
+@njit(cache=True)
+def affine_advance(x: float, v: float, a: float, b: float, j: float, t: float) -> tuple[float, float]:
+    """Advance ``j v' = a - b v``, ``x' = v`` by time ``t`` in closed form.
+
+    Written with ``E1``/``E2`` so it stays accurate for ``b -> 0`` and for negative ``b``
+    (the velocity-weakening part of a Stribeck curve).
+    """
+    e1, e2 = _phi12(b / j * t)
+    acc = a / j
+    v_new = v * (1.0 - (b / j * t) * e1) + acc * t * e1
+    x_new = x + v * t * e1 + acc * t * t * e2
+    return x_new, v_new
+
+
+@njit(cache=True)
+def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> float:
+    """Time for ``j v' = a - b v`` to bring ``v`` to ``target``, or ``inf`` if it never does."""
+    num = target - v
+    den = a - b * v
+    if den == 0.0 or num * den <= 0.0:
+        return math.inf
+    q = -b * num / den
+    if q <= -1.0:  # the target lies beyond the asymptote v = a/b
+        return math.inf
+    ratio = 1.0 - q / 2.0 if abs(q) < 1e-8 else math.log1p(q) / q
+    return j * num / den * ratio
+
+
+@njit(cache=True)
+def exact_static(
+    x: float, v: float, u: float, h: float, j: float, b_total: float, p: npt.NDArray[np.float64]
+) -> tuple[float, float, float]:
+    """Event-exact step of a static law with a ``step`` or ``linear`` decay.
+
+    Parameters
+    ----------
+    x, v : float
+        State at the start of the step (``v == 0.0`` means stuck).
+    u : float
+        Input held over the step.
+    h : float
+        Step length.
+    j, b_total : float
+        Inertia and total viscous damping (plant ``B`` plus the law's viscous slope).
+    p : ndarray
+        Friction row.
+
+    Returns
+    -------
+    x, v, impulse : float
+        New state and the time integral of the nonlinear friction force over the step.
+    """
+    linear_shape = p[fc.I_SHAPE] == fc.SHAPE_LINEAR
+    t_left = h
+    impulse = 0.0
+    for _ in range(_MAX_SEGMENTS):
+        if t_left <= 0.0:
+            break
+        if v == 0.0:
+            if u > p[fc.I_US_POS]:
+                s = 1.0
+            elif u < -p[fc.I_US_NEG]:
+                s = -1.0
+            else:  # held: static friction balances the input exactly
+                impulse += u * t_left
+                t_left = 0.0
+                break
+        else:
+            s = 1.0 if v > 0.0 else -1.0
+        if s > 0.0:
+            us, uc, v0 = p[fc.I_US_POS], p[fc.I_UC_POS], p[fc.I_V0_POS]
+        else:
+            us, uc, v0 = p[fc.I_US_NEG], p[fc.I_UC_NEG], p[fc.I_V0_NEG]
+        decays = linear_shape and us > uc
+        speed = s * v
+        # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
+        # linearly, u - s[us - k|v|] = (u - s us) + k v, so the slope drops by k.
+        a_out = u - s * uc
+        inner = False
+        k = 0.0
+        if decays:
+            k = (us - uc) / v0
+            if speed < v0:
+                inner = True
+            elif speed == v0:  # on the boundary: the side it is heading to
+                inner = s * (a_out - b_total * v) < 0.0
+        if inner:
+            a = u - s * us
+            bb = b_total - k
+        else:
+            a = a_out
+            bb = b_total
+        acc = a - bb * v
+        target = math.nan
+        if s * acc < 0.0:
+            target = s * v0 if (decays and not inner) else 0.0
+        elif s * acc > 0.0 and inner:
+            target = s * v0
+        t_event = math.inf if math.isnan(target) else affine_time_to(v, target, a, bb, j)
+        dt = t_event if t_event < t_left else t_left
+        x_new, v_new = affine_advance(x, v, a, bb, j, dt)
+        if t_event <= t_left:
+            v_new = target  # land exactly on the event: 0.0 means stuck-test next
+        if inner:
+            impulse += s * us * dt - k * (x_new - x)
+        else:
+            impulse += s * uc * dt
+        x, v = x_new, v_new
+        t_left -= dt
+    return x, v, impulse
+
+
+@njit(cache=True)
+def split_static(
+    x: float,
+    v: float,
+    u: float,
+    h: float,
+    j: float,
+    b_total: float,
+    p: npt.NDArray[np.float64],
+) -> tuple[float, float, float]:
+    """One substep of the split scheme for any static decay shape (research/friction.md §4.4).
+
+    Returns the new ``x, v`` and the impulse of the nonlinear friction force.
+    """
+    us_pos, us_neg = p[fc.I_US_POS], p[fc.I_US_NEG]
+    if v == 0.0:
+        if u > us_pos:
+            s = 1.0
+        elif u < -us_neg:
+            s = -1.0
+        else:
+            return x, 0.0, u * h
+    else:
+        s = 1.0 if v > 0.0 else -1.0
+    f = s * fc.sliding_level(abs(v), s, p)
+    v_try = (j * v + h * (u - f)) / (j + h * b_total)
+    if v != 0.0 and s * v_try < 0.0:  # crosses zero inside the substep
+        theta = v / (v - v_try)
+        x += theta * h * v / 2.0
+        impulse = f * theta * h
+        rest = (1.0 - theta) * h
+        if -us_neg <= u <= us_pos:
+            return x, 0.0, impulse + u * rest
+        s = 1.0 if u > 0.0 else -1.0
+        f = s * fc.sliding_level(0.0, s, p)
+        v_new = rest * (u - f) / (j + rest * b_total)
+        return x + rest * v_new / 2.0, v_new, impulse + f * rest
+    return x + h * (v + v_try) / 2.0, v_try, f * h
+
+
+@njit(cache=True)
+def lugre_substep(
+    x: float,
+    v: float,
+    z: float,
+    u: float,
+    h: float,
+    j: float,
+    b_total: float,
+    p: npt.NDArray[np.float64],
+) -> tuple[float, float, float, float]:
+    """One LuGre substep: exact bristle update at frozen ``v``, then semi-implicit mechanics.
+
+    Returns ``x, v, z`` and the impulse of the bristle force ``sigma0 z + sigma1 dz/dt``.
+    """
+    sigma0, sigma1 = p[fc.I_SIGMA0], p[fc.I_SIGMA1]
+    z_new = z
+    if v != 0.0:
+        s = 1.0 if v > 0.0 else -1.0
+        g = fc.sliding_level(abs(v), s, p)
+        z_ss = s * g / sigma0
+        z_new = z_ss + (z - z_ss) * math.exp(-sigma0 * abs(v) / g * h)
+    z_dot = (z_new - z) / h
+    f = sigma0 * z_new + sigma1 * z_dot
+    v_new = (j * v + h * (u - f)) / (j + h * b_total)
+    return x + h * (v + v_new) / 2.0, v_new, z_new, f * h
+
+
+@njit(cache=True)
+def advance(
+    state: npt.NDArray[np.float64], u: float, h: float, n_sub: int, p: npt.NDArray[np.float64]
+) -> None:
+    """Advance one plant (one row of ``state``) by one control period with input ``u``.
+
+    ``u`` is the command after saturation and dead time; the actuator lag, if any, acts here.
+    """
+    j = p[I_J]
+    friction = p[F0:]
+    b_total = p[I_B] + friction[fc.I_VISCOUS]
+    lag = p[I_LAG]
+    law = friction[fc.I_LAW]
+    exact = law == fc.LAW_STATIC and (
+        friction[fc.I_SHAPE] == fc.SHAPE_STEP or friction[fc.I_SHAPE] == fc.SHAPE_LINEAR
+    )
+    x, v, z, y = state[S_X], state[S_V], state[S_Z], state[S_LAG]
+    x_start = x
+    hs = h / n_sub
+    impulse = 0.0
+    for _ in range(n_sub):
+        force = u
+        if lag > 0.0:  # hold the lag output at its exact average over the substep
+            em1 = math.expm1(-hs / lag)
+            force = u - (y - u) * em1 * lag / hs
+            y = u + (y - u) * (1.0 + em1)
+        if exact:
+            x, v, imp = exact_static(x, v, force, hs, j, b_total, friction)
+        elif law == fc.LAW_STATIC:
+            x, v, imp = split_static(x, v, force, hs, j, b_total, friction)
+        else:
+            x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
+        impulse += imp
+    state[S_X], state[S_V], state[S_Z], state[S_LAG] = x, v, z, y
+    state[S_FRICTION] = (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
+    state[S_STUCK] = 1.0 if v == 0.0 else 0.0
+
+
+@njit(cache=True)
+def step_batch(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+) -> int:
+    """Step N plants in place.
+
+    Parameters
+    ----------
+    state : ndarray, shape (N, STATE_SIZE)
+        Plant states, updated in place.
+    delay_buffer : ndarray, shape (N, D)
+        Commands in flight for a dead time of D control periods (D may be 0).
+    head : int
+        Slot of ``delay_buffer`` holding the command that is due now.
+    command : ndarray, shape (N,) or (1,)
+        Commands (broadcast if of length 1).
+    h : float
+        Control period.
+    n_sub : int
+        Substeps per control period.
+    params : ndarray, shape (N, ROW_SIZE) or (1, ROW_SIZE)
+        Plant rows (broadcast if one row).
+
+    Returns
+    -------
+    int
+        -1 on success; otherwise the index of the first non-finite command, in which case
+        no state was changed.
+    """
+    n = state.shape[0]
+    one_command = command.shape[0] == 1
+    for i in range(command.shape[0]):
+        if not math.isfinite(command[i]):
+            return i
+    one_row = params.shape[0] == 1
+    delay = delay_buffer.shape[1]
+    for i in range(n):
+        p = params[0] if one_row else params[i]
+        c = command[0] if one_command else command[i]
+        u_max = p[I_UMAX]
+        c = min(max(c, -u_max), u_max)
+        state[i, S_COMMAND] = c
+        if delay > 0:
+            due = delay_buffer[i, head]
+            delay_buffer[i, head] = c
+            c = due
+        advance(state[i], c, h, n_sub, p)
+    return -1

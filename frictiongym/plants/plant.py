@@ -1,0 +1,264 @@
+"""Nominal plant + friction: parameters and the batched, event-exact ZOH plant.
+
+The plant is ``J x'' + B x' = u - F(x', u)`` with ``u`` the command after saturation,
+dead time and an optional first-order actuator lag. :class:`Plant` holds N such plants
+(N = 1 for a single env) and steps them all with one call of the compiled kernel.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.friction import _core as fc
+from frictiongym.friction.laws import FrictionModel
+from frictiongym.plants import _kernel as k
+
+FloatArray = npt.NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PlantParams:
+    """Linear part and actuator of a 1-DOF motion-control plant.
+
+    Parameters
+    ----------
+    inertia : float
+        ``J``: inertia (or mass) in command units per acceleration unit (the paper's servo:
+        V·s²/rad).
+    damping : float
+        ``B``: linear damping in command units per velocity unit, not counting the viscous slope
+        of the friction law (which adds to it).
+    command_limit : float
+        Symmetric saturation of the command, command units.
+    lag : float, default 0.0
+        Time constant of a first-order actuator lag, s (0: none).
+    dead_time : float, default 0.0
+        Transport delay of the command, s; must be a whole number of control periods.
+    """
+
+    inertia: float
+    damping: float
+    command_limit: float
+    lag: float = 0.0
+    dead_time: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("inertia", "damping", "command_limit", "lag", "dead_time"):
+            value = getattr(self, name)
+            if not isinstance(value, numbers.Real) or isinstance(value, bool):
+                raise TypeError(f"PlantParams.{name} must be a real number, got {value!r}")
+            if not math.isfinite(float(value)):
+                raise ValueError(f"PlantParams.{name} must be finite, got {value!r}")
+        if self.inertia <= 0.0:
+            raise ValueError(f"PlantParams.inertia must be > 0, got {self.inertia!r}")
+        if self.command_limit <= 0.0:
+            raise ValueError(f"PlantParams.command_limit must be > 0, got {self.command_limit!r}")
+        for name in ("damping", "lag", "dead_time"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"PlantParams.{name} must be >= 0, got {getattr(self, name)!r}")
+
+    def delay_steps(self, dt: float) -> int:
+        """Dead time in whole control periods of length ``dt``; raises if it is not whole."""
+        steps = round(self.dead_time / dt)
+        if abs(steps * dt - self.dead_time) > 1e-9 * max(1.0, self.dead_time):
+            raise ValueError(
+                f"PlantParams.dead_time={self.dead_time!r} s is not a whole number of control "
+                f"periods dt={dt!r} s; use a multiple of dt (e.g. {max(steps, 1) * dt!r})"
+            )
+        return int(steps)
+
+
+def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
+    """Pack plant and friction parameters into one kernel row."""
+    row = np.empty(k.ROW_SIZE)
+    row[k.I_J] = params.inertia
+    row[k.I_B] = params.damping
+    row[k.I_UMAX] = params.command_limit
+    row[k.I_LAG] = params.lag
+    row[k.F0 :] = friction.row()
+    return row
+
+
+def default_substeps(params: Sequence[PlantParams], frictions: Sequence[FrictionModel],
+                     dt: float) -> int:  # fmt: skip
+    """Substeps per control period that the laws and the actuator need.
+
+    One for the exact laws without actuator lag; otherwise enough for the split scheme's
+    first-order error, for a lag sampled well inside its time constant, and for a stable
+    LuGre bristle mode (``h_sub * omega_n <= 0.2``, ``h_sub * sigma1 / J <= 0.2``).
+    """
+    n = 1
+    for pp in params:
+        if pp.lag > 0.0:
+            n = max(n, math.ceil(4.0 * dt / pp.lag))
+    for fr in frictions:
+        if not fr.exact and not fr.is_dynamic:
+            n = max(n, 10)
+        if fr.is_dynamic:
+            row = fr.row()
+            j_min = min(pp.inertia for pp in params)
+            omega = math.sqrt(row[fc.I_SIGMA0] / j_min)
+            n = max(n, math.ceil(dt * omega / 0.2), math.ceil(dt * row[fc.I_SIGMA1] / j_min / 0.2))
+    return n
+
+
+class Plant:
+    """N plants stepped together by the compiled stick/slip kernel.
+
+    Parameters
+    ----------
+    params : PlantParams or sequence of PlantParams
+        One set for all plants, or one per plant.
+    friction : FrictionModel or sequence of FrictionModel
+        One law for all plants, or one per plant.
+    dt : float
+        Control period, s: the command is held over it.
+    num_plants : int, default 1
+        Batch size N.
+    substeps : int, optional
+        Substeps per control period; by default :func:`default_substeps`.
+
+    Notes
+    -----
+    The state lives in one ``(N, 7)`` float64 array (:attr:`state`, columns in
+    :mod:`frictiongym.plants._kernel`); the properties below are views into it.
+    """
+
+    def __init__(
+        self,
+        params: PlantParams | Sequence[PlantParams],
+        friction: FrictionModel | Sequence[FrictionModel],
+        dt: float,
+        num_plants: int = 1,
+        substeps: int | None = None,
+    ) -> None:
+        if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
+        if not isinstance(num_plants, numbers.Integral) or num_plants < 1:
+            raise ValueError(f"num_plants must be a positive integer, got {num_plants!r}")
+        self.dt = float(dt)
+        self.num_plants = int(num_plants)
+        self._params: list[PlantParams] = self._per_plant(params, "params")
+        self._frictions: list[FrictionModel] = self._per_plant(friction, "friction")
+        delays = {p.delay_steps(self.dt) for p in self._params}
+        if len(delays) > 1:
+            raise ValueError("all plants of a batch must share one dead time")
+        self.delay_steps = delays.pop()
+        if substeps is None:
+            substeps = default_substeps(self._params, self._frictions, self.dt)
+        if not isinstance(substeps, numbers.Integral) or substeps < 1:
+            raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
+        self.substeps = int(substeps)
+        count = max(len(self._params), len(self._frictions))
+        pairs = zip(self._params * (count // len(self._params)),
+                    self._frictions * (count // len(self._frictions)), strict=True)  # fmt: skip
+        self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
+        self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE))
+        self._delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
+        self._head = 0
+        self.reset()
+
+    def _per_plant(self, value: object, name: str) -> list:  # type: ignore[type-arg]
+        if isinstance(value, Sequence) and not isinstance(value, str):
+            if len(value) != self.num_plants:
+                raise ValueError(
+                    f"{name} has {len(value)} entries for {self.num_plants} plants; give one "
+                    "for all or one per plant"
+                )
+            return list(value)
+        return [value]
+
+    @property
+    def params(self) -> list[PlantParams]:
+        """Plant parameters (one entry when shared by the whole batch)."""
+        return list(self._params)
+
+    @property
+    def frictions(self) -> list[FrictionModel]:
+        """Friction laws (one entry when shared by the whole batch)."""
+        return list(self._frictions)
+
+    def reset(
+        self,
+        position: float | npt.ArrayLike = 0.0,
+        velocity: float | npt.ArrayLike = 0.0,
+        mask: npt.ArrayLike | None = None,
+    ) -> None:
+        """Reset plants (all, or those where ``mask`` is true) to a state at ``position``.
+
+        A velocity of exactly 0.0 starts the plant stuck; the actuator lag, dead-time buffer
+        and LuGre bristles start relaxed (zero).
+        """
+        idx: slice | npt.NDArray[np.bool_] = slice(None)
+        if mask is not None:
+            idx = np.asarray(mask, dtype=bool)
+            if idx.shape != (self.num_plants,):
+                raise ValueError(f"mask must have shape ({self.num_plants},), got {idx.shape}")
+        selected = self.state[idx]
+        pos = np.broadcast_to(np.asarray(position, dtype=np.float64), selected.shape[:1])
+        vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), selected.shape[:1])
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
+            raise ValueError("reset position and velocity must be finite")
+        selected[:] = 0.0
+        selected[:, k.S_X] = pos
+        selected[:, k.S_V] = vel
+        selected[:, k.S_STUCK] = vel == 0.0
+        self.state[idx] = selected
+        self._delay_buffer[idx] = 0.0
+
+    def step(self, command: float | npt.ArrayLike) -> None:
+        """Hold ``command`` over one control period for every plant.
+
+        Parameters
+        ----------
+        command : float or array_like, shape (N,)
+            Commands in command units; saturated at ``command_limit``.
+
+        Raises
+        ------
+        ValueError
+            If a command is NaN or infinite (no plant is changed).
+        """
+        u = np.asarray(command, dtype=np.float64).reshape(-1)
+        if u.shape[0] not in (1, self.num_plants):
+            raise ValueError(f"expected 1 or {self.num_plants} commands, got {u.shape[0]}")
+        bad = k.step_batch(
+            self.state, self._delay_buffer, self._head, u, self.dt, self.substeps, self.rows
+        )
+        if bad >= 0:
+            raise ValueError(
+                f"command {bad} is {u[bad]!r}: commands must be finite numbers (command units)"
+            )
+        if self.delay_steps:
+            self._head = (self._head + 1) % self.delay_steps
+
+    @property
+    def position(self) -> FloatArray:
+        """Positions, shape (N,)."""
+        return self.state[:, k.S_X]
+
+    @property
+    def velocity(self) -> FloatArray:
+        """Velocities, shape (N,); exactly 0.0 while stuck."""
+        return self.state[:, k.S_V]
+
+    @property
+    def stuck(self) -> npt.NDArray[np.bool_]:
+        """Whether each plant ended the last step stuck."""
+        return self.state[:, k.S_STUCK] != 0.0
+
+    @property
+    def command(self) -> FloatArray:
+        """Last commands after saturation."""
+        return self.state[:, k.S_COMMAND]
+
+    @property
+    def friction_force(self) -> FloatArray:
+        """Friction force averaged over the last step (nonlinear + the law's viscous part)."""
+        return self.state[:, k.S_FRICTION]
