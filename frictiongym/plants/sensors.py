@@ -1,0 +1,129 @@
+"""What a controller actually measures: encoder counts, a filtered-derivative velocity, IR readouts.
+
+All functions are vectorised over any batch shape. Randomness (sensor noise) is never drawn
+here: callers pass noise samples drawn from their own generator (an env's ``np_random``), so
+every trajectory is reproducible from the env's seed.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+
+FloatArray = npt.NDArray[np.float64]
+
+#: QUBE-Servo 2 encoder resolution in quadrature, counts per revolution (Quanser datasheet;
+#: the paper's testbed, and gym_brt's ``2*pi/2048``).
+QUBE_COUNTS_PER_REV = 2048
+
+#: Altino IR sensor (paper Eq. (1)): distance d = 966 / (x + 45) cm from the readout x.
+IR_NUMERATOR = 966.0
+IR_OFFSET = 45.0
+IR_MAX_READOUT = 800
+
+
+def quantize_angle(angle: npt.ArrayLike, counts_per_rev: int = QUBE_COUNTS_PER_REV) -> FloatArray:
+    """Angle as seen through an incremental encoder zeroed at reset.
+
+    The count is ``round(angle / q)`` with ``q = 2*pi / counts_per_rev``: the reset angle is
+    taken mid-count, so the reading errs by at most ``q / 2`` either way.
+
+    Parameters
+    ----------
+    angle : array_like
+        True angle, rad, relative to the angle at reset.
+    counts_per_rev : int, default 2048
+        Encoder counts per revolution (quadrature).
+
+    Returns
+    -------
+    ndarray
+        The quantised angle, rad.
+    """
+    q = 2.0 * math.pi / counts_per_rev
+    return np.floor(np.asarray(angle, dtype=np.float64) / q + 0.5) * q
+
+
+class FilteredDerivative:
+    """Velocity estimate ``w s / (s + w)`` of a sampled position, batched.
+
+    The continuous filter is discretised ramp-invariantly (exact when the position moves
+    linearly between samples): ``v_k = a v_(k-1) + (1 - a) (y_k - y_(k-1)) / dt`` with
+    ``a = exp(-w dt)``. It is stable for every ``dt`` and has unit gain on a ramp.
+
+    Parameters
+    ----------
+    cutoff : float
+        Filter bandwidth ``w``, rad/s (50 on the QUBE-Servo 2: Quanser's ``50s/(s+50)``,
+        shared/research/hardware.md).
+    dt : float
+        Sample period, s.
+    shape : tuple of int, default ()
+        Batch shape.
+    """
+
+    def __init__(self, cutoff: float, dt: float, shape: tuple[int, ...] = ()) -> None:
+        if not (math.isfinite(cutoff) and cutoff > 0.0):
+            raise ValueError(f"cutoff must be a positive frequency in rad/s, got {cutoff!r}")
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
+        self.cutoff = float(cutoff)
+        self.dt = float(dt)
+        self.pole = math.exp(-self.cutoff * self.dt)
+        self._previous: FloatArray = np.zeros(shape)
+        self._estimate: FloatArray = np.zeros(shape)
+
+    def reset(self, position: npt.ArrayLike = 0.0, velocity: npt.ArrayLike = 0.0) -> None:
+        """Start from a measured ``position`` with the estimate at ``velocity``."""
+        self._previous = np.broadcast_to(np.asarray(position, np.float64), self._previous.shape).copy()
+        self._estimate = np.broadcast_to(np.asarray(velocity, np.float64), self._estimate.shape).copy()
+
+    def update(self, position: npt.ArrayLike) -> FloatArray:
+        """Feed the newest position sample; return the velocity estimate."""
+        y = np.asarray(position, dtype=np.float64)
+        self._estimate = self.pole * self._estimate + (1.0 - self.pole) * (y - self._previous) / self.dt
+        self._previous = y.copy()
+        return self._estimate
+
+
+def ir_readout(
+    distance: npt.ArrayLike,
+    gain: npt.ArrayLike = 1.0,
+    offset: npt.ArrayLike = 0.0,
+    noise: npt.ArrayLike = 0.0,
+) -> npt.NDArray[np.int64]:
+    """Integer readout of the Altino's IR distance sensor at a true distance.
+
+    Inverts the paper's Eq. (1): the reflected intensity ``x + 45`` falls as ``966 / d``.
+    Reflectivity scales that intensity (``gain``) and ambient light adds to the readout
+    (``offset``); the result is rounded and saturates at 0 (far: beyond about 21.5 cm at
+    unit gain) and 800 (near: closer than about 1.14 cm).
+
+    Parameters
+    ----------
+    distance : array_like
+        True distance to the wall, cm (> 0).
+    gain : array_like, default 1.0
+        Reflectivity relative to the paper's calibration.
+    offset : array_like, default 0.0
+        Ambient-light offset, readout units.
+    noise : array_like, default 0.0
+        Additive noise samples, readout units (drawn by the caller).
+
+    Returns
+    -------
+    ndarray of int64
+        Readouts in 0..800.
+    """
+    d = np.asarray(distance, dtype=np.float64)
+    if np.any(~(d > 0.0)):
+        raise ValueError("IR sensor distance must be > 0 cm (the car is touching the wall)")
+    raw = np.asarray(gain) * IR_NUMERATOR / d - IR_OFFSET + np.asarray(offset) + np.asarray(noise)
+    return np.clip(np.rint(raw), 0, IR_MAX_READOUT).astype(np.int64)
+
+
+def ir_distance(readout: npt.ArrayLike) -> FloatArray:
+    """Distance estimate from an IR readout with the paper's calibration, Eq. (1), in cm."""
+    return IR_NUMERATOR / (np.asarray(readout, dtype=np.float64) + IR_OFFSET)

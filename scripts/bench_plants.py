@@ -1,0 +1,485 @@
+"""Benchmark: plant steps per second of frictiongym's compiled Plant against a numpy loop.
+
+For each batch size N the script times, interleaved in one process:
+
+* ``numpy ref``: the frictionless linear plant ``J x'' + B x' = u`` written as a user would
+  write it in numpy: x and v arrays of size N, stepped exactly over the zero-order-hold period
+  with precomputed coefficients (``x += c1*v + c2*u; v *= e; v += c3*u``). No saturation,
+  no friction, no bookkeeping.
+* ``Plant`` with the paper's rotary friction (``ROTARY_PAPER``: linear Stribeck decay,
+  event-exact step), with the sub-stepped ``exponential`` decay (default substeps), and with
+  ``NoFriction``, so the cost of each law is visible.
+
+Every variant is driven by the same pre-generated commands: per plant an AR(1) process
+(correlation time 20 ms, standard deviation 0.2 V) around the break-away level of
+±0.21 V / -0.19 V, so that about half the plants are stuck at any time and about one plant
+in ten switches between stick and slip at every step. The commands are stored in a
+``(T, N)`` table that the loops cycle through, so drawing them is not timed.
+
+Timing: one burn-in run (which also triggers numba's compile or cache load), a short run to
+calibrate the step count to ``--seconds``, then ``--repeats`` rounds in which each variant
+runs once, in an order rotated every round. Rates are medians over rounds. The ratio of a
+variant to the numpy reference is the median of the per-round ratios, so drift of the
+machine between rounds (up to 1.5x here, see research/perf.md) cancels out.
+
+As context only, gymnasium's ``CartPoleVectorEnv`` at 4 096 envs is timed against the Plant
+at the same batch size. That compares a full env step (physics, observation, reward,
+termination, autoreset) with a bare plant step, so it is a reference point, not a verdict.
+
+Run ``python scripts/bench_plants.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import math
+import os
+import platform
+import shlex
+import statistics
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from itertools import cycle, islice
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
+from frictiongym.plants import Plant, PlantParams
+
+FloatArray = npt.NDArray[np.float64]
+
+#: Runs a given number of steps of one variant.
+Runner = Callable[[int], None]
+
+PARAMS = PlantParams(inertia=7.143e-3, damping=0.0446, command_limit=10.0)
+DT = 0.002  #: control period, s
+COMMAND_STD = 0.2  #: standard deviation of the commands, V
+COMMAND_TAU = 0.02  #: correlation time of the commands, s
+TABLE_BYTES = 16 * 2**20  #: memory budget of one command table
+REF = "numpy ref"
+CONTEXT_ENVS = 4096
+
+
+@dataclass
+class Variant:
+    """One timed configuration: a label, a runner and what it steps."""
+
+    label: str
+    run: Runner
+    batch: int
+    substeps: int | None = None
+    plant: Plant | None = None
+    rates: list[float] = field(default_factory=list)
+
+
+def command_table(batch: int, seed: int) -> FloatArray:
+    """Pre-generated commands, shape ``(T, batch)``: one stationary AR(1) process per plant.
+
+    ``T`` is chosen so the table stays within ``TABLE_BYTES`` (at least 32 rows, at most
+    1 024), which keeps the memory traffic of reading commands the same order for all
+    variants; the loops cycle through the rows.
+    """
+    rows = int(min(1024, max(32, TABLE_BYTES // (8 * batch))))
+    rng = np.random.default_rng(seed)
+    a = math.exp(-DT / COMMAND_TAU)
+    table = np.empty((rows, batch))
+    table[0] = rng.normal(0.0, COMMAND_STD, batch)
+    for t in range(1, rows):
+        table[t] = a * table[t - 1] + math.sqrt(1.0 - a * a) * COMMAND_STD * rng.standard_normal(
+            batch
+        )
+    return table
+
+
+def zoh_coefficients(inertia: float, damping: float, dt: float) -> tuple[float, float, float, float]:
+    """Exact ZOH coefficients ``(c1, c2, c3, e)`` of ``J v' = u - B v``, ``x' = v``.
+
+    Over one period with ``u`` held: ``x+ = x + c1 v + c2 u`` and ``v+ = e v + c3 u``.
+    """
+    rate = damping / inertia
+    e = math.exp(-rate * dt)
+    c1 = -math.expm1(-rate * dt) / rate
+    c3 = c1 / inertia
+    c2 = (dt - c1) / damping
+    return c1, c2, c3, e
+
+
+def make_reference(table: FloatArray) -> tuple[Runner, FloatArray, FloatArray]:
+    """The numpy baseline: a frictionless linear plant stepped in a plain Python loop.
+
+    Returns the runner and the position and velocity arrays it updates in place.
+    """
+    batch = table.shape[1]
+    c1, c2, c3, e = zoh_coefficients(PARAMS.inertia, PARAMS.damping, DT)
+    x = np.zeros(batch)
+    v = np.zeros(batch)
+    rows = list(table)
+
+    def run(steps: int) -> None:
+        for u in islice(cycle(rows), steps):
+            x += c1 * v + c2 * u
+            v *= e
+            v += c3 * u
+
+    return run, x, v
+
+
+def make_plant(friction: FrictionModel, table: FloatArray) -> tuple[Runner, Plant]:
+    """A frictiongym Plant of the table's batch size, stepped with the table's rows."""
+    plant = Plant(PARAMS, friction, dt=DT, num_plants=table.shape[1])
+    rows = list(table)
+    step = plant.step
+
+    def run(steps: int) -> None:
+        for u in islice(cycle(rows), steps):
+            step(u)
+
+    return run, plant
+
+
+def make_cartpole(num_envs: int, seed: int) -> Runner:
+    """Gymnasium's CartPoleVectorEnv stepped with pre-generated actions (default autoreset)."""
+    import gymnasium
+
+    env = gymnasium.make_vec(
+        "CartPole-v1", num_envs=num_envs, vectorization_mode="vector_entry_point"
+    )
+    env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    rows = list(rng.integers(0, 2, size=(256, num_envs)))
+    step = env.step
+
+    def run(steps: int) -> None:
+        for action in islice(cycle(rows), steps):
+            step(action)
+
+    return run
+
+
+def check_reference(seed: int, steps: int = 500, batch: int = 64) -> float:
+    """Largest state difference between the numpy reference and ``Plant`` with NoFriction.
+
+    Both integrate the same linear ODE exactly, so they agree to rounding; this guards the
+    reference against a wrong coefficient.
+    """
+    table = command_table(batch, seed)
+    run, x, v = make_reference(table)
+    _, plant = make_plant(NoFriction(), table)
+    run(steps)
+    for u in islice(cycle(list(table)), steps):
+        plant.step(u)
+    scale = max(1.0, float(np.max(np.abs(x))), float(np.max(np.abs(v))))
+    return max(
+        float(np.max(np.abs(plant.position - x))), float(np.max(np.abs(plant.velocity - v)))
+    ) / scale
+
+
+def stick_slip_mix(friction: FrictionModel, seed: int, steps: int, batch: int = 4096) -> tuple[
+    float, float
+]:  # fmt: skip
+    """Mean stuck fraction and stick<->slip switches per plant-step under the bench commands.
+
+    Measured after a burn-in of one table length (at least 200 steps), untimed.
+    """
+    table = command_table(batch, seed)
+    rows = list(table)
+    plant = Plant(PARAMS, friction, dt=DT, num_plants=batch)
+    burn_in = max(200, len(rows))
+    for u in islice(cycle(rows), burn_in):
+        plant.step(u)
+    stuck_sum = 0.0
+    switches = 0
+    previous = plant.stuck.copy()
+    for u in islice(cycle(rows), burn_in, burn_in + steps):
+        plant.step(u)
+        now = plant.stuck
+        stuck_sum += float(now.mean())
+        switches += int(np.count_nonzero(now != previous))
+        previous = now.copy()
+    return stuck_sum / steps, switches / (steps * batch)
+
+
+def timed(run: Runner, steps: int) -> float:
+    """Wall time of ``run(steps)``, s."""
+    start = time.perf_counter()
+    run(steps)
+    return time.perf_counter() - start
+
+
+def calibrate(run: Runner, seconds: float) -> int:
+    """Number of steps for which ``run`` takes about ``seconds``."""
+    steps = 1
+    while True:
+        elapsed = timed(run, steps)
+        if elapsed >= min(0.05, seconds / 4) or steps >= 1 << 26:
+            return max(1, round(steps * seconds / elapsed))
+        steps *= 4
+
+
+def measure(variants: Sequence[Variant], repeats: int, seconds: float, burn_in: int) -> None:
+    """Warm up, calibrate and time the variants interleaved; fills ``Variant.rates``."""
+    steps = {}
+    for variant in variants:
+        variant.run(burn_in)
+        steps[variant.label] = calibrate(variant.run, seconds)
+    for r in range(repeats):
+        shift = r % len(variants)
+        for variant in list(variants[shift:]) + list(variants[:shift]):
+            n = steps[variant.label]
+            variant.rates.append(variant.batch * n / timed(variant.run, n))
+
+
+def paired_ratios(variant: Variant, reference: Variant) -> list[float]:
+    """Per-round ratios of a variant's rate to the reference's rate."""
+    return [a / b for a, b in zip(variant.rates, reference.rates, strict=True)]
+
+
+def si(rate: float) -> str:
+    """Format a rate like ``13.7 M``."""
+    for scale, suffix in ((1e9, " G"), (1e6, " M"), (1e3, " k")):
+        if rate >= scale:
+            return f"{rate / scale:.3g}{suffix}"
+    return f"{rate:.3g}"
+
+
+def machine_line() -> str:
+    """CPU, core count and software versions."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open("/proc/cpuinfo", encoding="utf-8") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    try:
+        import gymnasium
+
+        gym = f", gymnasium {gymnasium.__version__}"
+    except ImportError:
+        gym = ""
+    return (
+        f"{cpu}, {os.cpu_count()} CPUs, {platform.system()} {platform.release()}; "
+        f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}"
+        f"{gym}"
+    )
+
+
+def stats(values: Sequence[float]) -> str:
+    """``median [min-max]`` of rates."""
+    return f"{si(statistics.median(values))} [{si(min(values))}–{si(max(values))}]"
+
+
+def ratio_stats(values: Sequence[float]) -> str:
+    """``median [min-max]`` of ratios."""
+    return f"{statistics.median(values):.2f} [{min(values):.2f}–{max(values):.2f}]"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Command-line options."""
+    parser = argparse.ArgumentParser(
+        prog="bench_plants.py",
+        description=(
+            "Plant steps per second of frictiongym's compiled Plant (ROTARY_PAPER exact, "
+            "exponential sub-stepped, NoFriction) against a bare numpy loop of the frictionless "
+            "linear plant at the same batch size, timed interleaved in one process. Ratios to "
+            "the numpy loop are the meaningful figure: absolute rates drift by up to 1.5x "
+            "between runs on the project machine."
+        ),
+    )
+    parser.add_argument(
+        "--batches",
+        type=int,
+        nargs="+",
+        default=[1, 1024, 65536],
+        metavar="N",
+        help="batch sizes (number of plants stepped per call) to time (default: 1 1024 65536)",
+    )
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=5,
+        help="timed rounds per batch size; each round runs every variant once and the "
+        "tables report medians (default: 5)",
+    )
+    parser.add_argument(
+        "--seconds",
+        type=float,
+        default=0.5,
+        help="target wall time of one timed run of one variant, s; the step count is "
+        "calibrated to it after warm-up (default: 0.5)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="fast smoke run: batches 1 and 1024, 2 rounds of 0.05 s, short stick/slip "
+        "characterisation; figures are then too noisy to quote",
+    )
+    parser.add_argument(
+        "--markdown",
+        action="store_true",
+        help="also print the results as markdown tables ready for docs/benchmarks.md",
+    )
+    parser.add_argument(
+        "--no-context",
+        action="store_true",
+        help=f"skip the context comparison with gymnasium's CartPoleVectorEnv at "
+        f"{CONTEXT_ENVS} envs",
+    )
+    parser.add_argument(
+        "--seed",
+        type=int,
+        default=0,
+        help="seed of the pre-generated commands and CartPole actions (default: 0)",
+    )
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark and print the results; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.quick:
+        args.batches, args.repeats, args.seconds = [1, 1024], 2, 0.05
+    if any(n < 1 for n in args.batches) or args.repeats < 1 or args.seconds <= 0.0:
+        parser.error("batches and repeats must be positive and seconds > 0")
+    shown_argv = sys.argv[1:] if argv is None else argv
+    command = shlex.join(["python", "scripts/bench_plants.py", *shown_argv])
+    today = datetime.date.today().isoformat()
+
+    print(f"command: {command}")
+    print(f"date:    {today}")
+    print(f"machine: {machine_line()}")
+    print(
+        f"plant:   J={PARAMS.inertia} B={PARAMS.damping} dt={DT} s; commands AR(1), "
+        f"std {COMMAND_STD} V, correlation time {COMMAND_TAU * 1e3:g} ms"
+    )
+
+    start = time.perf_counter()
+    probe = Plant(PARAMS, ROTARY_PAPER, dt=DT)
+    probe.step(0.0)
+    print(f"first Plant.step in this process (numba compile or cache load): "
+          f"{time.perf_counter() - start:.3f} s")  # fmt: skip
+    error = check_reference(args.seed)
+    print(f"numpy ref vs Plant(NoFriction), 500 steps: max relative state difference {error:.1e}")
+    if error > 1e-9:
+        print("error: the numpy reference does not match the frictionless Plant", file=sys.stderr)
+        return 1
+
+    laws: list[tuple[str, FrictionModel]] = [
+        ("ROTARY_PAPER linear (exact)", ROTARY_PAPER),
+        ("ROTARY_PAPER exponential", ROTARY_PAPER.replace(shape="exponential")),
+        ("NoFriction", NoFriction()),
+    ]
+    mix_steps = 200 if args.quick else 1000
+    print(f"\nstick/slip mix under these commands (4096 plants, {mix_steps} steps, untimed):")
+    mixes: dict[str, tuple[float, float]] = {}
+    for label, law in laws:
+        mixes[label] = stick_slip_mix(law, args.seed, mix_steps)
+        stuck, switches = mixes[label]
+        print(f"  {label:28s} stuck {stuck:6.1%}   stick<->slip switches {switches:6.1%} "
+              "of plant-steps")  # fmt: skip
+
+    results: dict[int, list[Variant]] = {}
+    for batch in args.batches:
+        table = command_table(batch, args.seed)
+        ref_run, _, _ = make_reference(table)
+        variants = [Variant(REF, ref_run, batch)]
+        for label, law in laws:
+            run, plant = make_plant(law, table)
+            variants.append(Variant(label, run, batch, plant.substeps, plant))
+        burn_in = max(100, table.shape[0])
+        measure(variants, args.repeats, args.seconds, burn_in)
+        results[batch] = variants
+        print(f"\nN = {batch}  ({table.shape[0]}-row command table; plant-steps/s, median "
+              f"[min–max] of {args.repeats} rounds)")  # fmt: skip
+        ref = variants[0]
+        for variant in variants:
+            ns = 1e9 / statistics.median(variant.rates)
+            line = f"  {variant.label:28s} {stats(variant.rates):28s} {ns:9.1f} ns/plant-step"
+            if variant is not ref:
+                line += f"   x ref {ratio_stats(paired_ratios(variant, ref))}"
+                assert variant.plant is not None
+                line += f"   stuck now {variant.plant.stuck.mean():.0%}"
+            print(line)
+
+    context: list[Variant] = []
+    if not args.no_context:
+        table = command_table(CONTEXT_ENVS, args.seed)
+        ref_run, _, _ = make_reference(table)
+        plant_run, _ = make_plant(ROTARY_PAPER, table)
+        context = [
+            Variant("gymnasium CartPoleVectorEnv", make_cartpole(CONTEXT_ENVS, args.seed),
+                    CONTEXT_ENVS),
+            Variant("Plant ROTARY_PAPER linear", plant_run, CONTEXT_ENVS),
+            Variant(REF, ref_run, CONTEXT_ENVS),
+        ]  # fmt: skip
+        measure(context, args.repeats, args.seconds, burn_in=max(100, table.shape[0]))
+        print(f"\ncontext only, N = {CONTEXT_ENVS}: env-steps/s of a full CartPole env step vs "
+              "plant-steps/s of a bare plant step")  # fmt: skip
+        for variant in context:
+            line = f"  {variant.label:28s} {stats(variant.rates):28s}"
+            if variant is not context[0]:
+                line += f"   x CartPole {ratio_stats(paired_ratios(variant, context[0]))}"
+            print(line)
+
+    print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
+    if args.markdown:
+        print()
+        print(markdown(results, mixes, context, args.repeats))
+    return 0
+
+
+def markdown(
+    results: dict[int, list[Variant]],
+    mixes: dict[str, tuple[float, float]],
+    context: Sequence[Variant],
+    repeats: int,
+) -> str:
+    """Results as markdown tables."""
+    lines = [
+        f"| N | variant | substeps | plant-steps/s, median [min–max] of {repeats} | "
+        "ns per plant-step | ratio to numpy ref, median [min–max] | stuck (mean) |",
+        "|---:|---|---:|---|---:|---|---:|",
+    ]
+    for batch, variants in results.items():
+        ref = variants[0]
+        for variant in variants:
+            ns = 1e9 / statistics.median(variant.rates)
+            if variant is ref:
+                ratio, substeps, stuck = "1 (reference)", "exact", "–"
+            else:
+                ratio = ratio_stats(paired_ratios(variant, ref))
+                substeps = str(variant.substeps)
+                stuck = f"{mixes[variant.label][0]:.0%}"
+            lines.append(
+                f"| {batch:,} | {variant.label} | {substeps} | {stats(variant.rates)} | "
+                f"{ns:.1f} | {ratio} | {stuck} |".replace(",", " ")
+            )
+    if context:
+        lines += [
+            "",
+            f"Context only (N = {CONTEXT_ENVS:,}; a full CartPole env step against a bare plant "
+            "step):".replace(",", " "),
+            "",
+            "| variant | steps/s, median [min–max] | ratio to CartPoleVectorEnv, median [min–max] |",
+            "|---|---|---|",
+        ]
+        for variant in context:
+            ratio = (
+                "1 (reference)"
+                if variant is context[0]
+                else ratio_stats(paired_ratios(variant, context[0]))
+            )
+            lines.append(f"| {variant.label} | {stats(variant.rates)} | {ratio} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
