@@ -18,15 +18,19 @@ def _format(value: float, unit: str) -> str:
 
 def _demo(args: argparse.Namespace) -> int:
     from frictiongym.controllers.pid import PIDGains
-    from frictiongym.friction import NoFriction, friction_from_name
+    from frictiongym.friction import FrictionModel, NoFriction, friction_from_name
     from frictiongym.friction.presets import ROTARY_LUGRE, ROTARY_PAPER
     from frictiongym.loops import rotary_step
     from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 
     gains = PIDGains(**ROTARY_PAPER_GAINS)
-    cases = [("nominal (no friction)", NoFriction())]
-    cases.append((f"friction: {args.friction}", friction_from_name(args.friction, ROTARY_PAPER,
-                                                                    ROTARY_LUGRE)))  # fmt: skip
+    cases: list[tuple[str, FrictionModel]] = [("nominal (no friction)", NoFriction())]
+    cases.append(
+        (
+            f"friction: {args.friction}",
+            friction_from_name(args.friction, ROTARY_PAPER, ROTARY_LUGRE),
+        )
+    )
     print(
         f"QUBE-Servo 2, step of {args.reference} rad, PID Kp={gains.kp} Ki={gains.ki} "
         f"Kd={gains.kd} (paper §3.1), {args.duration} s at 500 Hz, "
@@ -69,7 +73,7 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of ``frictiongym``."""
+    """Build the argument parser of ``frictiongym``."""
     parser = argparse.ArgumentParser(
         prog="frictiongym",
         description="Friction identification and compensation for motion control: "
@@ -84,15 +88,24 @@ def build_parser() -> argparse.ArgumentParser:
         "(Kp=7.8, Ki=1.5, Kd=0.275), on the nominal plant and with friction, and print the "
         "step metrics of both.",
     )
-    demo.add_argument("--friction", default="paper",
-                      choices=["paper", "coulomb", "stribeck", "lugre"],
-                      help="friction law added to the nominal plant (default: paper)")  # fmt: skip
-    demo.add_argument("--reference", type=float, default=1.0,
-                      help="step size in rad (default: 1.0)")  # fmt: skip
-    demo.add_argument("--duration", type=float, default=5.0,
-                      help="simulated time in s (default: 5.0)")  # fmt: skip
-    demo.add_argument("--no-encoder", dest="encoder", action="store_false",
-                      help="feed the PID the true angle instead of 2048-count encoder readings")  # fmt: skip
+    demo.add_argument(
+        "--friction",
+        default="paper",
+        choices=["paper", "coulomb", "stribeck", "lugre"],
+        help="friction law added to the nominal plant (default: paper)",
+    )
+    demo.add_argument(
+        "--reference", type=float, default=1.0, help="step size in rad (default: 1.0)"
+    )
+    demo.add_argument(
+        "--duration", type=float, default=5.0, help="simulated time in s (default: 5.0)"
+    )
+    demo.add_argument(
+        "--no-encoder",
+        dest="encoder",
+        action="store_false",
+        help="feed the PID the true angle instead of 2048-count encoder readings",
+    )
     demo.add_argument("--plot", metavar="PNG", help="also write the responses to this PNG file")
     demo.set_defaults(func=_demo)
     return parser

@@ -27,7 +27,7 @@ class StepMetrics:
     steady_state_error_pct: float  #: the same, % of the step
 
     def as_dict(self) -> dict[str, float]:
-        """The metrics as a plain dict."""
+        """Return the metrics as a plain dict."""
         return asdict(self)
 
 

@@ -17,7 +17,10 @@ FloatArray = npt.NDArray[np.float64]
 
 @dataclass(frozen=True)
 class PIDGains:
-    """PID gains in command units per position unit (``ki`` per position unit·s, ``kd`` per velocity unit)."""
+    """PID gains, in command units per position unit.
+
+    ``ki`` is per position unit and second, ``kd`` per velocity unit.
+    """
 
     kp: float
     ki: float = 0.0

@@ -24,8 +24,12 @@ SHAPE_STEP = 0
 SHAPE_LINEAR = 1
 SHAPE_SMOOTH = 2
 SHAPE_EXPONENTIAL = 3
-SHAPES = {"step": SHAPE_STEP, "linear": SHAPE_LINEAR, "smooth": SHAPE_SMOOTH,
-          "exponential": SHAPE_EXPONENTIAL}  # fmt: skip
+SHAPES = {
+    "step": SHAPE_STEP,
+    "linear": SHAPE_LINEAR,
+    "smooth": SHAPE_SMOOTH,
+    "exponential": SHAPE_EXPONENTIAL,
+}
 
 # Row layout of a packed friction model.
 I_LAW = 0
@@ -131,10 +135,13 @@ def _sliding_force_scalar(
 
 
 @vectorize(
-    [float64(float64, float64, float64, float64, float64, float64, float64, float64, float64,
-             float64)],
+    [
+        float64(
+            float64, float64, float64, float64, float64, float64, float64, float64, float64, float64
+        )
+    ],
     cache=True,
-)  # fmt: skip
+)
 def sliding_force_ufunc(
     v: float,
     law: float,
@@ -151,5 +158,6 @@ def sliding_force_ufunc(
 
     Zero at ``v == 0``, where static friction is set-valued and decided by the plant.
     """
-    return _sliding_force_scalar(v, law, shape, us_pos, us_neg, uc_pos, uc_neg, v0_pos, v0_neg,
-                                 viscous)  # fmt: skip
+    return _sliding_force_scalar(
+        v, law, shape, us_pos, us_neg, uc_pos, uc_neg, v0_pos, v0_neg, viscous
+    )

@@ -93,7 +93,10 @@ class FrictionModel(ABC):
     @property
     @abstractmethod
     def breakaway(self) -> tuple[float, float]:
-        """Break-away magnitudes ``(us_pos, us_neg)``: the band of inputs that holds a body at rest."""
+        """Break-away magnitudes ``(us_pos, us_neg)``.
+
+        The body stays at rest while the input lies in ``[-us_neg, us_pos]``.
+        """
 
     @property
     def is_dynamic(self) -> bool:
@@ -113,9 +116,7 @@ class FrictionModel(ABC):
         """
         p = self.row()
         return np.asarray(
-            _core.sliding_force_ufunc(
-                np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1]
-            )
+            _core.sliding_force_ufunc(np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1])
         )
 
     def nonlinear_force(self, v: ArrayLike) -> npt.NDArray[np.float64]:
@@ -123,9 +124,7 @@ class FrictionModel(ABC):
         p = self.row()
         p[_core.I_VISCOUS] = 0.0
         return np.asarray(
-            _core.sliding_force_ufunc(
-                np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1]
-            )
+            _core.sliding_force_ufunc(np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1])
         )
 
     def replace(self, **changes: float | str) -> FrictionModel:
@@ -287,8 +286,17 @@ class LuGre(FrictionModel):
     name: ClassVar[str] = "lugre"
 
     def __post_init__(self) -> None:
-        fields = ("us_pos", "us_neg", "uc_pos", "uc_neg", "vs_pos", "vs_neg", "sigma0",
-                  "sigma1", "viscous")  # fmt: skip
+        fields = (
+            "us_pos",
+            "us_neg",
+            "uc_pos",
+            "uc_neg",
+            "vs_pos",
+            "vs_neg",
+            "sigma0",
+            "sigma1",
+            "viscous",
+        )
         _check_finite(self, *fields)
         _check_nonnegative(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "sigma1", "viscous")
         _check_positive(self, "vs_pos", "vs_neg", "sigma0")

@@ -66,7 +66,9 @@ def _phi12(ell: float) -> tuple[float, float]:
 
 
 @njit(cache=True)
-def affine_advance(x: float, v: float, a: float, b: float, j: float, t: float) -> tuple[float, float]:
+def affine_advance(
+    x: float, v: float, a: float, b: float, j: float, t: float
+) -> tuple[float, float]:
     """Advance ``j v' = a - b v``, ``x' = v`` by time ``t`` in closed form.
 
     Written with ``E1``/``E2`` so it stays accurate for ``b -> 0`` and for negative ``b``

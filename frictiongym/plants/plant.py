@@ -11,6 +11,7 @@ import math
 import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -85,8 +86,9 @@ def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     return row
 
 
-def default_substeps(params: Sequence[PlantParams], frictions: Sequence[FrictionModel],
-                     dt: float) -> int:  # fmt: skip
+def default_substeps(
+    params: Sequence[PlantParams], frictions: Sequence[FrictionModel], dt: float
+) -> int:
     """Substeps per control period that the laws and the actuator need.
 
     One for the exact laws without actuator lag; otherwise enough for the split scheme's
@@ -130,6 +132,12 @@ class Plant:
     :mod:`frictiongym.plants._kernel`); the properties below are views into it.
     """
 
+    dt: float
+    num_plants: int
+    substeps: int
+    delay_steps: int
+    _head: int
+
     def __init__(
         self,
         params: PlantParams | Sequence[PlantParams],
@@ -156,15 +164,18 @@ class Plant:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         self.substeps = int(substeps)
         count = max(len(self._params), len(self._frictions))
-        pairs = zip(self._params * (count // len(self._params)),
-                    self._frictions * (count // len(self._frictions)), strict=True)  # fmt: skip
+        pairs = zip(
+            self._params * (count // len(self._params)),
+            self._frictions * (count // len(self._frictions)),
+            strict=True,
+        )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
         self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE))
         self._delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
         self._head = 0
         self.reset()
 
-    def _per_plant(self, value: object, name: str) -> list:  # type: ignore[type-arg]
+    def _per_plant(self, value: Any, name: str) -> list[Any]:
         if isinstance(value, Sequence) and not isinstance(value, str):
             if len(value) != self.num_plants:
                 raise ValueError(

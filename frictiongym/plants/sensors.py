@@ -77,13 +77,19 @@ class FilteredDerivative:
 
     def reset(self, position: npt.ArrayLike = 0.0, velocity: npt.ArrayLike = 0.0) -> None:
         """Start from a measured ``position`` with the estimate at ``velocity``."""
-        self._previous = np.broadcast_to(np.asarray(position, np.float64), self._previous.shape).copy()
-        self._estimate = np.broadcast_to(np.asarray(velocity, np.float64), self._estimate.shape).copy()
+        self._previous = np.broadcast_to(
+            np.asarray(position, np.float64), self._previous.shape
+        ).copy()
+        self._estimate = np.broadcast_to(
+            np.asarray(velocity, np.float64), self._estimate.shape
+        ).copy()
 
     def update(self, position: npt.ArrayLike) -> FloatArray:
         """Feed the newest position sample; return the velocity estimate."""
         y = np.asarray(position, dtype=np.float64)
-        self._estimate = self.pole * self._estimate + (1.0 - self.pole) * (y - self._previous) / self.dt
+        self._estimate = (
+            self.pole * self._estimate + (1.0 - self.pole) * (y - self._previous) / self.dt
+        )
         self._previous = y.copy()
         return self._estimate
 

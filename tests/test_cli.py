@@ -1,0 +1,39 @@
+import subprocess
+import sys
+
+import pytest
+
+from frictiongym.cli import main
+
+
+def test_demo_prints_the_step_metrics(capsys):
+    assert main(["demo", "--duration", "1.0"]) == 0
+    out = capsys.readouterr().out
+    assert "nominal (no friction)" in out
+    assert "friction: paper" in out
+    assert "Kp=7.8 Ki=1.5 Kd=0.275" in out
+
+
+def test_demo_plot(tmp_path, capsys):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "demo.png"
+    assert main(["demo", "--duration", "0.5", "--plot", str(png)]) == 0
+    assert png.stat().st_size > 1000
+
+
+def test_bad_arguments_exit_with_a_message(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["demo", "--duration", "-1"])
+    assert info.value.code == 2
+    assert "--duration must be a positive number" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["demo", "--friction", "sandpaper"])
+    assert "invalid choice" in capsys.readouterr().err
+
+
+def test_console_script_help():
+    out = subprocess.run(
+        [sys.executable, "-m", "frictiongym.cli", "--help"], capture_output=True, text=True
+    )
+    assert out.returncode == 0
+    assert "demo" in out.stdout

@@ -1,0 +1,86 @@
+import math
+
+import control
+import numpy as np
+import pytest
+
+from frictiongym.plants.sensors import (
+    FilteredDerivative,
+    ir_distance,
+    ir_readout,
+    quantize_angle,
+)
+
+Q = 2 * math.pi / 2048
+
+
+def test_encoder_quantisation_error_is_at_most_half_a_count():
+    angle = np.linspace(-7.0, 7.0, 100_001)
+    measured = quantize_angle(angle)
+    assert np.all(np.abs(measured - angle) <= Q / 2 + 1e-15)
+    counts = measured / Q
+    np.testing.assert_allclose(counts, np.round(counts), atol=1e-9)
+    assert np.all(np.diff(measured) >= 0)
+    assert quantize_angle(0.0) == 0.0
+    assert quantize_angle(0.49 * Q) == 0.0
+    assert quantize_angle(0.51 * Q) == pytest.approx(Q)
+
+
+def test_filtered_derivative_is_the_ramp_invariant_discretisation():
+    w, dt = 50.0, 0.002
+    ref = control.sample_system(control.tf([w, 0.0], [1.0, w]), dt, method="foh")
+    rng = np.random.default_rng(0)
+    y = np.cumsum(rng.normal(size=400)) * 1e-3
+    t = np.arange(y.size) * dt
+    expected = np.asarray(control.forced_response(ref, t, y - y[0]).outputs).ravel()
+    filt = FilteredDerivative(w, dt)
+    filt.reset(position=y[0])
+    ours = np.array([float(filt.update(v)) for v in y])
+    np.testing.assert_allclose(ours, expected, atol=1e-9)
+
+
+def test_filtered_derivative_tracks_a_ramp_and_is_batched():
+    filt = FilteredDerivative(50.0, 0.002, shape=(3,))
+    slopes = np.array([1.0, -2.0, 0.5])
+    for k in range(1, 2000):
+        est = filt.update(slopes * k * 0.002)
+    np.testing.assert_allclose(est, slopes, rtol=1e-12)
+    with pytest.raises(ValueError, match="cutoff"):
+        FilteredDerivative(-1.0, 0.002)
+    with pytest.raises(ValueError, match="dt"):
+        FilteredDerivative(50.0, 0.0)
+
+
+def test_ir_readout_inverts_the_papers_equation():
+    d = np.linspace(1.5, 20.0, 500)
+    x = ir_readout(d)
+    assert x.dtype == np.int64
+    # rounding the readout costs at most half a count of distance
+    half_count = 0.5 * d**2 / 966.0
+    assert np.all(np.abs(ir_distance(x) - d) <= half_count * 1.01 + 1e-12)
+    assert ir_readout(5.0) == round(966 / 5 - 45)
+    assert np.all(np.diff(x) <= 0)  # farther wall, weaker signal
+
+
+def test_ir_readout_saturates_at_both_ends():
+    assert ir_readout(30.0) == 0
+    assert ir_readout(966 / 45 + 0.5) == 0
+    assert ir_readout(1.0) == 800
+    assert ir_distance(0) == pytest.approx(966 / 45)
+    assert ir_distance(800) == pytest.approx(966 / 845)
+
+
+def test_ir_gain_offset_and_noise():
+    base = ir_readout(5.0)
+    assert ir_readout(5.0, gain=1.2) > base  # more reflective wall reads nearer
+    assert ir_distance(ir_readout(5.0, gain=1.2)) < 5.0
+    assert ir_readout(5.0, offset=10.0) == base + 10
+    noisy = ir_readout(np.full(1000, 5.0), noise=np.random.default_rng(1).normal(0, 3, 1000))
+    assert noisy.std() == pytest.approx(3.0, rel=0.15)
+
+
+def test_ir_rejects_contact_with_the_wall():
+    with pytest.raises(ValueError, match="touching the wall"):
+        ir_readout(0.0)
+    with pytest.raises(ValueError, match="touching the wall"):
+        ir_readout(np.array([5.0, float("nan")]))
