@@ -38,6 +38,7 @@ import os
 import platform
 import shlex
 import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -48,6 +49,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+import frictiongym
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
 from frictiongym.plants import Plant, PlantParams
 
@@ -73,7 +75,6 @@ class Variant:
     run: Runner
     batch: int
     substeps: int | None = None
-    plant: Plant | None = None
     rates: list[float] = field(default_factory=list)
 
 
@@ -96,7 +97,9 @@ def command_table(batch: int, seed: int) -> FloatArray:
     return table
 
 
-def zoh_coefficients(inertia: float, damping: float, dt: float) -> tuple[float, float, float, float]:
+def zoh_coefficients(
+    inertia: float, damping: float, dt: float
+) -> tuple[float, float, float, float]:
     """Exact ZOH coefficients ``(c1, c2, c3, e)`` of ``J v' = u - B v``, ``x' = v``.
 
     Over one period with ``u`` held: ``x+ = x + c1 v + c2 u`` and ``v+ = e v + c3 u``.
@@ -116,17 +119,18 @@ def make_reference(table: FloatArray) -> tuple[Runner, FloatArray, FloatArray]:
     """
     batch = table.shape[1]
     c1, c2, c3, e = zoh_coefficients(PARAMS.inertia, PARAMS.damping, DT)
-    x = np.zeros(batch)
-    v = np.zeros(batch)
+    position = np.zeros(batch)
+    velocity = np.zeros(batch)
     rows = list(table)
 
     def run(steps: int) -> None:
+        x, v = position, velocity
         for u in islice(cycle(rows), steps):
             x += c1 * v + c2 * u
             v *= e
             v += c3 * u
 
-    return run, x, v
+    return run, position, velocity
 
 
 def make_plant(friction: FrictionModel, table: FloatArray) -> tuple[Runner, Plant]:
@@ -174,9 +178,10 @@ def check_reference(seed: int, steps: int = 500, batch: int = 64) -> float:
     for u in islice(cycle(list(table)), steps):
         plant.step(u)
     scale = max(1.0, float(np.max(np.abs(x))), float(np.max(np.abs(v))))
-    return max(
-        float(np.max(np.abs(plant.position - x))), float(np.max(np.abs(plant.velocity - v)))
-    ) / scale
+    return (
+        max(float(np.max(np.abs(plant.position - x))), float(np.max(np.abs(plant.velocity - v))))
+        / scale
+    )
 
 
 def stick_slip_mix(friction: FrictionModel, seed: int, steps: int, batch: int = 4096) -> tuple[
@@ -247,6 +252,11 @@ def si(rate: float) -> str:
     return f"{rate:.3g}"
 
 
+def thousands(n: int) -> str:
+    """Format an integer with space-separated thousands, like ``65 536``."""
+    return f"{n:,}".replace(",", " ")
+
+
 def machine_line() -> str:
     """CPU, core count and software versions."""
     cpu = platform.processor() or platform.machine()
@@ -271,14 +281,37 @@ def machine_line() -> str:
     )
 
 
+def _git(root: str, *args: str) -> str:
+    """Output of a read-only git command in ``root`` (no optional index locks)."""
+    done = subprocess.run(
+        ["git", "--no-optional-locks", "-C", root, *args],
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=10,
+    )
+    return done.stdout.strip()
+
+
+def source_revision() -> str:
+    """Git commit of the checkout holding frictiongym, with ``+dirty`` if its files differ."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(frictiongym.__file__)))
+    try:
+        commit = _git(root, "rev-parse", "--short", "HEAD")
+        changed = _git(root, "status", "--porcelain", "--untracked-files=no", "--", "frictiongym")
+    except (OSError, subprocess.SubprocessError):
+        return "unknown (not a git checkout)"
+    return commit + (" +dirty (uncommitted changes under frictiongym/)" if changed else "")
+
+
 def stats(values: Sequence[float]) -> str:
-    """``median [min-max]`` of rates."""
-    return f"{si(statistics.median(values))} [{si(min(values))}–{si(max(values))}]"
+    """``median [min, max]`` of rates."""
+    return f"{si(statistics.median(values))} [{si(min(values))}, {si(max(values))}]"
 
 
 def ratio_stats(values: Sequence[float]) -> str:
-    """``median [min-max]`` of ratios."""
-    return f"{statistics.median(values):.2f} [{min(values):.2f}–{max(values):.2f}]"
+    """``median [min, max]`` of ratios."""
+    return f"{statistics.median(values):.3g} [{min(values):.3g}, {max(values):.3g}]"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -297,29 +330,31 @@ def build_parser() -> argparse.ArgumentParser:
         "--batches",
         type=int,
         nargs="+",
-        default=[1, 1024, 65536],
+        default=None,
         metavar="N",
-        help="batch sizes (number of plants stepped per call) to time (default: 1 1024 65536)",
+        help="batch sizes (number of plants stepped per call) to time (default: 1 1024 65536; "
+        "with --quick: 1 1024)",
     )
     parser.add_argument(
         "--repeats",
         type=int,
-        default=5,
+        default=None,
         help="timed rounds per batch size; each round runs every variant once and the "
-        "tables report medians (default: 5)",
+        "tables report medians (default: 5; with --quick: 2)",
     )
     parser.add_argument(
         "--seconds",
         type=float,
-        default=0.5,
+        default=None,
         help="target wall time of one timed run of one variant, s; the step count is "
-        "calibrated to it after warm-up (default: 0.5)",
+        "calibrated to it after warm-up (default: 0.5; with --quick: 0.05)",
     )
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="fast smoke run: batches 1 and 1024, 2 rounds of 0.05 s, short stick/slip "
-        "characterisation; figures are then too noisy to quote",
+        help="fast smoke run (a few seconds): smaller defaults for --batches, --repeats and "
+        "--seconds (explicit values still win) and a short stick/slip characterisation; the "
+        "figures are then too noisy to quote",
     )
     parser.add_argument(
         "--markdown",
@@ -345,8 +380,13 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print the results; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.quick:
-        args.batches, args.repeats, args.seconds = [1, 1024], 2, 0.05
+    defaults = ([1, 1024], 2, 0.05) if args.quick else ([1, 1024, 65536], 5, 0.5)
+    if args.batches is None:
+        args.batches = defaults[0]
+    if args.repeats is None:
+        args.repeats = defaults[1]
+    if args.seconds is None:
+        args.seconds = defaults[2]
     if any(n < 1 for n in args.batches) or args.repeats < 1 or args.seconds <= 0.0:
         parser.error("batches and repeats must be positive and seconds > 0")
     shown_argv = sys.argv[1:] if argv is None else argv
@@ -356,6 +396,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"command: {command}")
     print(f"date:    {today}")
     print(f"machine: {machine_line()}")
+    print(f"source:  frictiongym {source_revision()}")
     print(
         f"plant:   J={PARAMS.inertia} B={PARAMS.damping} dt={DT} s; commands AR(1), "
         f"std {COMMAND_STD} V, correlation time {COMMAND_TAU * 1e3:g} ms"
@@ -393,20 +434,18 @@ def main(argv: list[str] | None = None) -> int:
         variants = [Variant(REF, ref_run, batch)]
         for label, law in laws:
             run, plant = make_plant(law, table)
-            variants.append(Variant(label, run, batch, plant.substeps, plant))
+            variants.append(Variant(label, run, batch, plant.substeps))
         burn_in = max(100, table.shape[0])
         measure(variants, args.repeats, args.seconds, burn_in)
         results[batch] = variants
         print(f"\nN = {batch}  ({table.shape[0]}-row command table; plant-steps/s, median "
-              f"[min–max] of {args.repeats} rounds)")  # fmt: skip
+              f"[min, max] of {args.repeats} rounds)")  # fmt: skip
         ref = variants[0]
         for variant in variants:
             ns = 1e9 / statistics.median(variant.rates)
             line = f"  {variant.label:28s} {stats(variant.rates):28s} {ns:9.1f} ns/plant-step"
             if variant is not ref:
                 line += f"   x ref {ratio_stats(paired_ratios(variant, ref))}"
-                assert variant.plant is not None
-                line += f"   stuck now {variant.plant.stuck.mean():.0%}"
             print(line)
 
     context: list[Variant] = []
@@ -444,8 +483,8 @@ def markdown(
 ) -> str:
     """Results as markdown tables."""
     lines = [
-        f"| N | variant | substeps | plant-steps/s, median [min–max] of {repeats} | "
-        "ns per plant-step | ratio to numpy ref, median [min–max] | stuck (mean) |",
+        f"| N | variant | substeps | plant-steps/s, median [min, max] of {repeats} | "
+        "ns per plant-step | ratio to numpy ref, median [min, max] | stuck (mean) |",
         "|---:|---|---:|---|---:|---|---:|",
     ]
     for batch, variants in results.items():
@@ -453,22 +492,23 @@ def markdown(
         for variant in variants:
             ns = 1e9 / statistics.median(variant.rates)
             if variant is ref:
-                ratio, substeps, stuck = "1 (reference)", "exact", "–"
+                ratio, substeps, stuck = "1 (reference)", "exact", "-"
             else:
                 ratio = ratio_stats(paired_ratios(variant, ref))
                 substeps = str(variant.substeps)
                 stuck = f"{mixes[variant.label][0]:.0%}"
             lines.append(
-                f"| {batch:,} | {variant.label} | {substeps} | {stats(variant.rates)} | "
-                f"{ns:.1f} | {ratio} | {stuck} |".replace(",", " ")
+                f"| {thousands(batch)} | {variant.label} | {substeps} | {stats(variant.rates)} | "
+                f"{ns:.1f} | {ratio} | {stuck} |"
             )
     if context:
         lines += [
             "",
-            f"Context only (N = {CONTEXT_ENVS:,}; a full CartPole env step against a bare plant "
-            "step):".replace(",", " "),
+            f"Context only (N = {thousands(CONTEXT_ENVS)}; a full CartPole env step against a "
+            "bare plant step):",
             "",
-            "| variant | steps/s, median [min–max] | ratio to CartPoleVectorEnv, median [min–max] |",
+            "| variant | steps/s, median [min, max] | "
+            "ratio to CartPoleVectorEnv, median [min, max] |",
             "|---|---|---|",
         ]
         for variant in context:
