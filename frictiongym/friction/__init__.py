@@ -8,6 +8,7 @@ from frictiongym.friction.laws import (
     StictionCoulomb,
 )
 from frictiongym.friction.presets import (
+    ALTINO_LUGRE,
     ALTINO_PAPER,
     FRICTION_NAMES,
     ROTARY_LUGRE,
@@ -16,6 +17,7 @@ from frictiongym.friction.presets import (
 )
 
 __all__ = [
+    "ALTINO_LUGRE",
     "ALTINO_PAPER",
     "FRICTION_NAMES",
     "ROTARY_LUGRE",

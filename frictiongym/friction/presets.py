@@ -42,6 +42,17 @@ ROTARY_LUGRE = LuGre(
     sigma0=100.0, sigma1=2.0 * math.sqrt(100.0 * 7.143e-3), viscous=0.0,
 )  # fmt: skip
 
+#: Altino, same construction. sigma0 and sigma1 are *assumed* (docs/altino-model.md): a
+#: pre-sliding deflection u_s/sigma0 = 200/4000 = 0.05 cm at break-away (tyre and gear-train
+#: compliance; about two IR counts at the 5 cm target, where one count is 0.026 cm) and a
+#: critically damped bristle mode with the 2.2 units·s²/cm mass of ``ALTINO_PLANT`` (written
+#: as a literal, like J_e above, so this module does not import the plant package).
+ALTINO_LUGRE = LuGre(
+    us_pos=200.0, us_neg=200.0, uc_pos=150.4, uc_neg=119.6,
+    vs_pos=13.8 / _GAUSS_V0_OVER_VS, vs_neg=10.9 / _GAUSS_V0_OVER_VS,
+    sigma0=4000.0, sigma1=2.0 * math.sqrt(4000.0 * 2.2), viscous=10.93,
+)  # fmt: skip
+
 
 def _variants(paper: StictionCoulomb, lugre: LuGre) -> dict[str, FrictionModel]:
     return {

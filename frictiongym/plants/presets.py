@@ -27,17 +27,31 @@ ROTARY_PAPER_GAINS = {"kp": 7.8, "ki": 1.5, "kd": 0.275}
 
 # --- Altino (position in cm toward the wall, velocity in cm/s, command in motor units) -------
 
-#: The paper gives no nominal model (§3.2). Assumed, see docs/altino-model.md: effective mass
-#: in command units per cm/s², no extra linear damping beyond the friction law's viscous slope
-#: 10.93 units/(cm/s) (paper Fig. 10(b)), ±1000 command saturation (the Altino's motor range),
-#: and a dead time of one control period for the Bluetooth serial round trip.
-ALTINO_PLANT = PlantParams(
-    inertia=2.0, damping=0.0, command_limit=1000.0, lag=0.0, dead_time=0.05
-)
+#: The paper gives no nominal model (§3.2); every number here is *assumed, see
+#: docs/altino-model.md*:
+#:
+#: * ``inertia`` 2.2 units·s²/cm: effective mass (car + reflected rotor inertia) in command units,
+#:   chosen for a mechanical time constant M/B = 2.2/10.93 = 0.20 s, typical of a small geared DC
+#:   motor drive; full command from rest then accelerates at (1000 - 200)/2.2 = 364 cm/s²
+#:   (0.37 g), below the tyre-grip limit of a toy car.
+#: * ``damping`` 0: the paper's viscous slope 10.93 units/(cm/s) (Fig. 10(b)) is in the friction
+#:   law (``ALTINO_PAPER.viscous``) and adds to this.
+#: * ``command_limit`` 1000: the Altino's motor command range (``Go(±1000)``, research/hardware.md).
+#: * ``lag`` 0: a small DC motor's electrical time constant L/R is about 1 ms, far below the control
+#:   period; the mechanical lag is the mass itself.
+#: * ``dead_time`` 0.05 s = one control period: Bluetooth SPP latency (tens of ms) plus the 10 ms
+#:   the on-board library waits per frame (research/hardware.md).
+ALTINO_PLANT = PlantParams(inertia=2.2, damping=0.0, command_limit=1000.0, lag=0.0, dead_time=0.05)
 
-#: 20 Hz: the Altino's serial protocol and on-board 10 ms delay allow 10–50 Hz
-#: (research/hardware.md). Assumed, see docs/altino-model.md.
+#: 20 Hz: one drive command and one sensor poll per period fit the Altino's serial protocol with
+#: its 10 ms per-frame delay; research/hardware.md gives 10–50 Hz as realistic and recommends
+#: 50–100 ms periods. Assumed, see docs/altino-model.md.
 ALTINO_DT = 0.05
+
+#: Start of the paper's step (not stated in the paper). Assumed, see docs/altino-model.md: the
+#: farthest round distance the IR sensor still resolves (readout 3 at 20 cm; it reads 0 beyond
+#: 21.5 cm), giving the longest approach the sensor can see.
+ALTINO_START_CM = 20.0
 
 #: The paper's Altino experiments (§3.2, §5.2): target 5 cm from a wall at 0.
 ALTINO_TARGET_CM = 5.0

@@ -1,0 +1,501 @@
+"""Check the paper's three Altino phenomena on the simulated car (issue [A]).
+
+The paper (§3.2, §5.2; SPEC.md) reports, for a target 5 cm from a wall:
+
+* PID ``Kp=25, Kd=12, Ki=10``: the car overshoots and stays around 3 cm;
+* the same with ``Ki=20``: a smaller error, but the car oscillates around 5 cm (limit cycle);
+* with the friction compensator and ``Kp=25, Ki=0.5, Kd=7``: rise and settling time below 1 s,
+  almost no steady-state error, no oscillation.
+
+This script runs the three experiments through :func:`frictiongym.loops.altino_step` on our
+assumed Altino model (``ALTINO_PLANT``, ``ALTINO_DT``, ``ALTINO_START_CM``; see
+docs/altino-model.md), prints a table of the measured quantities and whether each phenomenon
+appears by the criteria below, and optionally plots the three responses (``--plot``) and
+varies one model parameter at a time (``--sensitivity``).
+
+Criteria (from the phenomenon descriptions, not from our numbers):
+
+* *overshoots and stays around 3 cm*: passes the target by at least 1 cm, ends stuck (for at
+  least the last quarter of the run) with an error of 1 to 3 cm;
+* *oscillates around 5 cm*: at least 3 target crossings in the second half of the run, a mean
+  within 1 cm of the target and a peak-to-peak amplitude of at least 0.2 cm;
+* *settles in under 1 s*: 10–90 % rise time and 2 % settling time (band: 2 % of the step,
+  0.3 cm for 20 → 5 cm) both below 1 s, steady-state error inside the 2 % band, overshoot below
+  the band and at most one target crossing in the second half.
+
+Run ``python scripts/altino_phenomena.py --help`` for the options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import math
+import shlex
+import sys
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from frictiongym.controllers.pid import PIDGains
+from frictiongym.friction import (
+    ALTINO_LUGRE,
+    ALTINO_PAPER,
+    FRICTION_NAMES,
+    FrictionModel,
+    StictionCoulomb,
+    friction_from_name,
+)
+from frictiongym.loops import StepRun, altino_step
+from frictiongym.plants import PlantParams
+from frictiongym.plants.presets import (
+    ALTINO_DT,
+    ALTINO_PAPER_GAINS_COMPENSATED,
+    ALTINO_PAPER_GAINS_KI10,
+    ALTINO_PAPER_GAINS_KI20,
+    ALTINO_PLANT,
+    ALTINO_START_CM,
+    ALTINO_TARGET_CM,
+)
+
+SHAPES = ("linear", "step", "smooth", "exponential")
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One of the paper's experiments."""
+
+    key: str
+    label: str
+    gains: PIDGains
+    compensated: bool
+    paper: str
+
+
+SCENARIOS = (
+    Scenario("ki10", "PID Ki=10", PIDGains(**ALTINO_PAPER_GAINS_KI10), False,
+             "overshoots, stays ~3 cm"),
+    Scenario("ki20", "PID Ki=20", PIDGains(**ALTINO_PAPER_GAINS_KI20), False,
+             "oscillates around 5 cm"),
+    Scenario("comp", "compensated", PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED), True,
+             "rise, settling < 1 s"),
+)  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Setup:
+    """Everything a run depends on besides the gains."""
+
+    plant: PlantParams = ALTINO_PLANT
+    dt: float = ALTINO_DT
+    start_cm: float = ALTINO_START_CM
+    duration: float = 20.0
+    friction: FrictionModel = ALTINO_PAPER
+    derivative: Literal["measurement", "error"] = "measurement"
+
+
+@dataclass(frozen=True)
+class Summary:
+    """What the table reports about one run (distances in cm, times in s)."""
+
+    final: float  #: true distance at the end
+    closest: float  #: smallest distance reached
+    overshoot: float  #: how far the car passed the target (>= 0)
+    rise: float  #: 10-90 % rise time (inf if 90 % is never reached)
+    settling: float  #: 2 % settling time (inf if it never stays in the band)
+    sse: float  #: mean |target - distance| over the last 10 % of the run
+    stuck_at_end: float  #: how long the car has been stuck at the end (0: moving)
+    longest_stick: float  #: longest time stuck in one place after the start
+    crossings: int  #: target crossings in the second half of the run
+    p2p: float  #: peak-to-peak distance in the second half of the run
+    period: float  #: mean limit-cycle period in the second half (nan: fewer than 3 crossings)
+    mean_tail: float  #: mean distance in the second half of the run
+    band: float  #: the 2 % settling band, cm
+    duration: float
+
+
+def run_scenario(scenario: Scenario, setup: Setup) -> StepRun:
+    """Simulate one experiment."""
+    return altino_step(
+        scenario.gains,
+        friction=setup.friction,
+        compensator=ALTINO_PAPER if scenario.compensated else None,
+        start_cm=setup.start_cm,
+        duration=setup.duration,
+        plant=setup.plant,
+        dt=setup.dt,
+        derivative=setup.derivative,
+    )
+
+
+def _stick_spans(stuck: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges [i, j) of consecutive stuck samples, the initial rest excluded."""
+    spans = []
+    i, n = 0, stuck.size
+    while i < n and stuck[i]:  # at rest before the first command takes effect
+        i += 1
+    while i < n:
+        if stuck[i]:
+            j = i
+            while j < n and stuck[j]:
+                j += 1
+            spans.append((i, j))
+            i = j
+        else:
+            i += 1
+    return spans
+
+
+def summarize(run: StepRun) -> Summary:
+    """Measure one run."""
+    m = run.metrics()
+    t, y, target = run.t, run.y, run.reference
+    dt = float(t[1] - t[0])
+    spans = _stick_spans(run.stuck)
+    stuck_at_end = (spans[-1][1] - spans[-1][0]) * dt if spans and spans[-1][1] == y.size else 0.0
+    longest = max(((j - i) * dt for i, j in spans), default=0.0)
+    tail = t >= t[-1] / 2.0
+    off = y[tail] != target  # samples exactly on the target belong to neither side
+    side, when = np.sign(y[tail][off] - target), t[tail][off]
+    flips = np.flatnonzero(side[1:] != side[:-1])
+    # Consecutive crossings are half a cycle apart.
+    period = 2.0 * float(np.mean(np.diff(when[flips + 1]))) if flips.size >= 3 else math.nan
+    return Summary(
+        final=float(y[-1]),
+        closest=float(y.min()),
+        overshoot=max(0.0, target - float(y.min())),
+        rise=m.rise_time,
+        settling=m.settling_time,
+        sse=m.steady_state_error,
+        stuck_at_end=stuck_at_end,
+        longest_stick=longest,
+        crossings=int(flips.size),
+        p2p=float(np.ptp(y[tail])),
+        period=period,
+        mean_tail=float(np.mean(y[tail])),
+        band=0.02 * abs(run.y0 - target),
+        duration=float(t[-1]),
+    )
+
+
+def reproduced(key: str, s: Summary, target: float = ALTINO_TARGET_CM) -> bool:
+    """Whether a run shows the paper's phenomenon, by the criteria in the module docstring."""
+    if key == "ki10":
+        return (
+            s.overshoot >= 1.0
+            and s.stuck_at_end >= s.duration / 4
+            and 1.0 <= target - s.final <= 3.0
+        )
+    if key == "ki20":
+        return s.crossings >= 3 and abs(s.mean_tail - target) < 1.0 and s.p2p >= 0.2
+    return (
+        s.rise < 1.0
+        and s.settling < 1.0
+        and s.sse <= s.band
+        and s.overshoot < s.band
+        and s.crossings <= 1
+    )
+
+
+def _f(value: float, digits: int = 2) -> str:
+    if math.isnan(value):
+        return "-"
+    if math.isinf(value):
+        return "never"
+    return f"{value:.{digits}f}"
+
+
+def print_table(setup: Setup, runs: dict[str, StepRun]) -> None:
+    """Print the three experiments as a table."""
+    header = (
+        f"{'experiment':<13}{'final':>7}{'closest':>8}{'oversh.':>8}{'rise':>7}{'settle':>7}"
+        f"{'SSE':>6}{'stuck':>7}{'longest':>8}{'cross':>6}{'p2p':>6}{'period':>7}"
+        f"  {'paper':<24}{'seen'}"
+    )
+    print(header)
+    print(f"{'':<13}{'cm':>7}{'cm':>8}{'cm':>8}{'s':>7}{'s':>7}{'cm':>6}{'s':>7}{'s':>8}"
+          f"{'':>6}{'cm':>6}{'s':>7}")  # fmt: skip
+    print("-" * len(header))
+    for sc in SCENARIOS:
+        s = summarize(runs[sc.key])
+        print(
+            f"{sc.label:<13}{_f(s.final):>7}{_f(s.closest):>8}{_f(s.overshoot):>8}"
+            f"{_f(s.rise):>7}{_f(s.settling):>7}{_f(s.sse):>6}{_f(s.stuck_at_end, 1):>7}"
+            f"{_f(s.longest_stick, 1):>8}{s.crossings:>6}{_f(s.p2p):>6}{_f(s.period, 1):>7}"
+            f"  {sc.paper:<24}{'yes' if reproduced(sc.key, s) else 'no'}"
+        )
+    print(
+        f"\nfinal/closest: true distance to the wall at the end / minimum; overshoot: how far "
+        f"past the {ALTINO_TARGET_CM:g} cm target;\nrise: 10-90 %; settle: 2 % band "
+        f"(±{0.02 * abs(setup.start_cm - ALTINO_TARGET_CM):.2f} cm); SSE: mean |error| over "
+        "the last 10 % of the run; stuck: stuck time at the end;\nlongest: longest stick after "
+        "the start; cross/p2p/period: target crossings, peak-to-peak and mean period over the "
+        "second half.\nseen: the paper's phenomenon by the criteria in the script's docstring."
+    )
+
+
+def describe(setup: Setup) -> str:
+    """One line naming the model a table was computed with."""
+    p = setup.plant
+    return (
+        f"mass {p.inertia:g} units·s²/cm, damping {p.damping:g} + viscous "
+        f"{getattr(setup.friction, 'viscous', 0.0):g} units/(cm/s), lag {p.lag:g} s, dead time "
+        f"{p.dead_time:g} s, limit ±{p.command_limit:g}, dt {setup.dt:g} s, "
+        f"{setup.start_cm:g} → {ALTINO_TARGET_CM:g} cm in {setup.duration:g} s, friction "
+        f"{_friction_label(setup.friction)}, derivative on {setup.derivative}"
+    )
+
+
+def _friction_label(friction: FrictionModel) -> str:
+    if friction == ALTINO_PAPER:
+        return "ALTINO_PAPER"
+    if friction == ALTINO_LUGRE:
+        return "ALTINO_LUGRE"
+    if isinstance(friction, StictionCoulomb):
+        return f"ALTINO_PAPER with shape={friction.shape!r}"
+    return type(friction).__name__
+
+
+def run_all(setup: Setup) -> dict[str, StepRun]:
+    """The three experiments on one setup."""
+    return {sc.key: run_scenario(sc, setup) for sc in SCENARIOS}
+
+
+def sensitivity(base: Setup) -> None:
+    """Vary one model choice at a time around ``base`` and print what each experiment does."""
+    p = base.plant
+    variants: list[tuple[str, Setup]] = [("defaults", base)]
+    for mass in (1.1, 1.6, 3.3, 5.5):
+        variants.append(
+            (
+                f"mass {mass:g}",
+                dataclasses.replace(base, plant=dataclasses.replace(p, inertia=mass)),
+            )
+        )
+    for lag in (0.02, 0.05, 0.1):
+        variants.append(
+            (f"lag {lag:g} s", dataclasses.replace(base, plant=dataclasses.replace(p, lag=lag)))
+        )
+    for periods in (0, 2):
+        dead = periods * base.dt
+        variants.append(
+            (
+                f"dead time {dead:g} s",
+                dataclasses.replace(base, plant=dataclasses.replace(p, dead_time=dead)),
+            )
+        )
+    for dt in (0.025, 0.1):
+        variants.append(
+            (
+                f"dt {dt:g} s (+1 period)",
+                dataclasses.replace(base, dt=dt, plant=dataclasses.replace(p, dead_time=dt)),
+            )
+        )
+    for start in (15.0, 18.0, 21.0):
+        variants.append((f"start {start:g} cm", dataclasses.replace(base, start_cm=start)))
+    variants.append(("derivative on error", dataclasses.replace(base, derivative="error")))
+    for shape in ("exponential", "step"):
+        if isinstance(base.friction, StictionCoulomb):
+            variants.append(
+                (
+                    f"shape {shape}",
+                    dataclasses.replace(base, friction=base.friction.replace(shape=shape)),
+                )
+            )
+    variants.append(("LuGre", dataclasses.replace(base, friction=ALTINO_LUGRE)))
+
+    print(f"\nOne change at a time from: {describe(base)}")
+    header = (
+        f"{'variant':<24}| {'Ki=10: closest final stuck':<28}| "
+        f"{'Ki=20: closest longest cross p2p':<34}| {'comp: rise settle SSE':<22}| seen"
+    )
+    print(header)
+    print("-" * len(header))
+    for label, setup in variants:
+        cells = []
+        flags = ""
+        try:
+            s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
+        except ValueError as err:  # the car reached the wall
+            print(f"{label:<24}| {err}")
+            continue
+        a, b, c = s["ki10"], s["ki20"], s["comp"]
+        cells.append(f"{_f(a.closest):>7} {_f(a.final):>5} {_f(a.stuck_at_end, 1):>5} s      ")
+        cells.append(
+            f"{_f(b.closest):>7} {_f(b.longest_stick, 1):>6} s {b.crossings:>5} {_f(b.p2p):>5}     "
+        )
+        cells.append(f"{_f(c.rise):>5} {_f(c.settling):>6} {_f(c.sse):>5}    ")
+        for sc in SCENARIOS:
+            flags += "Y" if reproduced(sc.key, s[sc.key]) else "."
+        print(f"{label:<24}| {cells[0]:<28}| {cells[1]:<34}| {cells[2]:<22}| {flags}")
+    print("seen: one flag per experiment (Ki=10, Ki=20, compensated); Y = phenomenon present.")
+
+    print("\nIntegral gain at which the model overshoots and sticks (Kp=25, Kd=12, defaults):")
+    print(
+        f"{'Ki':>5}{'closest':>9}{'final':>7}{'stuck':>7}{'longest':>9}"
+        "  seen as 'overshoots, stays'"
+    )
+    for ki in (10.0, 12.0, 14.0, 16.0, 18.0, 20.0, 25.0, 30.0):
+        sc = dataclasses.replace(SCENARIOS[0], gains=PIDGains(kp=25.0, ki=ki, kd=12.0))
+        s_ = summarize(run_scenario(sc, base))
+        print(
+            f"{ki:>5g}{_f(s_.closest):>9}{_f(s_.final):>7}{_f(s_.stuck_at_end, 1):>7}"
+            f"{_f(s_.longest_stick, 1):>9}  {'yes' if reproduced('ki10', s_) else 'no'}"
+        )
+
+
+#: The plausible box of docs/altino-model.md swept by ``--box``.
+BOX_MASSES = (1.1, 2.2, 3.3, 5.5)
+BOX_LAGS = (0.0, 0.05, 0.1)
+BOX_DEAD_PERIODS = (0, 1, 2)
+BOX_DTS = (0.025, 0.05, 0.1)
+BOX_STARTS = (15.0, 20.0)
+
+
+def box(base: Setup) -> None:
+    """Run the three experiments on every point of the plausible box and summarise them."""
+    seen = {sc.key: 0 for sc in SCENARIOS}
+    ki10_overshoot, ki20_overshoot, rises, settlings = [], [], [], []
+    fast: list[str] = []
+    count = 0
+    grid = itertools.product(BOX_MASSES, BOX_LAGS, BOX_DEAD_PERIODS, BOX_DTS, BOX_STARTS)
+    for mass, lag, periods, dt, start in grid:
+        plant = dataclasses.replace(base.plant, inertia=mass, lag=lag, dead_time=periods * dt)
+        setup = dataclasses.replace(base, plant=plant, dt=dt, start_cm=start)
+        try:
+            s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
+        except ValueError:  # reached the wall: counts as no phenomenon
+            count += 1
+            continue
+        count += 1
+        for sc in SCENARIOS:
+            seen[sc.key] += reproduced(sc.key, s[sc.key])
+        ki10_overshoot.append(s["ki10"].overshoot)
+        ki20_overshoot.append(s["ki20"].overshoot)
+        rises.append(s["comp"].rise)
+        settlings.append(s["comp"].settling)
+        if reproduced("comp", s["comp"]):
+            fast.append(f"mass {mass:g}, lag {lag:g} s, dead time {periods} x {dt:g} s, "
+                        f"start {start:g} cm")  # fmt: skip
+    print(
+        f"\nBox sweep ({count} points: mass {BOX_MASSES}, lag {BOX_LAGS} s, dead time "
+        f"{BOX_DEAD_PERIODS} periods, dt {BOX_DTS} s, start {BOX_STARTS} cm;\nfriction "
+        f"{_friction_label(base.friction)}, derivative on {base.derivative}, {base.duration:g} s)"
+    )
+    for sc in SCENARIOS:
+        print(f"  {sc.label:<12} phenomenon seen at {seen[sc.key]:>3} of {count} points")
+    print(f"  Ki=10 overshoot: max {max(ki10_overshoot):.2f} cm")
+    print(f"  Ki=20 overshoot: {min(ki20_overshoot):.2f} to {max(ki20_overshoot):.2f} cm")
+    print(
+        f"  compensated rise {min(rises):.2f} to {max(rises):.2f} s, settling "
+        f"{min(settlings):.2f} to {_f(max(settlings))} s"
+    )
+    for point in fast:
+        print(f"  compensated settles < 1 s at: {point}")
+
+
+def plot(runs: dict[str, StepRun], setup: Setup, path: str) -> None:
+    """Write the three responses (distance and command) to a PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_y, ax_u) = plt.subplots(2, 1, figsize=(8, 6), sharex=True,
+                                     gridspec_kw={"height_ratios": [2, 1]})  # fmt: skip
+    for sc in SCENARIOS:
+        run = runs[sc.key]
+        ax_y.plot(run.t, run.y, label=f"{sc.label} (paper: {sc.paper})")
+        ax_u.plot(run.t, run.command, lw=0.9)
+    ax_y.axhline(ALTINO_TARGET_CM, color="k", lw=0.8, ls="--", label="target")
+    ax_y.set(ylabel="distance to wall [cm]", ylim=(0.0, None),
+             title="Altino model: the paper's three experiments")  # fmt: skip
+    ax_y.legend(fontsize=8)
+    for level in (200.0, -200.0):
+        ax_u.axhline(level, color="grey", lw=0.6, ls=":")
+    ax_u.set(xlabel="time [s]", ylabel="command [units]")
+    fig.text(0.01, 0.005, textwrap.fill(describe(setup), 150), fontsize=6, color="grey")
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    print(f"figure written to {path}")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the argument parser."""
+    p = ALTINO_PLANT
+    parser = argparse.ArgumentParser(
+        description="Run the paper's three Altino experiments (PID Ki=10, Ki=20, compensated "
+        "PID) on the simulated car and report whether its phenomena appear.",
+    )
+    parser.add_argument("--duration", type=float, default=20.0, help="simulated time, s (20)")
+    parser.add_argument(
+        "--dt", type=float, default=ALTINO_DT, help=f"control period, s ({ALTINO_DT:g})"
+    )
+    parser.add_argument("--mass", type=float, default=p.inertia,
+                        help=f"effective mass, units·s²/cm ({p.inertia:g})")  # fmt: skip
+    parser.add_argument("--lag", type=float, default=p.lag, help=f"actuator lag, s ({p.lag:g})")
+    parser.add_argument("--dead-time", type=float, default=None,
+                        help="dead time, s, whole periods (default: one period)")  # fmt: skip
+    parser.add_argument("--start", type=float, default=ALTINO_START_CM,
+                        help=f"start distance, cm ({ALTINO_START_CM:g})")  # fmt: skip
+    parser.add_argument("--friction", choices=FRICTION_NAMES, default="paper",
+                        help="friction law of the car (paper)")  # fmt: skip
+    parser.add_argument("--shape", choices=SHAPES, default=None,
+                        help="decay shape of the paper law from u_s to u_c (linear, as "
+                        "ALTINO_PAPER)")  # fmt: skip
+    parser.add_argument("--derivative", choices=("measurement", "error"), default="measurement",
+                        help="where the D term acts (measurement)")  # fmt: skip
+    parser.add_argument("--sensitivity", action="store_true",
+                        help="also vary one model choice at a time and scan Ki")  # fmt: skip
+    parser.add_argument("--box", action="store_true",
+                        help="also sweep the plausible box of model choices")  # fmt: skip
+    parser.add_argument("--plot", metavar="PATH", help="write the three responses to this PNG")
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the experiments; return the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not (args.duration > 1.0 and args.dt > 0.0 and args.mass > 0.0 and args.lag >= 0.0):
+        parser.error("need --duration > 1, --dt > 0, --mass > 0 and --lag >= 0")
+    if not 1.2 < args.start <= 25.0 or args.start <= ALTINO_TARGET_CM:
+        parser.error(f"--start must lie between the {ALTINO_TARGET_CM:g} cm target and 25 cm")
+    friction = friction_from_name(args.friction, ALTINO_PAPER, ALTINO_LUGRE)
+    if args.shape is not None:
+        if not isinstance(friction, StictionCoulomb):
+            parser.error("--shape applies to --friction paper or stribeck only")
+        friction = friction.replace(shape=args.shape)
+    dead_time = args.dt if args.dead_time is None else args.dead_time
+    try:
+        plant = dataclasses.replace(ALTINO_PLANT, inertia=args.mass, lag=args.lag,
+                                    dead_time=dead_time)  # fmt: skip
+        plant.delay_steps(args.dt)
+    except ValueError as err:
+        parser.error(str(err))
+    setup = Setup(plant, args.dt, args.start, args.duration, friction, args.derivative)
+    argv_used = sys.argv[1:] if argv is None else list(argv)
+    print(f"$ python scripts/altino_phenomena.py {shlex.join(argv_used)}".rstrip())
+    print(f"Model: {describe(setup)}\n")
+    try:
+        runs = run_all(setup)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 1
+    print_table(setup, runs)
+    if args.sensitivity:
+        sensitivity(setup)
+    if args.box:
+        box(setup)
+    if args.plot:
+        plot(runs, setup, args.plot)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
