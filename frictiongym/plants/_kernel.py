@@ -267,12 +267,17 @@ def advance(
     x_start = x
     hs = h / n_sub
     impulse = 0.0
+    # Held at rest for the whole step (static law, no lag): friction equals the input exactly,
+    # not impulse / h, which can be off by one ulp (research/friction.md O1: F_f = u).
+    held = law == fc.LAW_STATIC and lag == 0.0
     for _ in range(n_sub):
         force = u
         if lag > 0.0:  # hold the lag output at its exact average over the substep
             em1 = math.expm1(-hs / lag)
             force = u - (y - u) * em1 * lag / hs
             y = u + (y - u) * (1.0 + em1)
+        if not (v == 0.0 and -friction[fc.I_US_NEG] <= force <= friction[fc.I_US_POS]):
+            held = False
         if exact:
             x, v, imp = exact_static(x, v, force, hs, j, b_total, friction)
         elif law == fc.LAW_STATIC:
@@ -281,7 +286,7 @@ def advance(
             x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
         impulse += imp
     state[S_X], state[S_V], state[S_Z], state[S_LAG] = x, v, z, y
-    state[S_FRICTION] = (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
+    state[S_FRICTION] = u if held else (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
     state[S_STUCK] = 1.0 if v == 0.0 else 0.0
 
 
