@@ -107,11 +107,11 @@ def level(speed: float, law: float, shape: float, us: float, uc: float, v0: floa
 
 
 @njit(cache=True)
-def sliding_level(speed: float, direction: float, p: object) -> float:
+def sliding_level(speed: float, direction: float, p: tuple[float, ...]) -> float:
     """:func:`level` for the direction ``direction`` (+1.0 or -1.0) of the packed row ``p``."""
     if direction > 0.0:
-        return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_POS], p[I_UC_POS], p[I_V0_POS])  # type: ignore[index]
-    return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_NEG], p[I_UC_NEG], p[I_V0_NEG])  # type: ignore[index]
+        return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_POS], p[I_UC_POS], p[I_V0_POS])
+    return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_NEG], p[I_UC_NEG], p[I_V0_NEG])
 
 
 @njit(cache=True)

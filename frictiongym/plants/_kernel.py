@@ -39,6 +39,8 @@ I_UMAX = 2
 I_LAG = 3
 F0 = 4  #: offset of the friction row inside a plant row
 ROW_SIZE = F0 + fc.ROW_SIZE
+if fc.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
+    raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
 
 # State columns.
 S_X = 0  #: position
@@ -50,16 +52,29 @@ S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
 STATE_SIZE = 7
 
+#: A packed row as the element functions receive it: a tuple of floats, not an array view.
+#: Array views cost a reference-count round trip each; per plant that was most of the step.
+Row = tuple[float, ...]
+
 _MAX_SEGMENTS = 8  # at most 4 events + the final phase + a stuck phase; 8 leaves margin
-_SERIES_LIMIT = 1e-2
+_SERIES_LIMIT = 0.1
+_SERIES_TERMS = 11
+_INV_FACTORIAL = tuple(1.0 / math.factorial(n) for n in range(_SERIES_TERMS + 2))
 
 
 @njit(cache=True)
 def _phi12(ell: float) -> tuple[float, float]:
-    """Return ``E1 = (1 - e^-l)/l`` and ``E2 = (l - 1 + e^-l)/l^2``, accurate near l = 0."""
+    """Return ``E1 = (1 - e^-l)/l`` and ``E2 = (l - 1 + e^-l)/l^2``, accurate near l = 0.
+
+    For |l| < 0.1, which covers every control-rate step of a motion-control plant, a Taylor
+    series (relative error below 1e-17) replaces the transcendental call.
+    """
     if abs(ell) < _SERIES_LIMIT:
-        e1 = 1.0 - ell * (1 / 2 - ell * (1 / 6 - ell * (1 / 24 - ell * (1 / 120 - ell / 720))))
-        e2 = 1 / 2 - ell * (1 / 6 - ell * (1 / 24 - ell * (1 / 120 - ell * (1 / 720 - ell / 5040))))
+        e1 = 0.0
+        e2 = 0.0
+        for n in range(_SERIES_TERMS - 1, -1, -1):  # Horner: sum (-l)^n / (n+1)!, / (n+2)!
+            e1 = _INV_FACTORIAL[n + 1] - ell * e1
+            e2 = _INV_FACTORIAL[n + 2] - ell * e2
         return e1, e2
     em1 = math.expm1(-ell)
     return -em1 / ell, (ell + em1) / (ell * ell)
@@ -97,7 +112,7 @@ def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> flo
 
 @njit(cache=True)
 def exact_static(
-    x: float, v: float, u: float, h: float, j: float, b_total: float, p: npt.NDArray[np.float64]
+    x: float, v: float, u: float, h: float, j: float, b_total: float, p: Row
 ) -> tuple[float, float, float]:
     """Event-exact step of a static law with a ``step`` or ``linear`` decay.
 
@@ -165,10 +180,14 @@ def exact_static(
             target = s * v0 if (decays and not inner) else 0.0
         elif s * acc > 0.0 and inner:
             target = s * v0
-        t_event = math.inf if math.isnan(target) else affine_time_to(v, target, a, bb, j)
-        dt = t_event if t_event < t_left else t_left
+        dt = t_left
         x_new, v_new = affine_advance(x, v, a, bb, j, dt)
-        if t_event <= t_left:
+        # v is monotone within a phase, so the event lies in this step iff v reaches the target.
+        if not math.isnan(target) and (v_new - target) * (v - target) <= 0.0:
+            t_event = affine_time_to(v, target, a, bb, j)
+            if t_event < t_left:
+                dt = t_event
+                x_new, v_new = affine_advance(x, v, a, bb, j, dt)
             v_new = target  # land exactly on the event: 0.0 means stuck-test next
         if inner:
             impulse += s * us * dt - k * (x_new - x)
@@ -187,7 +206,7 @@ def split_static(
     h: float,
     j: float,
     b_total: float,
-    p: npt.NDArray[np.float64],
+    p: Row,
 ) -> tuple[float, float, float]:
     """One substep of the split scheme for any static decay shape (research/friction.md §4.4).
 
@@ -228,7 +247,7 @@ def lugre_substep(
     h: float,
     j: float,
     b_total: float,
-    p: npt.NDArray[np.float64],
+    p: Row,
 ) -> tuple[float, float, float, float]:
     """One LuGre substep: exact bristle update at frozen ``v``, then semi-implicit mechanics.
 
@@ -249,21 +268,43 @@ def lugre_substep(
 
 @njit(cache=True)
 def advance(
-    state: npt.NDArray[np.float64], u: float, h: float, n_sub: int, p: npt.NDArray[np.float64]
-) -> None:
-    """Advance one plant (one row of ``state``) by one control period with input ``u``.
+    x: float,
+    v: float,
+    z: float,
+    y: float,
+    u: float,
+    h: float,
+    n_sub: int,
+    plant: Row,
+    friction: Row,
+) -> tuple[float, float, float, float, float]:
+    """Advance one plant by one control period with input ``u``.
 
-    ``u`` is the command after saturation and dead time; the actuator lag, if any, acts here.
+    Parameters
+    ----------
+    x, v, z, y : float
+        Position, velocity, LuGre bristle deflection and actuator-lag output.
+    u : float
+        Command after saturation and dead time; the actuator lag, if any, acts here.
+    h : float
+        Control period.
+    n_sub : int
+        Substeps.
+    plant, friction : tuple of float
+        ``(J, B, u_max, lag)`` and the packed friction row.
+
+    Returns
+    -------
+    x, v, z, y, friction_force : float
+        The new state and the friction force averaged over the step.
     """
-    j = p[I_J]
-    friction = p[F0:]
-    b_total = p[I_B] + friction[fc.I_VISCOUS]
-    lag = p[I_LAG]
+    j = plant[I_J]
+    b_total = plant[I_B] + friction[fc.I_VISCOUS]
+    lag = plant[I_LAG]
     law = friction[fc.I_LAW]
     exact = law == fc.LAW_STATIC and (
         friction[fc.I_SHAPE] == fc.SHAPE_STEP or friction[fc.I_SHAPE] == fc.SHAPE_LINEAR
     )
-    x, v, z, y = state[S_X], state[S_V], state[S_Z], state[S_LAG]
     x_start = x
     hs = h / n_sub
     impulse = 0.0
@@ -285,9 +326,9 @@ def advance(
         else:
             x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
         impulse += imp
-    state[S_X], state[S_V], state[S_Z], state[S_LAG] = x, v, z, y
-    state[S_FRICTION] = u if held else (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
-    state[S_STUCK] = 1.0 if v == 0.0 else 0.0
+    if held:
+        return x, v, z, y, u
+    return x, v, z, y, (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
 
 
 @njit(cache=True)
@@ -333,14 +374,29 @@ def step_batch(
     one_row = params.shape[0] == 1
     delay = delay_buffer.shape[1]
     for i in range(n):
-        p = params[0] if one_row else params[i]
+        r = 0 if one_row else i
+        plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG])
+        friction = (
+            params[r, F0 + 0], params[r, F0 + 1], params[r, F0 + 2], params[r, F0 + 3],
+            params[r, F0 + 4], params[r, F0 + 5], params[r, F0 + 6], params[r, F0 + 7],
+            params[r, F0 + 8], params[r, F0 + 9], params[r, F0 + 10],
+        )  # fmt: skip
         c = command[0] if one_command else command[i]
-        u_max = p[I_UMAX]
+        u_max = plant[I_UMAX]
         c = min(max(c, -u_max), u_max)
         state[i, S_COMMAND] = c
         if delay > 0:
             due = delay_buffer[i, head]
             delay_buffer[i, head] = c
             c = due
-        advance(state[i], c, h, n_sub, p)
+        x, v, z, y, f = advance(
+            state[i, S_X], state[i, S_V], state[i, S_Z], state[i, S_LAG], c, h, n_sub, plant,
+            friction,
+        )  # fmt: skip
+        state[i, S_X] = x
+        state[i, S_V] = v
+        state[i, S_Z] = z
+        state[i, S_LAG] = y
+        state[i, S_FRICTION] = f
+        state[i, S_STUCK] = 1.0 if v == 0.0 else 0.0
     return -1

@@ -244,7 +244,8 @@ class Plant:
         )
         if bad >= 0:
             raise ValueError(
-                f"command {bad} is {u[bad]!r}: commands must be finite numbers (command units)"
+                f"command {bad} is {float(u[bad])!r}: commands must be finite numbers "
+                "(command units)"
             )
         if self.delay_steps:
             self._head = (self._head + 1) % self.delay_steps
