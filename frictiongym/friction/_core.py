@@ -114,26 +114,6 @@ def sliding_level(speed: float, direction: float, p: tuple[float, ...]) -> float
     return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_NEG], p[I_UC_NEG], p[I_V0_NEG])
 
 
-@njit(cache=True)
-def _sliding_force_scalar(
-    v: float,
-    law: float,
-    shape: float,
-    us_pos: float,
-    us_neg: float,
-    uc_pos: float,
-    uc_neg: float,
-    v0_pos: float,
-    v0_neg: float,
-    viscous: float,
-) -> float:
-    if v == 0.0:
-        return 0.0
-    if v > 0.0:
-        return level(v, law, shape, us_pos, uc_pos, v0_pos) + viscous * v
-    return -level(-v, law, shape, us_neg, uc_neg, v0_neg) + viscous * v
-
-
 @vectorize(
     [
         float64(
@@ -158,6 +138,8 @@ def sliding_force_ufunc(
 
     Zero at ``v == 0``, where static friction is set-valued and decided by the plant.
     """
-    return _sliding_force_scalar(
-        v, law, shape, us_pos, us_neg, uc_pos, uc_neg, v0_pos, v0_neg, viscous
-    )
+    if v == 0.0:
+        return 0.0
+    if v > 0.0:
+        return level(v, law, shape, us_pos, uc_pos, v0_pos) + viscous * v
+    return -level(-v, law, shape, us_neg, uc_neg, v0_neg) + viscous * v
