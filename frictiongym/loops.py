@@ -26,7 +26,13 @@ from frictiongym.plants.presets import (
     ROTARY_PLANT,
     ROTARY_VELOCITY_CUTOFF,
 )
-from frictiongym.plants.sensors import FilteredDerivative, ir_distance, ir_readout, quantize_angle
+from frictiongym.plants.sensors import (
+    IR_MAX_READOUT,
+    FilteredDerivative,
+    ir_distance,
+    ir_readout,
+    quantize_angle,
+)
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -42,6 +48,8 @@ class StepRun:
     stuck: npt.NDArray[np.bool_]
     reference: float
     y0: float
+    #: True when the run ended early because the car reached the wall (:func:`altino_step`).
+    collided: bool = False
 
     def metrics(self) -> StepMetrics:
         """Step metrics of the true output against the reference."""
@@ -128,6 +136,11 @@ def altino_step(
     -------
     StepRun
         True and estimated distance, commands and stick flags; ``y0`` is ``start_cm``.
+        If the car reaches the wall (true distance <= 0 at a sample) the run stops there:
+        the arrays end with that sample, whose distance is recorded as 0 (contact), its
+        estimate as the IR's nearest reading (readout 800, 1.14 cm), its command as 0 and its
+        stick flag as True, and ``collided`` is True. A real car would hit the wall; the
+        plant has no contact model, so nothing after the contact is simulated.
     """
     if derivative not in ("measurement", "error"):
         raise ValueError(f"derivative must be 'measurement' or 'error', got {derivative!r}")
@@ -140,6 +153,12 @@ def altino_step(
     previous = None
     for i in range(n):
         y[i] = start_cm - sim.position[0]
+        if y[i] <= 0.0:  # touched the wall: record the contact and stop
+            y[i], command[i], stuck[i] = 0.0, 0.0, True
+            measured[i] = float(ir_distance(IR_MAX_READOUT))
+            m = i + 1
+            return StepRun(t[:m], y[:m], measured[:m], command[:m], stuck[:m], target_cm,
+                           start_cm, collided=True)  # fmt: skip
         stuck[i] = sim.stuck[0]
         measured[i] = float(ir_distance(ir_readout(y[i])))
         # The PID's rate is that of the measurement; a derivative on the error from e_(-1) = 0

@@ -49,9 +49,11 @@ ALTINO_PLANT = PlantParams(inertia=2.2, damping=0.0, command_limit=1000.0, lag=0
 ALTINO_DT = 0.05
 
 #: Start of the paper's step (not stated in the paper). Assumed, see docs/altino-model.md: the
-#: farthest round distance the IR sensor still resolves (readout 3 at 20 cm; it reads 0 beyond
-#: 21.5 cm), giving the longest approach the sensor can see.
-ALTINO_START_CM = 20.0
+#: IR sensor's "effective range of up to 30 cm" (paper §2.2), the farthest distance the authors
+#: considered measured. Eq. (1) reads 0 beyond 21.47 cm, so the estimate is saturated there
+#: for the first ~0.5 s of the approach. Any start from 38.5 cm drives the Ki = 20 run into the
+#: wall in this model, which the paper's Ki = 20 run did not do.
+ALTINO_START_CM = 30.0
 
 #: The paper's Altino experiments (§3.2, §5.2): target 5 cm from a wall at 0.
 ALTINO_TARGET_CM = 5.0
