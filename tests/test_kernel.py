@@ -634,3 +634,13 @@ def test_property_physics(
     assert np.array_equal(tr.friction[hold, 0], applied[hold])
     go = was_stuck & ~inside
     assert np.all(np.sign(tr.v[1:, 0][go]) == np.sign(applied[go]))
+
+
+def test_energy_check_at_the_rounding_limit_of_the_position() -> None:
+    """Regression (found by hypothesis): a stop a hair before the step ends, then a creep of
+    -2.2e-16 units with no friction that way, moves x by less than one ulp of x."""
+    friction = StictionCoulomb(0.09375, 0.0, 0.09375, 0.0, 1.0, 1.0, 0.0, "step")
+    params = PlantParams(inertia=1.0, damping=0.0, command_limit=0.125)
+    tr = run(Plant(params, friction, DT), 6, commands=np.repeat([1.0, -2.220446049250313e-16], 3))
+    assert tr.v[-1, 0] < 0.0  # broke away backwards: the band's negative edge is 0
+    assert energy_violation(tr, 1.0, 0.0, DT, tight=True) <= 1e-10

@@ -298,3 +298,33 @@ def test_property_scalar_equals_batch(data: st.DataObject, n_plants: int) -> Non
         assert np.array_equal(ts.x[:, 0], tb.x[:, i])
         assert np.array_equal(ts.v[:, 0], tb.v[:, i])
         assert np.array_equal(ts.friction[:, 0], tb.friction[:, i])
+
+
+def test_parallel_kernel_equals_serial_bit_for_bit() -> None:
+    n_plants, n = 300, 400
+    rng = np.random.default_rng(7)
+    u = rng.normal(0.0, 0.6, (n, n_plants))
+    laws = [asym(shape) for shape in ("step", "linear", "exponential")] * (n_plants // 3)
+    serial = Plant(PlantParams(1.0, 0.3, 100.0), laws, DT, num_plants=n_plants, parallel=False)
+    threaded = Plant(PlantParams(1.0, 0.3, 100.0), laws, DT, num_plants=n_plants, parallel=True)
+    assert not serial.parallel
+    assert threaded.parallel
+    ts, tt = run(serial, n, commands=u), run(threaded, n, commands=u)
+    assert np.array_equal(ts.x, tt.x)
+    assert np.array_equal(ts.v, tt.v)
+    assert np.array_equal(ts.friction, tt.friction)
+    assert ts.stuck.any()
+    assert (~ts.stuck).any()
+
+
+def test_large_batches_default_to_the_parallel_kernel() -> None:
+    import numba
+
+    from frictiongym.plants.plant import PARALLEL_MIN_PLANTS
+
+    small = make(asym(), num_plants=PARALLEL_MIN_PLANTS - 1)
+    large = make(asym(), num_plants=PARALLEL_MIN_PLANTS)
+    assert not small.parallel
+    assert large.parallel == (numba.config.NUMBA_NUM_THREADS > 1)
+    with pytest.raises(ValueError, match="finite"):
+        Plant(PlantParams(1.0, 0.3, 1.0), asym(), DT, num_plants=200, parallel=True).step(np.nan)

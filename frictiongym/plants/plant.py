@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -21,6 +22,10 @@ from frictiongym.friction.laws import FrictionModel
 from frictiongym.plants import _kernel as k
 
 FloatArray = npt.NDArray[np.float64]
+
+#: Batches at least this large are stepped on all of numba's threads: below it the threads'
+#: start-up costs more than they save (about 100 plants on 2 cores; docs/benchmarks.md).
+PARALLEL_MIN_PLANTS = 128
 
 
 @dataclass(frozen=True)
@@ -125,6 +130,11 @@ class Plant:
         Batch size N.
     substeps : int, optional
         Substeps per control period; by default :func:`default_substeps`.
+    parallel : bool, optional
+        Step the batch on all of numba's threads (results are bit-identical either way). By
+        default, for batches of at least ``PARALLEL_MIN_PLANTS`` plants when numba has more than
+        one thread; set ``NUMBA_NUM_THREADS=1`` or ``parallel=False`` when other work (several
+        env processes, a torch learner) already uses the cores.
 
     Notes
     -----
@@ -136,7 +146,9 @@ class Plant:
     num_plants: int
     substeps: int
     delay_steps: int
+    parallel: bool
     _head: int
+    _step_kernel: Callable[..., int]
 
     def __init__(
         self,
@@ -145,6 +157,7 @@ class Plant:
         dt: float,
         num_plants: int = 1,
         substeps: int | None = None,
+        parallel: bool | None = None,
     ) -> None:
         if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
@@ -170,6 +183,10 @@ class Plant:
             strict=True,
         )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
+        if parallel is None:
+            parallel = num_plants >= PARALLEL_MIN_PLANTS and numba.config.NUMBA_NUM_THREADS > 1
+        self.parallel = bool(parallel)
+        self._step_kernel = k.step_batch_parallel if self.parallel else k.step_batch
         self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE))
         self._delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
         self._head = 0
@@ -239,7 +256,7 @@ class Plant:
         u = np.asarray(command, dtype=np.float64).reshape(-1)
         if u.shape[0] not in (1, self.num_plants):
             raise ValueError(f"expected 1 or {self.num_plants} commands, got {u.shape[0]}")
-        bad = k.step_batch(
+        bad = self._step_kernel(
             self.state, self._delay_buffer, self._head, u, self.dt, self.substeps, self.rows
         )
         if bad >= 0:
