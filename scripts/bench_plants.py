@@ -8,7 +8,15 @@ For each batch size N the script times, interleaved in one process:
   no friction, no bookkeeping.
 * ``Plant`` with the paper's rotary friction (``ROTARY_PAPER``: linear Stribeck decay,
   event-exact step), with the sub-stepped ``exponential`` decay (default substeps), and with
-  ``NoFriction``, so the cost of each law is visible.
+  ``NoFriction``, so the cost of each law is visible. These run on ``Plant``'s default kernel:
+  the parallel one (numba ``prange`` over the plants) for batches of at least
+  ``PARALLEL_MIN_PLANTS`` when numba has more than one thread, the serial one otherwise.
+* ``ROTARY_PAPER`` once more on the other kernel (``parallel=False`` where the default is
+  parallel, ``parallel=True`` where it is serial), so the gain or cost of the threads is
+  visible at every batch size. Both kernels give bit-identical results. Where the default is
+  parallel, ``ROTARY_PAPER`` is also timed on the parallel kernel restricted to one thread
+  (``numba.set_num_threads(1)`` around the run), which splits the parallel / serial ratio
+  into what the parallel kernel's code gains on one core and what the other threads add.
 
 Every variant is driven by the same pre-generated commands: per plant an AR(1) process
 (correlation time 20 ms, standard deviation 0.2 V) around the break-away level of
@@ -23,8 +31,9 @@ variant to the numpy reference is the median of the per-round ratios, so drift o
 machine between rounds (up to 1.5x here, see research/perf.md) cancels out.
 
 As context only, gymnasium's ``CartPoleVectorEnv`` at 4 096 envs is timed against the Plant
-at the same batch size. That compares a full env step (physics, observation, reward,
-termination, autoreset) with a bare plant step, so it is a reference point, not a verdict.
+(default kernel and serial kernel) at the same batch size. That compares a full env step
+(physics, observation, reward, termination, autoreset) with a bare plant step, so it is a
+reference point, not a verdict.
 
 Run ``python scripts/bench_plants.py --help`` for the options.
 """
@@ -52,6 +61,7 @@ import numpy.typing as npt
 import frictiongym
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
 from frictiongym.plants import Plant, PlantParams
+from frictiongym.plants.plant import PARALLEL_MIN_PLANTS
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -64,18 +74,66 @@ COMMAND_STD = 0.2  #: standard deviation of the commands, V
 COMMAND_TAU = 0.02  #: correlation time of the commands, s
 TABLE_BYTES = 16 * 2**20  #: memory budget of one command table
 REF = "numpy ref"
+PAPER = "ROTARY_PAPER linear (exact)"
+ONE_THREAD = "parallel, 1 thread"
 CONTEXT_ENVS = 4096
 
 
 @dataclass
 class Variant:
-    """One timed configuration: a label, a runner and what it steps."""
+    """One timed configuration: a label, a runner and what it steps.
+
+    ``kernel`` is ``"serial"`` or ``"parallel"`` for a Plant (empty otherwise) and ``default``
+    tells whether that is the kernel ``Plant`` picks by itself at this batch size.
+    """
 
     label: str
     run: Runner
     batch: int
     substeps: int | None = None
+    kernel: str = ""
+    default: bool = True
     rates: list[float] = field(default_factory=list)
+
+    @property
+    def kernel_note(self) -> str:
+        """Kernel with ``(default)`` or ``(forced)``, or ``-`` for a non-Plant variant."""
+        if not self.kernel:
+            return "-"
+        return f"{self.kernel} ({'default' if self.default else 'forced'})"
+
+
+def plant_variant(
+    label: str,
+    friction: FrictionModel,
+    table: FloatArray,
+    parallel: bool | None = None,
+    one_thread: bool = False,
+) -> Variant:
+    """A Plant variant on the default kernel (``parallel=None``) or on a forced one.
+
+    With ``one_thread`` the parallel kernel runs with numba restricted to one thread.
+    """
+    run, plant = make_plant(friction, table, True if one_thread else parallel)
+    default = parallel is None or parallel == Plant(PARAMS, friction, DT, table.shape[1]).parallel
+    kernel = "parallel" if plant.parallel else "serial"
+    if one_thread:
+        run, kernel, default = single_threaded(run), ONE_THREAD, False
+    return Variant(label, run, table.shape[1], plant.substeps, kernel, default)
+
+
+def single_threaded(run: Runner) -> Runner:
+    """``run`` with numba's thread count set to 1 for its duration."""
+
+    def run_one(steps: int) -> None:
+        threads = numba.get_num_threads()
+        numba.set_num_threads(1)
+        try:
+            run(steps)
+        finally:
+            numba.set_num_threads(threads)
+
+    return run_one
 
 
 def command_table(batch: int, seed: int) -> FloatArray:
@@ -133,9 +191,14 @@ def make_reference(table: FloatArray) -> tuple[Runner, FloatArray, FloatArray]:
     return run, position, velocity
 
 
-def make_plant(friction: FrictionModel, table: FloatArray) -> tuple[Runner, Plant]:
-    """A frictiongym Plant of the table's batch size, stepped with the table's rows."""
-    plant = Plant(PARAMS, friction, dt=DT, num_plants=table.shape[1])
+def make_plant(
+    friction: FrictionModel, table: FloatArray, parallel: bool | None = None
+) -> tuple[Runner, Plant]:
+    """A frictiongym Plant of the table's batch size, stepped with the table's rows.
+
+    ``parallel`` is passed to ``Plant``: ``None`` keeps its default kernel choice.
+    """
+    plant = Plant(PARAMS, friction, dt=DT, num_plants=table.shape[1], parallel=parallel)
     rows = list(table)
     step = plant.step
 
@@ -228,20 +291,45 @@ def calibrate(run: Runner, seconds: float) -> int:
 
 def measure(variants: Sequence[Variant], repeats: int, seconds: float, burn_in: int) -> None:
     """Warm up, calibrate and time the variants interleaved; fills ``Variant.rates``."""
-    steps = {}
+    steps = []
     for variant in variants:
         variant.run(burn_in)
-        steps[variant.label] = calibrate(variant.run, seconds)
+        steps.append(calibrate(variant.run, seconds))
+    order = list(range(len(variants)))
     for r in range(repeats):
         shift = r % len(variants)
-        for variant in list(variants[shift:]) + list(variants[:shift]):
-            n = steps[variant.label]
+        for i in order[shift:] + order[:shift]:
+            variant, n = variants[i], steps[i]
             variant.rates.append(variant.batch * n / timed(variant.run, n))
 
 
 def paired_ratios(variant: Variant, reference: Variant) -> list[float]:
     """Per-round ratios of a variant's rate to the reference's rate."""
     return [a / b for a, b in zip(variant.rates, reference.rates, strict=True)]
+
+
+#: Kernel comparisons of ROTARY_PAPER: (numerator, denominator, description).
+KERNEL_RATIOS = (
+    ("parallel", "serial", "parallel / serial"),
+    (ONE_THREAD, "serial", "parallel on 1 thread / serial"),
+    ("parallel", ONE_THREAD, "parallel / parallel on 1 thread"),
+)
+
+
+def kernel_ratios(variants: Sequence[Variant]) -> list[list[float] | None]:
+    """Per-round ratios of the ROTARY_PAPER kernels in ``KERNEL_RATIOS`` (None if not timed)."""
+    paper = {v.kernel: v for v in variants if v.label == PAPER and v.kernel}
+    return [
+        paired_ratios(paper[a], paper[b]) if a in paper and b in paper else None
+        for a, b, _ in KERNEL_RATIOS
+    ]
+
+
+def print_kernel_ratios(variants: Sequence[Variant]) -> None:
+    """Print the kernel comparisons that were timed."""
+    for (_, _, what), ratios in zip(KERNEL_RATIOS, kernel_ratios(variants), strict=True):
+        if ratios is not None:
+            print(f"  ROTARY_PAPER {what:33s} {ratio_stats(ratios)}")
 
 
 def si(rate: float) -> str:
@@ -276,8 +364,8 @@ def machine_line() -> str:
         gym = ""
     return (
         f"{cpu}, {os.cpu_count()} CPUs, {platform.system()} {platform.release()}; "
-        f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__}"
-        f"{gym}"
+        f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__} "
+        f"({numba.get_num_threads()} threads){gym}"
     )
 
 
@@ -319,11 +407,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bench_plants.py",
         description=(
-            "Plant steps per second of frictiongym's compiled Plant (ROTARY_PAPER exact, "
-            "exponential sub-stepped, NoFriction) against a bare numpy loop of the frictionless "
-            "linear plant at the same batch size, timed interleaved in one process. Ratios to "
-            "the numpy loop are the meaningful figure: absolute rates drift by up to 1.5x "
-            "between runs on the project machine."
+            "Plant steps per second of frictiongym's compiled Plant (ROTARY_PAPER exact on "
+            "the default and on the other kernel, serial or parallel; exponential sub-stepped "
+            "and NoFriction on the default kernel) against a bare numpy loop of the "
+            "frictionless linear plant at the same batch size, timed interleaved in one "
+            "process. Ratios to the numpy loop are the meaningful figure: absolute rates drift "
+            "by up to 1.5x between runs on the project machine."
         ),
     )
     parser.add_argument(
@@ -332,8 +421,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="+",
         default=None,
         metavar="N",
-        help="batch sizes (number of plants stepped per call) to time (default: 1 1024 65536; "
-        "with --quick: 1 1024)",
+        help="batch sizes (number of plants stepped per call) to time (default: 1 64 128 1024 "
+        "65536; with --quick: 1 1024)",
     )
     parser.add_argument(
         "--repeats",
@@ -380,7 +469,7 @@ def main(argv: list[str] | None = None) -> int:
     """Run the benchmark and print the results; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    defaults = ([1, 1024], 2, 0.05) if args.quick else ([1, 1024, 65536], 5, 0.5)
+    defaults = ([1, 1024], 2, 0.05) if args.quick else ([1, 64, 128, 1024, 65536], 5, 0.5)
     if args.batches is None:
         args.batches = defaults[0]
     if args.repeats is None:
@@ -407,6 +496,13 @@ def main(argv: list[str] | None = None) -> int:
     probe.step(0.0)
     print(f"first Plant.step in this process (numba compile or cache load): "
           f"{time.perf_counter() - start:.3f} s")  # fmt: skip
+    start_parallel = time.perf_counter()
+    probe = Plant(PARAMS, ROTARY_PAPER, dt=DT, num_plants=PARALLEL_MIN_PLANTS, parallel=True)
+    probe.step(0.0)
+    print(f"first parallel step (compile or cache load, thread pool start): "
+          f"{time.perf_counter() - start_parallel:.3f} s; threading layer "
+          f"{numba.threading_layer()}, {numba.get_num_threads()} threads; Plant's default is "
+          f"parallel for N >= {PARALLEL_MIN_PLANTS}")  # fmt: skip
     error = check_reference(args.seed)
     print(f"numpy ref vs Plant(NoFriction), 500 steps: max relative state difference {error:.1e}")
     if error > 1e-9:
@@ -414,7 +510,7 @@ def main(argv: list[str] | None = None) -> int:
         return 1
 
     laws: list[tuple[str, FrictionModel]] = [
-        ("ROTARY_PAPER linear (exact)", ROTARY_PAPER),
+        (PAPER, ROTARY_PAPER),
         ("ROTARY_PAPER exponential", ROTARY_PAPER.replace(shape="exponential")),
         ("NoFriction", NoFriction()),
     ]
@@ -433,8 +529,12 @@ def main(argv: list[str] | None = None) -> int:
         ref_run, _, _ = make_reference(table)
         variants = [Variant(REF, ref_run, batch)]
         for label, law in laws:
-            run, plant = make_plant(law, table)
-            variants.append(Variant(label, run, batch, plant.substeps))
+            variants.append(plant_variant(label, law, table))
+            if law is ROTARY_PAPER:  # the same law on the other kernel(s)
+                default_parallel = variants[-1].kernel == "parallel"
+                variants.append(plant_variant(label, law, table, parallel=not default_parallel))
+                if default_parallel and numba.get_num_threads() > 1:
+                    variants.append(plant_variant(label, law, table, one_thread=True))
         burn_in = max(100, table.shape[0])
         measure(variants, args.repeats, args.seconds, burn_in)
         results[batch] = variants
@@ -443,30 +543,35 @@ def main(argv: list[str] | None = None) -> int:
         ref = variants[0]
         for variant in variants:
             ns = 1e9 / statistics.median(variant.rates)
-            line = f"  {variant.label:28s} {stats(variant.rates):28s} {ns:9.1f} ns/plant-step"
+            line = (f"  {variant.label:28s} {variant.kernel_note:27s} {stats(variant.rates):28s} "
+                    f"{ns:9.1f} ns/plant-step")  # fmt: skip
             if variant is not ref:
                 line += f"   x ref {ratio_stats(paired_ratios(variant, ref))}"
             print(line)
+        print_kernel_ratios(variants)
 
     context: list[Variant] = []
     if not args.no_context:
         table = command_table(CONTEXT_ENVS, args.seed)
         ref_run, _, _ = make_reference(table)
-        plant_run, _ = make_plant(ROTARY_PAPER, table)
         context = [
             Variant("gymnasium CartPoleVectorEnv", make_cartpole(CONTEXT_ENVS, args.seed),
                     CONTEXT_ENVS),
-            Variant("Plant ROTARY_PAPER linear", plant_run, CONTEXT_ENVS),
+            plant_variant(PAPER, ROTARY_PAPER, table),
+            plant_variant(PAPER, ROTARY_PAPER, table, parallel=False),
             Variant(REF, ref_run, CONTEXT_ENVS),
         ]  # fmt: skip
+        if context[1].kernel == "parallel" and numba.get_num_threads() > 1:
+            context.insert(3, plant_variant(PAPER, ROTARY_PAPER, table, one_thread=True))
         measure(context, args.repeats, args.seconds, burn_in=max(100, table.shape[0]))
         print(f"\ncontext only, N = {CONTEXT_ENVS}: env-steps/s of a full CartPole env step vs "
               "plant-steps/s of a bare plant step")  # fmt: skip
         for variant in context:
-            line = f"  {variant.label:28s} {stats(variant.rates):28s}"
+            line = f"  {variant.label:28s} {variant.kernel_note:27s} {stats(variant.rates):28s}"
             if variant is not context[0]:
                 line += f"   x CartPole {ratio_stats(paired_ratios(variant, context[0]))}"
             print(line)
+        print_kernel_ratios(context)
 
     print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
     if args.markdown:
@@ -483,9 +588,9 @@ def markdown(
 ) -> str:
     """Results as markdown tables."""
     lines = [
-        f"| N | variant | substeps | plant-steps/s, median [min, max] of {repeats} | "
+        f"| N | variant | kernel | substeps | plant-steps/s, median [min, max] of {repeats} | "
         "ns per plant-step | ratio to numpy ref, median [min, max] | stuck (mean) |",
-        "|---:|---|---:|---|---:|---|---:|",
+        "|---:|---|---|---:|---|---:|---|---:|",
     ]
     for batch, variants in results.items():
         ref = variants[0]
@@ -498,18 +603,32 @@ def markdown(
                 substeps = str(variant.substeps)
                 stuck = f"{mixes[variant.label][0]:.0%}"
             lines.append(
-                f"| {thousands(batch)} | {variant.label} | {substeps} | {stats(variant.rates)} | "
-                f"{ns:.1f} | {ratio} | {stuck} |"
+                f"| {thousands(batch)} | {variant.label} | {variant.kernel_note} | {substeps} | "
+                f"{stats(variant.rates)} | {ns:.1f} | {ratio} | {stuck} |"
             )
+    kernels = [(f"{thousands(batch)}", variants) for batch, variants in results.items()]
+    if context:
+        kernels.append((f"{thousands(CONTEXT_ENVS)} (context run)", list(context)))
+    lines += [
+        "",
+        "Kernels compared (ROTARY_PAPER linear; median [min, max] of the per-round ratios):",
+        "",
+        "| N | default kernel | " + " | ".join(what for _, _, what in KERNEL_RATIOS) + " |",
+        "|---:|---|" + "---|" * len(KERNEL_RATIOS),
+    ]
+    for name, variants in kernels:
+        default = next(v.kernel for v in variants if v.label == PAPER and v.default)
+        cells = [ratio_stats(r) if r is not None else "-" for r in kernel_ratios(variants)]
+        lines.append(f"| {name} | {default} | " + " | ".join(cells) + " |")
     if context:
         lines += [
             "",
             f"Context only (N = {thousands(CONTEXT_ENVS)}; a full CartPole env step against a "
             "bare plant step):",
             "",
-            "| variant | steps/s, median [min, max] | "
+            "| variant | kernel | steps/s, median [min, max] | "
             "ratio to CartPoleVectorEnv, median [min, max] |",
-            "|---|---|---|",
+            "|---|---|---|---|",
         ]
         for variant in context:
             ratio = (
@@ -517,7 +636,9 @@ def markdown(
                 if variant is context[0]
                 else ratio_stats(paired_ratios(variant, context[0]))
             )
-            lines.append(f"| {variant.label} | {stats(variant.rates)} | {ratio} |")
+            lines.append(
+                f"| {variant.label} | {variant.kernel_note} | {stats(variant.rates)} | {ratio} |"
+            )
     return "\n".join(lines)
 
 

@@ -24,7 +24,8 @@ from frictiongym.plants import _kernel as k
 FloatArray = npt.NDArray[np.float64]
 
 #: Batches at least this large are stepped on all of numba's threads: below it the threads'
-#: start-up costs more than they save (about 100 plants on 2 cores; docs/benchmarks.md).
+#: start-up costs more than they save (the crossover lies between 32 and 128 plants on 2 cores;
+#: docs/benchmarks.md).
 PARALLEL_MIN_PLANTS = 128
 
 
