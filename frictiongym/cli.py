@@ -55,7 +55,15 @@ def _demo(args: argparse.Namespace) -> int:
     )
     print("SSE: mean |r - y| over the last 10 % of the run, % of the step; settling: 2 % band.")
     if args.plot:
-        import matplotlib
+        try:
+            import matplotlib
+        except ImportError:
+            print(
+                "error: --plot needs matplotlib: pip install matplotlib (the metrics above are "
+                "complete without it)",
+                file=sys.stderr,
+            )
+            return 1
 
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt

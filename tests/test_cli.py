@@ -37,3 +37,11 @@ def test_console_script_help():
     )
     assert out.returncode == 0
     assert "demo" in out.stdout
+
+
+def test_plot_without_matplotlib_says_what_to_install(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import now raises ImportError
+    png = tmp_path / "demo.png"
+    assert main(["demo", "--duration", "0.2", "--plot", str(png)]) == 1
+    assert "pip install matplotlib" in capsys.readouterr().err
+    assert not png.exists()
