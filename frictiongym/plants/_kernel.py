@@ -1,8 +1,9 @@
 """Compiled zero-order-hold step of ``J x'' + B x' = u - F(x', u)`` with true stick/slip.
 
 One element function, :func:`advance`, steps one plant over one control period; the batch
-kernel :func:`step_batch` loops it over N plants. The single env and the vector env call the
-same kernel, so a plant stepped alone and inside a batch follow bit-identical trajectories.
+kernels :func:`step_batch` (serial) and :func:`step_batch_parallel` (numba threads) loop it
+over N plants. Every caller goes through them, so a plant stepped alone and inside a batch,
+serially or in parallel, follows a bit-identical trajectory.
 
 Integrators (research/friction.md §4):
 
