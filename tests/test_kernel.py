@@ -644,3 +644,40 @@ def test_energy_check_at_the_rounding_limit_of_the_position() -> None:
     tr = run(Plant(params, friction, DT), 6, commands=np.repeat([1.0, -2.220446049250313e-16], 3))
     assert tr.v[-1, 0] < 0.0  # broke away backwards: the band's negative edge is 0
     assert energy_violation(tr, 1.0, 0.0, DT, tight=True) <= 1e-10
+
+
+def test_energy_check_when_a_coast_moves_one_ulp_per_step() -> None:
+    """Regression (found by hypothesis): no friction, J/B = dt, a pulse then a long coast whose
+    last steps move x by one ulp, which rounds dx and the tightening term B dx^2 / dt."""
+    params = PlantParams(inertia=0.001, damping=1.0, command_limit=1.0)
+    plant = Plant(params, StictionCoulomb(0.0, 0.0, 0.0, 0.0, 1.0, 1.0, 0.0, "step"), DT)
+    tr = run(plant, 51, commands=np.repeat([1.0, 0.0, 0.0], 17))
+    assert 0.0 < tr.v[-1, 0] < 1e-14
+    assert energy_violation(tr, 0.001, 1.0, DT, tight=True) <= 1e-10
+
+
+@pytest.mark.parametrize("v_init", [-5e-324, 5e-324, -1e-310, 2.2e-308])
+def test_friction_stops_a_denormal_velocity_without_pushing_it_back(v_init: float) -> None:
+    """Regression (found by hypothesis): the stop-time test multiplied two tiny numbers, the
+    product underflowed to zero and the stop was missed, so Coulomb friction drove the body
+    backwards for a whole step."""
+    friction = StictionCoulomb(0.5, 0.5, 0.5, 0.5, 1.0, 1.0, 0.0, "step")
+    plant = Plant(PlantParams(inertia=1.0, damping=1.0, command_limit=1.0), friction, DT)
+    plant.reset(velocity=v_init)
+    plant.step(0.0)
+    assert plant.stuck[0]
+    assert plant.velocity[0] == 0.0
+    assert abs(plant.position[0]) <= abs(v_init) * DT
+
+
+def test_steep_velocity_weakening_breakaway_stays_finite() -> None:
+    """Regression (found by hypothesis): friction falling from 1.5 to 0 within 1 mm/s is a
+    negative damping of -1500; the phase evaluated over a whole step overflows, but the event
+    (leaving the decay range) comes long before the step ends."""
+    friction = StictionCoulomb(1.5, 0.0, 0.0, 0.0, 0.001, 1.0, 0.0, "linear")
+    params = PlantParams(inertia=0.001953125, damping=0.0, command_limit=2.0)
+    tr = run(Plant(params, friction, DT), 20, commands=np.full(20, 2.0))
+    assert np.all(np.isfinite(tr.x))
+    assert np.all(np.isfinite(tr.v))
+    # beyond the decay range the only force is the 2.0 command: v grows by 2/J per second
+    np.testing.assert_allclose(np.diff(tr.v[5:, 0]), 2.0 / params.inertia * DT, rtol=1e-9)

@@ -102,7 +102,8 @@ def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> flo
     """Time for ``j v' = a - b v`` to bring ``v`` to ``target``, or ``inf`` if it never does."""
     num = target - v
     den = a - b * v
-    if den == 0.0 or num * den <= 0.0:
+    # Compare signs, not the product: num * den underflows to 0 for tiny (denormal) speeds.
+    if num == 0.0 or den == 0.0 or (num > 0.0) != (den > 0.0):
         return math.inf
     q = -b * num / den
     if q <= -1.0:  # the target lies beyond the asymptote v = a/b
@@ -184,7 +185,10 @@ def exact_static(
         dt = t_left
         x_new, v_new = affine_advance(x, v, a, bb, j, dt)
         # v is monotone within a phase, so the event lies in this step iff v reaches the target.
-        if not math.isnan(target) and (v_new - target) * (v - target) <= 0.0:
+        # Written as "not still short of it" so that an end state that overflowed (a steep
+        # velocity-weakening range grows like e^(|b|t/J)) also counts as reached.
+        short = v_new > target if v > target else v_new < target
+        if not math.isnan(target) and not short:
             t_event = affine_time_to(v, target, a, bb, j)
             if t_event < t_left:
                 dt = t_event
@@ -226,7 +230,10 @@ def split_static(
     f = s * fc.sliding_level(abs(v), s, p)
     v_try = (j * v + h * (u - f)) / (j + h * b_total)
     if v != 0.0 and s * v_try < 0.0:  # crosses zero inside the substep
-        theta = v / (v - v_try)
+        # Locate the stop with the deceleration at the substep's start, damping included: the
+        # input then never does more work up to the stop than the kinetic energy it removes
+        # (the implicit v_try would place the stop slightly late and create energy).
+        theta = j * v / (h * (f + b_total * v - u))
         x += theta * h * v / 2.0
         impulse = f * theta * h
         rest = (1.0 - theta) * h
