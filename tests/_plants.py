@@ -123,9 +123,8 @@ plant_params = st.builds(
     command_limit=st.floats(0.1, 10.0),
 )
 command_lists = st.lists(st.floats(-6.0, 6.0, allow_subnormal=False), min_size=1, max_size=120)
-PROPERTY_SETTINGS = settings(
-    max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow]
-)
+#: Example counts come from the hypothesis profile chosen in conftest.py.
+PROPERTY_SETTINGS = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 def open_loop_commands(n: int, seed: int, us_pos: float, us_neg: float) -> np.ndarray:

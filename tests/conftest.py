@@ -1,0 +1,19 @@
+"""Hypothesis profiles.
+
+* ``default``: 60 random examples per property, a fresh draw each run.
+* ``ci`` (chosen when ``CI`` is set): the same 60 examples every run, so a landing never
+  depends on the luck of the draw.
+* ``thorough``: 3000 random examples, for hunting edge cases after touching the kernel:
+  ``HYPOTHESIS_PROFILE=thorough python -m pytest -k property``.
+"""
+
+import os
+
+from hypothesis import settings
+
+settings.register_profile("default", max_examples=60)
+settings.register_profile("ci", max_examples=60, derandomize=True)
+settings.register_profile("thorough", max_examples=3000)
+settings.load_profile(
+    os.environ.get("HYPOTHESIS_PROFILE", "ci" if os.environ.get("CI") else "default")
+)
