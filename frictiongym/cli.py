@@ -68,12 +68,21 @@ def _demo(args: argparse.Namespace) -> int:
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
 
-        fig, ax = plt.subplots(figsize=(7, 4))
+        fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
         for label, run in runs:
-            ax.plot(run.t, run.y, label=label)
+            (line,) = ax.plot(run.t, run.y, label=label)
+            error_pct = (args.reference - run.y) / args.reference * 100.0
+            ax_err.plot(run.t, error_pct, color=line.get_color(), label=label)
+            if run.stuck[1:].any():  # shade where friction holds the disk (not the start)
+                ax_err.fill_between(run.t, 0, 1, where=run.stuck, color=line.get_color(),
+                                    alpha=0.12, transform=ax_err.get_xaxis_transform(),
+                                    label=f"{label}: stuck")  # fmt: skip
         ax.axhline(args.reference, color="k", lw=0.8, ls="--", label="reference")
-        ax.set(xlabel="time [s]", ylabel="angle [rad]", title="QUBE-Servo 2 step under PID")
-        ax.legend()
+        ax.set(ylabel="angle [rad]", title="QUBE-Servo 2 step under the paper's PID")
+        ax.legend(loc="lower right")
+        ax_err.axhline(0.0, color="k", lw=0.8, ls="--")
+        ax_err.set(xlabel="time [s]", ylabel="error [% of step]", ylim=(-4.0, 4.0))
+        ax_err.legend(loc="upper right", fontsize="small")
         fig.tight_layout()
         fig.savefig(args.plot, dpi=120)
         print(f"figure written to {args.plot}")
