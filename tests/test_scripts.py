@@ -1,0 +1,32 @@
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
+
+
+def test_plot_friction_writes_a_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "laws.png"
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / "plot_friction.py"), "--out", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    assert out.stat().st_size > 10_000
+
+
+def test_bench_plants_help_explains_its_options():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / "bench_plants.py"), "--help"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0
+    for option in ("--batches", "--repeats", "--quick", "--markdown"):
+        assert option in done.stdout
