@@ -328,3 +328,12 @@ def test_large_batches_default_to_the_parallel_kernel() -> None:
     assert large.parallel == (numba.config.NUMBA_NUM_THREADS > 1)
     with pytest.raises(ValueError, match="finite"):
         Plant(PlantParams(1.0, 0.3, 1.0), asym(), DT, num_plants=200, parallel=True).step(np.nan)
+
+
+def test_wrong_kinds_of_parameters_say_what_is_expected() -> None:
+    with pytest.raises(TypeError, match=r"friction must be a FrictionModel.*friction_from_name"):
+        Plant(PlantParams(1.0, 0.3, 1.0), "paper", DT)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="params must be a PlantParams"):
+        Plant({"inertia": 1.0}, asym(), DT)  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="friction must be a FrictionModel"):
+        Plant(PlantParams(1.0, 0.3, 1.0), [asym(), None], DT, num_plants=2)  # type: ignore[list-item]

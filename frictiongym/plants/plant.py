@@ -166,8 +166,8 @@ class Plant:
             raise ValueError(f"num_plants must be a positive integer, got {num_plants!r}")
         self.dt = float(dt)
         self.num_plants = int(num_plants)
-        self._params: list[PlantParams] = self._per_plant(params, "params")
-        self._frictions: list[FrictionModel] = self._per_plant(friction, "friction")
+        self._params: list[PlantParams] = self._per_plant(params, "params", PlantParams)
+        self._frictions: list[FrictionModel] = self._per_plant(friction, "friction", FrictionModel)
         delays = {p.delay_steps(self.dt) for p in self._params}
         if len(delays) > 1:
             raise ValueError("all plants of a batch must share one dead time")
@@ -193,15 +193,25 @@ class Plant:
         self._head = 0
         self.reset()
 
-    def _per_plant(self, value: Any, name: str) -> list[Any]:
+    def _per_plant(self, value: Any, name: str, kind: type) -> list[Any]:
+        values = [value]
         if isinstance(value, Sequence) and not isinstance(value, str):
             if len(value) != self.num_plants:
                 raise ValueError(
                     f"{name} has {len(value)} entries for {self.num_plants} plants; give one "
                     "for all or one per plant"
                 )
-            return list(value)
-        return [value]
+            values = list(value)
+        for item in values:
+            if not isinstance(item, kind):
+                hint = (
+                    " (build one by name with frictiongym.friction.friction_from_name, or use a "
+                    "preset such as ROTARY_PAPER)"
+                    if kind is FrictionModel
+                    else ""
+                )
+                raise TypeError(f"{name} must be a {kind.__name__}, got {item!r}{hint}")
+        return values
 
     @property
     def params(self) -> list[PlantParams]:
