@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
 import sys
 from collections.abc import Sequence
 
@@ -139,7 +140,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(f"--duration must be a positive number of seconds, got {args.duration}")
     if hasattr(args, "reference") and not (math.isfinite(args.reference) and args.reference):
         parser.error(f"--reference must be a nonzero finite angle in rad, got {args.reference}")
-    status: int = args.func(args)
+    try:
+        status: int = args.func(args)
+    except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # keep Python's exit flush from failing again
+        return 0
     return status
 
 

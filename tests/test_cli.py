@@ -45,3 +45,18 @@ def test_plot_without_matplotlib_says_what_to_install(tmp_path, capsys, monkeypa
     assert main(["demo", "--duration", "0.2", "--plot", str(png)]) == 1
     assert "pip install matplotlib" in capsys.readouterr().err
     assert not png.exists()
+
+
+def test_output_piped_into_a_closed_pipe_is_not_an_error():
+    # Close the reading end before the demo writes: its first print meets a broken pipe, as
+    # with `frictiongym demo | head -1`.
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "frictiongym.cli", "demo", "--duration", "0.2"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    proc.stdout.close()
+    stderr = proc.stderr.read()
+    assert proc.wait(timeout=120) == 0
+    assert "Traceback" not in stderr
