@@ -113,6 +113,20 @@ def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> flo
 
 
 @njit(cache=True)
+def breakaway_direction(u: float, p: Row) -> float:
+    """Direction a body at rest moves under input ``u``: +1.0, -1.0, or 0.0 if it stays put.
+
+    The band is closed: the body breaks away only when ``u`` is strictly outside
+    ``[-us_neg, us_pos]`` (research/friction.md §4.2).
+    """
+    if u > p[fc.I_US_POS]:
+        return 1.0
+    if u < -p[fc.I_US_NEG]:
+        return -1.0
+    return 0.0
+
+
+@njit(cache=True)
 def exact_static(
     x: float, v: float, u: float, h: float, j: float, b_total: float, p: Row
 ) -> tuple[float, float, float]:
@@ -128,8 +142,8 @@ def exact_static(
         Step length.
     j, b_total : float
         Inertia and total viscous damping (plant ``B`` plus the law's viscous slope).
-    p : ndarray
-        Friction row.
+    p : tuple of float
+        Packed friction row.
 
     Returns
     -------
@@ -143,11 +157,8 @@ def exact_static(
         if t_left <= 0.0:
             break
         if v == 0.0:
-            if u > p[fc.I_US_POS]:
-                s = 1.0
-            elif u < -p[fc.I_US_NEG]:
-                s = -1.0
-            else:  # held: static friction balances the input exactly
+            s = breakaway_direction(u, p)
+            if s == 0.0:  # held: static friction balances the input exactly
                 impulse += u * t_left
                 t_left = 0.0
                 break
@@ -217,13 +228,9 @@ def split_static(
 
     Returns the new ``x, v`` and the impulse of the nonlinear friction force.
     """
-    us_pos, us_neg = p[fc.I_US_POS], p[fc.I_US_NEG]
     if v == 0.0:
-        if u > us_pos:
-            s = 1.0
-        elif u < -us_neg:
-            s = -1.0
-        else:
+        s = breakaway_direction(u, p)
+        if s == 0.0:
             return x, 0.0, u * h
     else:
         s = 1.0 if v > 0.0 else -1.0
@@ -237,9 +244,9 @@ def split_static(
         x += theta * h * v / 2.0
         impulse = f * theta * h
         rest = (1.0 - theta) * h
-        if -us_neg <= u <= us_pos:
+        s = breakaway_direction(u, p)
+        if s == 0.0:
             return x, 0.0, impulse + u * rest
-        s = 1.0 if u > 0.0 else -1.0
         f = s * fc.sliding_level(0.0, s, p)
         v_new = rest * (u - f) / (j + rest * b_total)
         return x + rest * v_new / 2.0, v_new, impulse + f * rest
@@ -325,7 +332,7 @@ def advance(
             em1 = math.expm1(-hs / lag)
             force = u - (y - u) * em1 * lag / hs
             y = u + (y - u) * (1.0 + em1)
-        if not (v == 0.0 and -friction[fc.I_US_NEG] <= force <= friction[fc.I_US_POS]):
+        if v != 0.0 or breakaway_direction(force, friction) != 0.0:
             held = False
         if exact:
             x, v, imp = exact_static(x, v, force, hs, j, b_total, friction)
