@@ -12,6 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import check_finite, check_nonnegative
+
 FloatArray = npt.NDArray[np.float64]
 
 
@@ -27,10 +29,8 @@ class PIDGains:
     kd: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("kp", "ki", "kd"):
-            value = getattr(self, name)
-            if not math.isfinite(value) or value < 0.0:
-                raise ValueError(f"PIDGains.{name} must be a finite number >= 0, got {value!r}")
+        check_finite(self, "kp", "ki", "kd")
+        check_nonnegative(self, "kp", "ki", "kd")
 
 
 class PID:

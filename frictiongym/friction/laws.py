@@ -22,8 +22,6 @@ law                    sliding friction ``F(v)`` (``s = sign(v)``); at rest
 from __future__ import annotations
 
 import dataclasses
-import math
-import numbers
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -31,38 +29,21 @@ from typing import ClassVar, Literal
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import check_finite, check_nonnegative, check_positive
 from frictiongym.friction import _core
 
 Shape = Literal["step", "linear", "smooth", "exponential"]
 ArrayLike = float | npt.ArrayLike
 
 
-def _check_finite(obj: object, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if not isinstance(value, numbers.Real) or isinstance(value, bool):
-            raise TypeError(f"{type(obj).__name__}.{name} must be a real number, got {value!r}")
-        if not math.isfinite(float(value)):
-            raise ValueError(f"{type(obj).__name__}.{name} must be finite, got {value!r}")
+def _magnitude_hint(name: str, value: float) -> str:
+    if name.endswith("_neg"):
+        return f" (levels are magnitudes: write {name}={-value!r}, not {value!r})"
+    return ""
 
 
 def _check_nonnegative(obj: object, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if value < 0.0:
-            hint = (
-                f" (levels are magnitudes: write {name}={-value!r}, not {value!r})"
-                if name.endswith("_neg")
-                else ""
-            )
-            raise ValueError(f"{type(obj).__name__}.{name} must be >= 0, got {value!r}{hint}")
-
-
-def _check_positive(obj: object, *names: str) -> None:
-    for name in names:
-        value = getattr(obj, name)
-        if value <= 0.0:
-            raise ValueError(f"{type(obj).__name__}.{name} must be > 0, got {value!r}")
+    check_nonnegative(obj, *names, hint=_magnitude_hint)
 
 
 def _check_levels(obj: object, direction: str) -> None:
@@ -188,9 +169,9 @@ class StictionCoulomb(FrictionModel):
 
     def __post_init__(self) -> None:
         fields = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous")
-        _check_finite(self, *fields)
+        check_finite(self, *fields)
         _check_nonnegative(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "viscous")
-        _check_positive(self, "v0_pos", "v0_neg")
+        check_positive(self, "v0_pos", "v0_neg")
         _check_levels(self, "pos")
         _check_levels(self, "neg")
         if self.shape not in _core.SHAPES:
@@ -237,7 +218,7 @@ class CoulombViscous(FrictionModel):
     name: ClassVar[str] = "coulomb"
 
     def __post_init__(self) -> None:
-        _check_finite(self, "uc_pos", "uc_neg", "viscous")
+        check_finite(self, "uc_pos", "uc_neg", "viscous")
         _check_nonnegative(self, "uc_pos", "uc_neg", "viscous")
 
     def row(self) -> npt.NDArray[np.float64]:  # noqa: D102
@@ -297,9 +278,9 @@ class LuGre(FrictionModel):
             "sigma1",
             "viscous",
         )
-        _check_finite(self, *fields)
+        check_finite(self, *fields)
         _check_nonnegative(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "sigma1", "viscous")
-        _check_positive(self, "vs_pos", "vs_neg", "sigma0")
+        check_positive(self, "vs_pos", "vs_neg", "sigma0")
         _check_levels(self, "pos")
         _check_levels(self, "neg")
         if self.uc_pos == 0.0 or self.uc_neg == 0.0:

@@ -17,6 +17,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import check_finite, check_nonnegative, check_positive
 from frictiongym.friction import _core as fc
 from frictiongym.friction.laws import FrictionModel
 from frictiongym.plants import _kernel as k
@@ -56,19 +57,9 @@ class PlantParams:
     dead_time: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("inertia", "damping", "command_limit", "lag", "dead_time"):
-            value = getattr(self, name)
-            if not isinstance(value, numbers.Real) or isinstance(value, bool):
-                raise TypeError(f"PlantParams.{name} must be a real number, got {value!r}")
-            if not math.isfinite(float(value)):
-                raise ValueError(f"PlantParams.{name} must be finite, got {value!r}")
-        if self.inertia <= 0.0:
-            raise ValueError(f"PlantParams.inertia must be > 0, got {self.inertia!r}")
-        if self.command_limit <= 0.0:
-            raise ValueError(f"PlantParams.command_limit must be > 0, got {self.command_limit!r}")
-        for name in ("damping", "lag", "dead_time"):
-            if getattr(self, name) < 0.0:
-                raise ValueError(f"PlantParams.{name} must be >= 0, got {getattr(self, name)!r}")
+        check_finite(self, "inertia", "damping", "command_limit", "lag", "dead_time")
+        check_positive(self, "inertia", "command_limit")
+        check_nonnegative(self, "damping", "lag", "dead_time")
 
     def delay_steps(self, dt: float) -> int:
         """Dead time in whole control periods of length ``dt``; raises if it is not whole."""
