@@ -17,3 +17,7 @@ settings.register_profile("thorough", max_examples=3000)
 settings.load_profile(
     os.environ.get("HYPOTHESIS_PROFILE", "ci" if os.environ.get("CI") else "default")
 )
+
+# Render tests and gymnasium's check_env (which opens every render mode) never need a screen.
+os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
+os.environ.setdefault("SDL_AUDIODRIVER", "dummy")

@@ -1,1 +1,65 @@
-"""Placeholder: filled by a later issue."""
+"""Gymnasium environments: the QUBE-Servo 2 and the Altino car, each with pluggable friction.
+
+``import frictiongym`` registers ``frictiongym/RotaryServo-v0`` and
+``frictiongym/AltinoDistance-v0`` (single env through ``gym.make``, native vector env through
+``gym.make_vec(..., vectorization_mode="vector_entry_point")``). The env modules are imported
+only when an env is made.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import gymnasium as gym
+
+if TYPE_CHECKING:
+    from frictiongym.envs.altino import AltinoDistanceEnv, AltinoDistanceVectorEnv
+    from frictiongym.envs.rotary import RotaryServoEnv, RotaryServoVectorEnv
+
+#: id -> (module, single class, vector class, max_episode_steps); steps are those of
+#: ``ROTARY_EPISODE_STEPS`` and ``ALTINO_EPISODE_STEPS`` (checked by the tests).
+ENV_IDS: dict[str, tuple[str, str, str, int]] = {
+    "frictiongym/RotaryServo-v0": (
+        "frictiongym.envs.rotary", "RotaryServoEnv", "RotaryServoVectorEnv", 2500
+    ),
+    "frictiongym/AltinoDistance-v0": (
+        "frictiongym.envs.altino", "AltinoDistanceEnv", "AltinoDistanceVectorEnv", 400
+    ),
+}  # fmt: skip
+
+_LAZY = {
+    "RotaryServoEnv": "frictiongym.envs.rotary",
+    "RotaryServoVectorEnv": "frictiongym.envs.rotary",
+    "AltinoDistanceEnv": "frictiongym.envs.altino",
+    "AltinoDistanceVectorEnv": "frictiongym.envs.altino",
+}
+
+__all__ = [
+    "ENV_IDS",
+    "AltinoDistanceEnv",
+    "AltinoDistanceVectorEnv",
+    "RotaryServoEnv",
+    "RotaryServoVectorEnv",
+    "register_envs",
+]
+
+
+def register_envs() -> None:
+    """Register the frictiongym ids with Gymnasium (idempotent)."""
+    for env_id, (module, single, vector, steps) in ENV_IDS.items():
+        if env_id in gym.registry:
+            continue
+        gym.register(
+            id=env_id,
+            entry_point=f"{module}:{single}",
+            vector_entry_point=f"{module}:{vector}",
+            max_episode_steps=steps,
+        )
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'frictiongym.envs' has no attribute {name!r}")

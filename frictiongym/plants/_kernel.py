@@ -347,7 +347,8 @@ def advance(
 
 
 @njit(cache=True)
-def _first_non_finite(command: npt.NDArray[np.float64]) -> int:
+def first_non_finite(command: npt.NDArray[np.float64]) -> int:
+    """Index of the first NaN or infinite command, or -1."""
     for i in range(command.shape[0]):
         if not math.isfinite(command[i]):
             return i
@@ -355,7 +356,7 @@ def _first_non_finite(command: npt.NDArray[np.float64]) -> int:
 
 
 @njit(cache=True, inline="always")
-def _step_plant(
+def step_plant(
     i: int,
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
@@ -368,7 +369,7 @@ def _step_plant(
     one_command: bool,
     delayed: bool,
 ) -> None:
-    """Saturate, delay and apply the command of plant ``i``; inlined into both batch loops."""
+    """Saturate, delay and apply the command of plant ``i`` (inlined into every batch loop)."""
     r = 0 if one_row else i
     plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG])
     friction = (
@@ -429,13 +430,13 @@ def step_batch(
         -1 on success; otherwise the index of the first non-finite command, in which case
         no state was changed.
     """
-    bad = _first_non_finite(command)
+    bad = first_non_finite(command)
     if bad >= 0:
         return bad
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[1] > 0
     for i in range(state.shape[0]):
-        _step_plant(
+        step_plant(
             i, state, delay_buffer, head, command, h, n_sub, params, one_row, one_command, delayed
         )
     return -1
@@ -452,13 +453,13 @@ def step_batch_parallel(
     params: npt.NDArray[np.float64],
 ) -> int:
     """:func:`step_batch` with the plants spread over numba's threads (bit-identical results)."""
-    bad = _first_non_finite(command)
+    bad = first_non_finite(command)
     if bad >= 0:
         return bad
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[1] > 0
     for i in prange(state.shape[0]):
-        _step_plant(
+        step_plant(
             np.int64(i),  # prange's index is unsigned; the body indexes with signed integers
             state, delay_buffer, head, command, h, n_sub, params, one_row, one_command, delayed,
         )  # fmt: skip

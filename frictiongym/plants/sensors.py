@@ -1,6 +1,8 @@
 """What a controller actually measures: encoder counts, a filtered-derivative velocity, IR readouts.
 
-All functions are vectorised over any batch shape. Randomness (sensor noise) is never drawn
+Each sensor is one compiled scalar function (``encoder_angle``, ``ir_count``,
+``derivative_update``) that the env kernel calls per plant; the public functions here are ufuncs
+of the same code, vectorised over any batch shape. Randomness (sensor noise) is never drawn
 here: callers pass noise samples drawn from their own generator (an env's ``np_random``), so
 every trajectory is reproducible from the env's seed.
 """
@@ -11,6 +13,7 @@ import math
 
 import numpy as np
 import numpy.typing as npt
+from numba import float64, njit, vectorize
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -22,6 +25,47 @@ QUBE_COUNTS_PER_REV = 2048
 IR_NUMERATOR = 966.0
 IR_OFFSET = 45.0
 IR_MAX_READOUT = 800
+
+
+@njit(cache=True)
+def encoder_angle(angle: float, step: float) -> float:
+    """Angle read through an encoder of resolution ``step`` rad: ``round(angle / step)`` counts.
+
+    Ties round up (``floor(x + 0.5)``), so the reading errs by at most ``step / 2``.
+    """
+    return math.floor(angle / step + 0.5) * step
+
+
+@njit(cache=True)
+def ir_count(distance: float, gain: float, offset: float, noise: float) -> float:
+    """IR readout as an integer-valued float in 0..800 at ``distance`` > 0 cm (see ir_readout)."""
+    raw = gain * IR_NUMERATOR / distance - IR_OFFSET + offset + noise
+    return min(max(np.rint(raw), 0.0), float(IR_MAX_READOUT))
+
+
+@njit(cache=True)
+def derivative_update(
+    estimate: float, position: float, previous: float, pole: float, dt: float
+) -> float:
+    """One step of the filtered derivative (see :class:`FilteredDerivative`)."""
+    return pole * estimate + (1.0 - pole) * (position - previous) / dt
+
+
+@vectorize([float64(float64, float64)], cache=True)
+def _encoder_ufunc(angle: float, step: float) -> float:
+    return encoder_angle(angle, step)
+
+
+@vectorize([float64(float64, float64, float64, float64)], cache=True)
+def _ir_ufunc(distance: float, gain: float, offset: float, noise: float) -> float:
+    return ir_count(distance, gain, offset, noise)
+
+
+@vectorize([float64(float64, float64, float64, float64, float64)], cache=True)
+def _derivative_ufunc(
+    estimate: float, position: float, previous: float, pole: float, dt: float
+) -> float:
+    return derivative_update(estimate, position, previous, pole, dt)
 
 
 def quantize_angle(angle: npt.ArrayLike, counts_per_rev: int = QUBE_COUNTS_PER_REV) -> FloatArray:
@@ -42,8 +86,7 @@ def quantize_angle(angle: npt.ArrayLike, counts_per_rev: int = QUBE_COUNTS_PER_R
     ndarray
         The quantised angle, rad.
     """
-    q = 2.0 * math.pi / counts_per_rev
-    return np.floor(np.asarray(angle, dtype=np.float64) / q + 0.5) * q
+    return np.asarray(_encoder_ufunc(angle, 2.0 * math.pi / counts_per_rev), dtype=np.float64)
 
 
 class FilteredDerivative:
@@ -87,8 +130,8 @@ class FilteredDerivative:
     def update(self, position: npt.ArrayLike) -> FloatArray:
         """Feed the newest position sample; return the velocity estimate."""
         y = np.asarray(position, dtype=np.float64)
-        self._estimate = (
-            self.pole * self._estimate + (1.0 - self.pole) * (y - self._previous) / self.dt
+        self._estimate = np.asarray(
+            _derivative_ufunc(self._estimate, y, self._previous, self.pole, self.dt)
         )
         self._previous = y.copy()
         return self._estimate
@@ -126,8 +169,7 @@ def ir_readout(
     d = np.asarray(distance, dtype=np.float64)
     if np.any(~(d > 0.0)):
         raise ValueError("IR sensor distance must be > 0 cm (the car is touching the wall)")
-    raw = np.asarray(gain) * IR_NUMERATOR / d - IR_OFFSET + np.asarray(offset) + np.asarray(noise)
-    return np.clip(np.rint(raw), 0, IR_MAX_READOUT).astype(np.int64)
+    return np.asarray(_ir_ufunc(d, gain, offset, noise)).astype(np.int64)
 
 
 def ir_distance(readout: npt.ArrayLike) -> FloatArray:

@@ -1,0 +1,260 @@
+"""Compiled env step: plant, sensor, reference, reward and episode end for N envs at once.
+
+The single env (N = 1) and the vector env call the same element function,
+:func:`_env_element`, through :func:`step_envs` (serial) or :func:`step_envs_parallel`
+(numba threads), so their trajectories agree bit for bit. The plant part is the plant
+kernel's own :func:`~frictiongym.plants._kernel.step_plant`, the sensors those of
+:mod:`frictiongym.plants.sensors`, the reference :func:`~frictiongym.envs.references.reference_at`.
+
+Layouts (all float64 unless noted):
+
+* plant rows (N or 1, ``pk.ROW_SIZE``): the plant kernel's rows, one shared by all envs unless
+  they are randomised (a shared row keeps the working set of 4 096 envs in cache);
+* task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
+  the episode;
+* state (N, ``ENV_STATE_SIZE``): the plant state, then the step count, the raw measurement,
+  the estimated position, the estimated velocity, the previous estimate and the reference;
+* config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
+* outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
+  (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit, prange
+
+from frictiongym.envs.references import REF_SIZE, reference_at
+from frictiongym.plants import _kernel as pk
+from frictiongym.plants.sensors import (
+    IR_MAX_READOUT,
+    IR_NUMERATOR,
+    IR_OFFSET,
+    derivative_update,
+    encoder_angle,
+    ir_count,
+)
+
+SENSOR_ENCODER = 0  #: servo: angle through an encoder, observation [angle, velocity, reference]
+SENSOR_IR = 1  #: Altino: IR readout, observation [readout, distance, velocity, reference]
+
+# Task row.
+T_GAIN = 0
+T_OFFSET = 1
+T_REF = 2
+TASK_ROW_SIZE = T_REF + REF_SIZE
+
+# State columns after the plant's.
+E_STEPS = pk.STATE_SIZE
+E_MEASURED = E_STEPS + 1  #: encoder angle (rad) or IR readout
+E_ESTIMATE = E_STEPS + 2  #: estimated position: angle (rad) or distance (cm)
+E_VELOCITY = E_STEPS + 3  #: filtered derivative of the estimate
+E_PREVIOUS = E_STEPS + 4  #: previous estimate
+E_REFERENCE = E_STEPS + 5
+ENV_STATE_SIZE = E_STEPS + 6
+
+# Config.
+C_SENSOR = 0
+C_QUANTIZE = 1  #: 1.0: encoder counts / integer IR readout; 0.0: ideal sensor
+C_NOISE = 2  #: standard deviation of the additive sensor noise (rad or readout units)
+C_ENCODER_STEP = 3  #: rad per encoder count
+C_POLE = 4  #: velocity filter pole exp(-w dt); 0.0 is a backward difference
+C_ERROR_SCALE = 5
+C_EFFORT_WEIGHT = 6
+C_PENALTY = 7
+C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, cm
+C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
+CONFIG_SIZE = 10
+
+# Outputs.
+O_REWARD = 0
+O_POSITION = 1  #: true position: rad, or distance to the wall in cm
+O_VELOCITY = 2  #: its true rate
+O_COMMAND = 3  #: applied command (after saturation)
+O_REFERENCE = 4
+O_TIME = 5
+OUT_SIZE = 6
+F_TERMINATED = 0
+F_TRUNCATED = 1
+F_STUCK = 2
+FLAG_SIZE = 3
+
+# splitmix64 (Steele, Lea & Flood 2014): one uint64 of state per env, so the noise of env i
+# depends only on its own seed, however the batch is split over threads.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+
+
+@njit(cache=True, inline="always")
+def _uniform(rng: npt.NDArray[np.uint64], i: int) -> float:
+    """Draw the next uniform in (0, 1] from env ``i``'s generator."""
+    z = rng[i] + _GOLDEN
+    rng[i] = z
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    z = z ^ (z >> _S31)
+    return (float(z >> _S11) + 1.0) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, inline="always")
+def _normal(rng: npt.NDArray[np.uint64], i: int) -> float:
+    """Draw a standard normal for env ``i`` (Box-Muller, one of the pair)."""
+    u1 = _uniform(rng, i)
+    u2 = _uniform(rng, i)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@njit(cache=True, inline="always")
+def _env_element(
+    i: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    dt: float,
+    n_sub: int,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+    one_row: bool,
+    delayed: bool,
+) -> None:
+    """Step env ``i`` (or, if ``fresh[i]``, only observe its just-reset state)."""
+    if not fresh[i]:
+        pk.step_plant(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row,
+                      False, delayed)  # fmt: skip
+        state[i, E_STEPS] += 1.0
+    t = state[i, E_STEPS] * dt
+    x = state[i, pk.S_X]
+    noise = 0.0
+    if config[C_NOISE] > 0.0:
+        noise = config[C_NOISE] * _normal(rng, i)
+    quantize = config[C_QUANTIZE] != 0.0
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        position, velocity = x, state[i, pk.S_V]
+        measured = rows[i, T_GAIN] * x + noise
+        if quantize:
+            measured = encoder_angle(measured, config[C_ENCODER_STEP])
+        estimate = measured
+        terminated = abs(x) > config[C_LIMIT]
+    else:  # IR: the plant moves toward the wall, so the distance is -x
+        position, velocity = -x, -state[i, pk.S_V]
+        if position <= 0.0:  # touching the wall: the nearest reading
+            measured = float(IR_MAX_READOUT)
+        elif quantize:
+            measured = ir_count(position, rows[i, T_GAIN], rows[i, T_OFFSET], noise)
+        else:
+            raw = rows[i, T_GAIN] * IR_NUMERATOR / position - IR_OFFSET + rows[i, T_OFFSET]
+            measured = min(max(raw + noise, 0.0), float(IR_MAX_READOUT))
+        estimate = IR_NUMERATOR / (measured + IR_OFFSET)
+        terminated = position <= config[C_LIMIT]
+    if fresh[i]:
+        estimated_velocity = 0.0
+    else:
+        estimated_velocity = derivative_update(
+            state[i, E_VELOCITY], estimate, state[i, E_PREVIOUS], config[C_POLE], dt
+        )
+    reference = reference_at(t, rows, i, T_REF)
+    state[i, E_MEASURED] = measured
+    state[i, E_ESTIMATE] = estimate
+    state[i, E_VELOCITY] = estimated_velocity
+    state[i, E_PREVIOUS] = estimate
+    state[i, E_REFERENCE] = reference
+
+    applied = state[i, pk.S_COMMAND]
+    if fresh[i]:
+        reward, terminated, truncated = 0.0, False, False
+    else:
+        effort = applied / plant_rows[0 if one_row else i, pk.I_UMAX]
+        reward = -(
+            abs(reference - position) / config[C_ERROR_SCALE]
+            + config[C_EFFORT_WEIGHT] * effort * effort
+        )
+        if terminated:
+            reward -= config[C_PENALTY]
+        truncated = 0.0 < config[C_MAX_STEPS] <= state[i, E_STEPS]
+
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        obs[i, 0], obs[i, 1], obs[i, 2] = measured, estimated_velocity, reference
+    else:
+        obs[i, 0], obs[i, 1], obs[i, 2], obs[i, 3] = (
+            measured, estimate, estimated_velocity, reference
+        )  # fmt: skip
+    out[O_REWARD, i] = reward
+    out[O_POSITION, i] = position
+    out[O_VELOCITY, i] = velocity
+    out[O_COMMAND, i] = applied
+    out[O_REFERENCE, i] = reference
+    out[O_TIME, i] = t
+    flags[F_TERMINATED, i] = terminated
+    flags[F_TRUNCATED, i] = truncated
+    flags[F_STUCK, i] = state[i, pk.S_STUCK] != 0.0
+
+
+@njit(cache=True)
+def step_envs(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    dt: float,
+    n_sub: int,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> int:
+    """Step every env not ``fresh`` under ``command`` and observe all of them, in place.
+
+    Returns -1, or the index of the first non-finite command (then nothing changed).
+    """
+    bad = pk.first_non_finite(command)
+    if bad >= 0:
+        return bad
+    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
+    for i in range(state.shape[0]):
+        _env_element(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, rows, rng,
+                     config, fresh, obs, out, flags, one_row, delayed)  # fmt: skip
+    return -1
+
+
+@njit(cache=True, parallel=True)
+def step_envs_parallel(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    dt: float,
+    n_sub: int,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> int:
+    """:func:`step_envs` with the envs spread over numba's threads (bit-identical results)."""
+    bad = pk.first_non_finite(command)
+    if bad >= 0:
+        return bad
+    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
+    for i in prange(state.shape[0]):
+        _env_element(np.int64(i), state, delay_buffer, head, command, dt, n_sub, plant_rows,
+                     rows, rng, config, fresh, obs, out, flags, one_row, delayed)  # fmt: skip
+    return -1

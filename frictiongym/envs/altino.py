@@ -1,0 +1,126 @@
+"""``frictiongym/AltinoDistance-v0``: hold the Altino car at a distance from a wall, by IR."""
+
+from __future__ import annotations
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
+from frictiongym.envs.core import Device
+from frictiongym.envs.references import Ramp, RandomSteps, Sine, Step, StepSequence
+from frictiongym.friction import ALTINO_LUGRE, ALTINO_PAPER
+from frictiongym.plants.presets import (
+    ALTINO_DT,
+    ALTINO_PLANT,
+    ALTINO_START_CM,
+    ALTINO_TARGET_CM,
+)
+
+#: Registered episode length: 20 s at the default 50 ms period (the paper's runs settle or
+#: cycle within it; docs/altino-model.md).
+ALTINO_EPISODE_STEPS = 400
+
+ALTINO_DEVICE = Device(
+    name="AltinoDistance",
+    plant=ALTINO_PLANT,
+    dt=ALTINO_DT,
+    paper_friction=ALTINO_PAPER,
+    lugre_friction=ALTINO_LUGRE,
+    sensor=ek.SENSOR_IR,
+    velocity_cutoff=None,  # backward difference of the estimate, as docs/altino-model.md
+    start=ALTINO_START_CM,
+    # Defaults of each reference kind (cm from the wall); the step is the paper's 5 cm target.
+    references={
+        "step": Step(ALTINO_TARGET_CM),
+        "step_sequence": StepSequence((5.0, 10.0, 7.0, 12.0), period=5.0),
+        "ramp": Ramp(-1.0, start=0.0, initial=20.0),
+        "sine": Sine(amplitude=3.0, period=10.0, offset=10.0),
+        "random_steps": RandomSteps(3.0, 18.0, period=5.0),
+    },
+    error_scale=ALTINO_TARGET_CM,  # cm: the target distance costs 1 per step
+    effort_weight=0.01,
+    limit=0.0,  # touching the wall
+    limit_penalty=100.0,
+    noise_std=2.0,  # assumed: readout units (0.05 cm at 5 cm); docs/altino-model.md has none
+    observation_names=("readout", "distance", "velocity", "reference"),
+)
+
+
+class AltinoDistanceEnv(FrictionEnv):
+    r"""Drive the Altino robot car to a distance from a wall, measured by its front IR sensor.
+
+    ## Description
+
+    The car moves toward the wall under ``M x'' + B x' = u(t - T_d) - F(x', u)`` with the
+    paper's asymmetric friction in motor units (Fig. 10(b): ``u_s± = 200``,
+    ``u_c+ = 150.4``, ``u_c- = 119.6``, viscous 10.93 per cm/s) and an assumed mass, dead time
+    and period (docs/altino-model.md: ``M = 2.2``, one period of dead time, 20 Hz). Its distance
+    ``d`` to the wall is read through the IR sensor's integer readout, ``d = 966/(x + 45)``
+    cm (paper Eq. (1)), which saturates at 0 (beyond 21.47 cm) and 800 (1.14 cm). The task
+    of the paper: hold the car 5 cm from the wall.
+
+    ## Action Space
+
+    ``Box(-1000, 1000, (1,), float32)``: the motor command (the Altino's ``Go(±1000)`` units);
+    **positive drives the car forward, toward the wall**. Larger values are saturated at ±1000
+    and ``info["command"]`` reports the applied value; NaN or infinite actions raise
+    ``ValueError``.
+
+    ## Observation Space
+
+    ``Box((0, 1.143, -inf, -inf), (800, 21.47, inf, inf), (4,), float32)``:
+
+    | Num | Observation | Unit    | Source                                               |
+    |-----|-------------|---------|------------------------------------------------------|
+    | 0   | readout     | counts  | IR readout 0..800 (integer when ``quantize``), + noise |
+    | 1   | distance    | cm      | ``966 / (readout + 45)``, the paper's Eq. (1)        |
+    | 2   | velocity    | cm/s    | backward difference of the distance estimate         |
+    | 3   | reference   | cm      | target distance at this sample                       |
+
+    The velocity is the rate of the distance: negative while the car approaches the wall.
+
+    ## Rewards
+
+    ``-|r - d| / 5 cm - effort_weight * (u / 1000)²`` per step, with the true distance ``d``
+    and the applied command ``u`` (``effort_weight`` 0.01); ``-limit_penalty`` (100) more when
+    the car touches the wall.
+
+    ## Starting State
+
+    At rest (stuck) 30 cm from the wall (the IR's stated range, docs/altino-model.md).
+    ``reset(options=...)`` takes ``position`` (distance, cm > 0), ``velocity`` (rate of the
+    distance, cm/s) and ``reference`` for one episode.
+
+    ## Episode End
+
+    Terminated when the car touches the wall (distance <= ``safety_limit``, 0 cm); truncated
+    after 400 steps (20 s at 50 ms) by the registered time limit.
+
+    ## Arguments
+
+    As :class:`~frictiongym.envs.RotaryServoEnv`, in the car's units: ``friction``, ``dt``
+    (default 0.05 s), ``reference`` (``"step"``: 5 cm, default; ``"step_sequence"``,
+    ``"ramp"``, ``"sine"``, ``"random_steps"``: a new level in 3–18 cm every 5 s; a number; or a
+    generator), ``sensor_noise`` (True: 2 readout units, std), ``quantize`` (integer readout),
+    ``delay`` (default one period, 0.05 s), ``randomize`` (``"inertia"`` is the car's mass,
+    ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``effort_weight``,
+    ``safety_limit`` (cm), ``limit_penalty``, ``backend``, ``render_mode``.
+
+    ``info`` of every step: ``position`` (true distance to the wall, cm), ``velocity`` (its
+    true rate, cm/s), ``command`` (applied), ``reference``, ``time`` (s), ``stuck``.
+
+    ## Version History
+
+    * v0: first release.
+    """
+
+    device = ALTINO_DEVICE
+
+
+class AltinoDistanceVectorEnv(FrictionVectorEnv):
+    """``num_envs`` Altino envs stepped by one compiled call (see :class:`AltinoDistanceEnv`).
+
+    Takes the single env's arguments plus ``num_envs``, ``max_episode_steps`` (default 400
+    through ``gym.make_vec``) and ``parallel``. Autoreset mode: ``NEXT_STEP``. Env ``i`` of
+    ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
+    """
+
+    device = ALTINO_DEVICE

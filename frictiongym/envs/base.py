@@ -1,0 +1,268 @@
+"""Gymnasium env classes shared by the devices: a single env and a native vector env.
+
+Both hold a :class:`~frictiongym.envs.core.Simulation` (of 1 or of N envs) and differ only
+in how they seed, return and reset: the single env draws from ``self.np_random``, env ``i`` of
+the vector env from a generator seeded ``seed + i`` (as ``SyncVectorEnv`` seeds its copies),
+so ``vector_env.reset(seed=s)`` and ``single_env.reset(seed=s + i)`` give identical
+trajectories for the same actions.
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.core import Device, Simulation
+from frictiongym.plants import _kernel as pk
+
+ObsArray = npt.NDArray[np.float32]
+ActArray = npt.NDArray[np.float32]
+
+INFO_KEYS = ("position", "velocity", "command", "reference", "time")
+_OUT_ROWS = (ek.O_POSITION, ek.O_VELOCITY, ek.O_COMMAND, ek.O_REFERENCE, ek.O_TIME)
+_RENDER_FPS = 50
+
+
+def _spaces(device: Device, sim: Simulation) -> tuple[spaces.Space[Any], spaces.Space[Any]]:
+    limit = sim.plant.command_limit
+    action = spaces.Box(-limit, limit, shape=(1,), dtype=np.float32)
+    low = np.full(sim.observation_size, -np.inf, dtype=np.float32)
+    high = np.full(sim.observation_size, np.inf, dtype=np.float32)
+    if device.sensor == ek.SENSOR_IR:  # readout 0..800 and the distance it can stand for
+        low[0], high[0] = 0.0, 800.0
+        low[1], high[1] = 966.0 / 845.0, 966.0 / 45.0
+    return action, spaces.Box(low, high, dtype=np.float32)
+
+
+class FrictionEnv(gym.Env[ObsArray, ActArray]):
+    """Base class of the single envs; see :class:`~frictiongym.envs.RotaryServoEnv`."""
+
+    device: ClassVar[Device]
+    metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": _RENDER_FPS,
+    }
+
+    def __init__(self, *, render_mode: str | None = None, **kwargs: Any) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode must be one of {self.metadata['render_modes']} or None, "
+                f"got {render_mode!r}"
+            )
+        self.render_mode = render_mode
+        self.sim = Simulation(self.device, 1, **kwargs)
+        self.dt = self.sim.dt
+        self.action_space, self.observation_space = _spaces(self.device, self.sim)
+        self._command = np.zeros(1)
+        self._fresh = np.zeros(1, dtype=bool)
+        self._obs = np.zeros((1, self.sim.observation_size), dtype=np.float32)
+        self._out = np.zeros((ek.OUT_SIZE, 1))
+        self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        self._window: Any = None
+        self._render_every = max(1, round(1.0 / (_RENDER_FPS * self.dt)))
+
+    def _info(self) -> dict[str, Any]:
+        out = self._out[:, 0].tolist()
+        return {
+            "position": out[ek.O_POSITION],
+            "velocity": out[ek.O_VELOCITY],
+            "command": out[ek.O_COMMAND],
+            "reference": out[ek.O_REFERENCE],
+            "time": out[ek.O_TIME],
+            "stuck": bool(self._flags[ek.F_STUCK, 0]),
+        }
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[ObsArray, dict[str, Any]]:
+        """Start an episode at rest (or as ``options`` say); see the class docstring."""
+        super().reset(seed=seed)
+        self._fresh[0] = True
+        self.sim.prepare_reset(self._fresh, lambda _: self.np_random, options)
+        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+        self._fresh[0] = False
+        if self.render_mode == "human":
+            self.render()
+        return self._obs[0].copy(), self._info()
+
+    def step(self, action: ActArray) -> tuple[ObsArray, float, bool, bool, dict[str, Any]]:
+        """Hold ``action`` (saturated at the command limit) over one control period."""
+        try:
+            self._command[:] = action
+        except (ValueError, TypeError):
+            raise ValueError(f"action must be one number (shape (1,)), got {action!r}") from None
+        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+        if self.render_mode == "human" and self.sim.state[0, ek.E_STEPS] % self._render_every == 0:
+            self.render()
+        return (
+            self._obs[0].copy(),
+            float(self._out[ek.O_REWARD, 0]),
+            bool(self._flags[ek.F_TERMINATED, 0]),
+            False,
+            self._info(),
+        )
+
+    def render(self) -> npt.NDArray[np.uint8] | None:
+        """Draw the current state: an RGB array (``rgb_array``) or a window (``human``)."""
+        if self.render_mode is None:
+            gym.logger.warn(
+                "render() called without a render mode; pass render_mode='rgb_array' or 'human' "
+                f"to gym.make (e.g. gym.make({self.spec.id if self.spec else '...'!r}, "
+                "render_mode='rgb_array'))"
+            )
+            return None
+        frame = _frame(self.sim, 0)
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._window is None:
+            from frictiongym.envs.rendering import Window
+
+            self._window = Window(f"frictiongym {self.device.name}", _RENDER_FPS)
+        self._window.show(frame)
+        return None
+
+    def close(self) -> None:
+        """Close the window, if one is open."""
+        if self._window is not None:
+            self._window.close()
+            self._window = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle without the window (it is reopened on the next render)."""
+        state = self.__dict__.copy()
+        state["_window"] = None
+        return state
+
+
+def _frame(sim: Simulation, i: int) -> npt.NDArray[np.uint8]:
+    from frictiongym.envs import rendering
+
+    x = float(sim.state[i, pk.S_X])
+    reference = float(sim.state[i, ek.E_REFERENCE])
+    stuck = bool(sim.state[i, pk.S_STUCK] != 0.0)
+    if sim.device.sensor == ek.SENSOR_ENCODER:
+        return rendering.draw_servo(x, reference, stuck=stuck)
+    return rendering.draw_altino(-x, reference, stuck=stuck)
+
+
+class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
+    """Base class of the native vector envs; see :class:`~frictiongym.envs.RotaryServoVectorEnv`."""
+
+    device: ClassVar[Device]
+    metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
+        "render_modes": ["rgb_array"],
+        "render_fps": _RENDER_FPS,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        parallel: bool | None = None,
+        **kwargs: Any,
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"the vector env renders 'rgb_array' only, got {render_mode!r}")
+        self.render_mode = render_mode
+        self.sim = Simulation(
+            self.device, num_envs, max_episode_steps=max_episode_steps, parallel=parallel, **kwargs
+        )
+        self.num_envs = self.sim.num_envs
+        self.dt = self.sim.dt
+        self.max_episode_steps = max_episode_steps
+        self.single_action_space, self.single_observation_space = _spaces(self.device, self.sim)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._seeds: list[int | None] = [None] * self.num_envs
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._done = np.zeros(self.num_envs, dtype=bool)
+        self._all = np.ones(self.num_envs, dtype=bool)
+        self._all.flags.writeable = False
+
+    def _rng(self, i: int) -> np.random.Generator:
+        """Env ``i``'s generator, created on first use (most tasks draw nothing)."""
+        rng = self._rngs[i]
+        if rng is None:
+            rng, _ = seeding.np_random(self._seeds[i])
+            self._rngs[i] = rng
+        return rng
+
+    def _outputs(self) -> tuple[ObsArray, npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
+        n = self.num_envs
+        return (
+            np.empty((n, self.sim.observation_size), dtype=np.float32),
+            np.empty((ek.OUT_SIZE, n)),
+            np.empty((ek.FLAG_SIZE, n), dtype=bool),
+        )
+
+    def _info(self, out: npt.NDArray[np.float64], flags: npt.NDArray[np.bool_]) -> dict[str, Any]:
+        info: dict[str, Any] = {
+            key: out[row] for key, row in zip(INFO_KEYS, _OUT_ROWS, strict=True)
+        }
+        info["stuck"] = flags[ek.F_STUCK]
+        for key in (*INFO_KEYS, "stuck"):
+            info["_" + key] = self._all
+        return info
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[ObsArray, dict[str, Any]]:
+        """Reset every env; env ``i`` is seeded ``seed + i`` (or ``seed[i]`` for a list)."""
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        if seed is None or isinstance(seed, int):
+            self._seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
+        else:
+            if len(seed) != self.num_envs:
+                raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
+            self._seeds = list(seed)
+        self._rngs = [None] * self.num_envs
+        fresh = np.ones(self.num_envs, dtype=bool)
+        self.sim.prepare_reset(fresh, self._rng, options)
+        obs, out, flags = self._outputs()
+        self.sim.run(np.zeros(self.num_envs), fresh, obs, out, flags)
+        self._done[:] = False
+        return obs, self._info(out, flags)
+
+    def step(
+        self, actions: ActArray
+    ) -> tuple[ObsArray, npt.NDArray[np.float64], npt.NDArray[np.bool_], npt.NDArray[np.bool_],
+               dict[str, Any]]:  # fmt: skip
+        """Step every env; envs whose episode ended on the last step are reset instead."""
+        command = np.asarray(actions)
+        if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
+            command = command.astype(np.float64)
+        if command.size != self.num_envs:
+            raise ValueError(
+                f"actions must hold one command per env, shape ({self.num_envs}, 1); "
+                f"got shape {command.shape}"
+            )
+        command = command.reshape(self.num_envs)
+        fresh = self._done
+        if fresh.any():
+            self.sim.prepare_reset(fresh, self._rng)
+        obs, out, flags = self._outputs()
+        self.sim.run(command, fresh, obs, out, flags)
+        terminated, truncated = flags[ek.F_TERMINATED], flags[ek.F_TRUNCATED]
+        self._done = terminated | truncated
+        return obs, out[ek.O_REWARD], terminated, truncated, self._info(out, flags)
+
+    def render(self) -> tuple[npt.NDArray[np.uint8], ...] | None:
+        """One RGB frame per env (``render_mode='rgb_array'``)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without render_mode='rgb_array'")
+            return None
+        return tuple(_frame(self.sim, i) for i in range(self.num_envs))

@@ -1,0 +1,314 @@
+"""The batched simulation behind both env classes: N envs of one device on the env kernel.
+
+:class:`Device` describes what an env id simulates (plant, sensor, task defaults);
+:class:`Simulation` holds the state and parameters of N such envs, prepares resets from each
+env's own generator and steps them all with one call of the env kernel. The single env is a
+``Simulation`` of one; the vector env one of N: same code, same draws, same trajectories.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numba
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.randomization import DomainRandomization, apply_factors
+from frictiongym.envs.references import Reference, resolve_reference
+from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
+from frictiongym.plants import _kernel as pk
+from frictiongym.plants.plant import PARALLEL_MIN_PLANTS, PlantParams, default_substeps, plant_row
+from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+
+#: Keys accepted in ``reset(options=...)``.
+RESET_OPTIONS = ("position", "velocity", "reference")
+#: Backends this version provides.
+SIM_BACKENDS = ("sim", "sim://")
+
+
+@dataclass(frozen=True)
+class Device:
+    """What an env id simulates and the defaults of its task (each cites its source)."""
+
+    name: str
+    plant: PlantParams
+    dt: float
+    paper_friction: StictionCoulomb
+    lugre_friction: LuGre
+    sensor: int  #: ``SENSOR_ENCODER`` or ``SENSOR_IR``
+    velocity_cutoff: float | None  #: rad/s of the velocity filter; None: backward difference
+    start: float  #: default starting position (rad, or cm from the wall)
+    references: Mapping[str, Reference]
+    error_scale: float  #: tracking error that costs 1 per step
+    effort_weight: float
+    limit: float  #: default safety limit (``C_LIMIT``)
+    limit_penalty: float
+    noise_std: float  #: sensor noise of ``sensor_noise=True``
+    observation_names: tuple[str, ...]
+
+
+def _number(name: str, value: object, *, positive: bool = False, allow_zero: bool = True) -> float:
+    if not (isinstance(value, numbers.Real) and not isinstance(value, bool)):
+        raise TypeError(f"{name} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (positive and (v < 0.0 or (v == 0.0 and not allow_zero))):
+        rule = "> 0" if positive and not allow_zero else ">= 0" if positive else "finite"
+        raise ValueError(f"{name} must be {rule}, got {value!r}")
+    return v
+
+
+class Simulation:
+    """N simulated envs of one device.
+
+    Parameters
+    ----------
+    device : Device
+        What to simulate.
+    num_envs : int
+        Batch size.
+    friction : str or FrictionModel, default "paper"
+        A law's name (``paper``, ``none``, ``coulomb``, ``stribeck``, ``lugre``) built from the
+        device's presets, or a model.
+    dt : float, optional
+        Control period, s (default: the device's).
+    reference : str, float or Reference, default "step"
+        Default reference of every episode (see :func:`resolve_reference`).
+    sensor_noise : bool or float, default False
+        Additive sensor noise: False (none), True (the device's default level) or a standard
+        deviation in sensor units (rad for the encoder, readout units for the IR sensor).
+    quantize : bool, default True
+        Quantise as the sensor does (encoder counts, integer IR readout).
+    delay : float, optional
+        Actuator dead time, s, a whole number of periods (default: the device's, rounded to
+        whole periods).
+    randomize : dict or DomainRandomization, optional
+        Factors drawn at each reset.
+    plant : PlantParams, optional
+        Nominal plant (default: the device's).
+    effort_weight, safety_limit, limit_penalty : float, optional
+        Reward and safety settings (defaults: the device's).
+    max_episode_steps : int, optional
+        Truncate episodes after this many steps (the vector env; the single env leaves it to
+        the registered ``TimeLimit``).
+    parallel : bool, optional
+        Use numba's threads (default: for batches of ``PARALLEL_MIN_PLANTS`` or more).
+    backend : str, default "sim"
+        Only the simulator exists in this version.
+    """
+
+    device: Device
+    num_envs: int
+    dt: float
+    friction: FrictionModel
+    plant: PlantParams
+    delay_steps: int
+    reference: Reference
+    randomize: DomainRandomization | None
+    limit: float
+    config: FloatArray
+    substeps: int
+    head: int
+    parallel: bool
+    _kernel: Callable[..., int]
+    _nominal_row: FloatArray
+
+    def __init__(
+        self,
+        device: Device,
+        num_envs: int = 1,
+        *,
+        friction: str | FrictionModel = "paper",
+        dt: float | None = None,
+        reference: str | float | Reference = "step",
+        sensor_noise: bool | float = False,
+        quantize: bool = True,
+        delay: float | None = None,
+        randomize: Mapping[str, Any] | DomainRandomization | None = None,
+        plant: PlantParams | None = None,
+        effort_weight: float | None = None,
+        safety_limit: float | None = None,
+        limit_penalty: float | None = None,
+        max_episode_steps: int | None = None,
+        parallel: bool | None = None,
+        backend: str = "sim",
+    ) -> None:
+        if backend not in SIM_BACKENDS:
+            raise ValueError(
+                f"unknown backend {backend!r}: this version runs the simulator only "
+                f"(backend='sim'); device backends are not implemented yet"
+            )
+        if not isinstance(num_envs, numbers.Integral) or num_envs < 1:
+            raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
+        self.device = device
+        self.num_envs = int(num_envs)
+        self.dt = device.dt if dt is None else _number("dt", dt, positive=True, allow_zero=False)
+        if isinstance(friction, str):
+            friction = friction_from_name(friction, device.paper_friction, device.lugre_friction)
+        if not isinstance(friction, FrictionModel):
+            raise TypeError(f"friction must be a law's name or a FrictionModel, got {friction!r}")
+        self.friction = friction
+        nominal = device.plant if plant is None else plant
+        if not isinstance(nominal, PlantParams):
+            raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
+        if delay is None:  # the device's dead time, in whole periods of this dt
+            delay = round(nominal.dead_time / self.dt) * self.dt
+        self.plant = replace(nominal, dead_time=_number("delay", delay, positive=True))
+        self.delay_steps = self.plant.delay_steps(self.dt)
+        self.reference = resolve_reference(reference, device.references)
+        self.randomize = DomainRandomization.from_spec(randomize)
+        if sensor_noise is True:
+            noise = device.noise_std
+        elif sensor_noise is False:
+            noise = 0.0
+        else:
+            noise = _number("sensor_noise", sensor_noise, positive=True)
+        if not isinstance(quantize, bool | np.bool_):
+            raise TypeError(f"quantize must be True or False, got {quantize!r}")
+        if max_episode_steps is not None and (
+            not isinstance(max_episode_steps, numbers.Integral) or max_episode_steps < 1
+        ):
+            raise ValueError(
+                f"max_episode_steps must be a positive integer, got {max_episode_steps!r}"
+            )
+        self.limit = device.limit if safety_limit is None else _number("safety_limit", safety_limit)
+        self.config = np.zeros(ek.CONFIG_SIZE)
+        self.config[ek.C_SENSOR] = device.sensor
+        self.config[ek.C_QUANTIZE] = float(quantize)
+        self.config[ek.C_NOISE] = noise
+        self.config[ek.C_ENCODER_STEP] = 2.0 * math.pi / QUBE_COUNTS_PER_REV
+        cutoff = device.velocity_cutoff
+        self.config[ek.C_POLE] = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
+        self.config[ek.C_ERROR_SCALE] = device.error_scale
+        self.config[ek.C_EFFORT_WEIGHT] = (
+            device.effort_weight
+            if effort_weight is None
+            else _number("effort_weight", effort_weight, positive=True)
+        )
+        self.config[ek.C_PENALTY] = (
+            device.limit_penalty
+            if limit_penalty is None
+            else _number("limit_penalty", limit_penalty, positive=True)
+        )
+        self.config[ek.C_LIMIT] = self.limit
+        self.config[ek.C_MAX_STEPS] = max_episode_steps or 0
+
+        worst = self.plant  # the smallest inertia a reset can draw sets the substeps
+        if self.randomize is not None and self.randomize.inertia is not None:
+            worst = replace(self.plant, inertia=self.plant.inertia * self.randomize.inertia[0])
+        self.substeps = default_substeps([worst], [friction], self.dt)
+        self._nominal_row = plant_row(self.plant, friction)
+        n = self.num_envs
+        self.plant_rows: FloatArray = self._nominal_row[None].copy()
+        if self.randomize is not None:
+            self.plant_rows = np.repeat(self.plant_rows, n, axis=0)
+        self.rows: FloatArray = np.zeros((n, ek.TASK_ROW_SIZE))
+        self.state: FloatArray = np.zeros((n, ek.ENV_STATE_SIZE))
+        self.delay_buffer: FloatArray = np.zeros((n, self.delay_steps))
+        self.noise_state: npt.NDArray[np.uint64] = np.zeros(n, dtype=np.uint64)
+        self.head = 0
+        if parallel is None:
+            parallel = n >= PARALLEL_MIN_PLANTS and numba.config.NUMBA_NUM_THREADS > 1
+        self.parallel = bool(parallel)
+        self._kernel = ek.step_envs_parallel if self.parallel else ek.step_envs
+
+    @property
+    def observation_size(self) -> int:
+        """Length of one env's observation."""
+        return len(self.device.observation_names)
+
+    def _start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
+        """Plant position and velocity at reset, from the options (in env units) or defaults."""
+        pos = np.broadcast_to(
+            np.asarray(options.get("position", self.device.start), np.float64), count
+        )
+        vel = np.broadcast_to(np.asarray(options.get("velocity", 0.0), np.float64), count)
+        if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
+            raise ValueError("reset options 'position' and 'velocity' must be finite numbers")
+        if self.device.sensor == ek.SENSOR_IR:
+            if np.any(pos <= self.limit):
+                raise ValueError(
+                    f"reset option 'position' is the distance to the wall in cm and must exceed "
+                    f"the safety limit {self.limit} cm, got {options['position']!r}"
+                )
+            return -pos, -vel  # the plant moves toward the wall
+        if np.any(np.abs(pos) > self.limit):
+            raise ValueError(
+                f"reset option 'position' must lie within the safety limit ±{self.limit} rad, "
+                f"got {options['position']!r}"
+            )
+        return pos, vel
+
+    def prepare_reset(
+        self,
+        mask: BoolArray,
+        rng_of: Callable[[int], np.random.Generator],
+        options: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Reset the envs of ``mask``; the next :meth:`run` with ``fresh=mask`` observes them.
+
+        Each env draws, from its own generator and in this order: the randomised factors,
+        the reference (if random) and the seed of its sensor noise (if noisy).
+        """
+        options = dict(options or {})
+        unknown = set(options) - set(RESET_OPTIONS)
+        if unknown:
+            raise ValueError(f"unknown reset options {sorted(unknown)}; use {list(RESET_OPTIONS)}")
+        reference = (
+            self.reference
+            if "reference" not in options
+            else resolve_reference(options["reference"], self.device.references)
+        )
+        idx = np.flatnonzero(mask)
+        x0, v0 = self._start_state(options, len(idx))
+        noisy = self.config[ek.C_NOISE] > 0.0
+        if self.randomize is None and not reference.random and not noisy:
+            self.rows[idx, ek.T_GAIN] = 1.0
+            self.rows[idx, ek.T_REF :] = reference.sample()
+        else:
+            for j in idx:
+                rng = rng_of(int(j))
+                factors = self.randomize.draw(rng) if self.randomize is not None else {}
+                if self.randomize is not None:
+                    self.plant_rows[j], gain = apply_factors(self._nominal_row, factors)
+                    self.rows[j, ek.T_GAIN] = gain
+                else:
+                    self.rows[j, ek.T_GAIN] = 1.0
+                self.rows[j, ek.T_REF :] = reference.sample(rng)
+                if noisy:
+                    self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
+        self.rows[idx, ek.T_OFFSET] = 0.0
+        self.state[idx] = 0.0
+        self.state[idx, pk.S_X] = x0
+        self.state[idx, pk.S_V] = v0
+        self.state[idx, pk.S_STUCK] = v0 == 0.0
+        self.delay_buffer[idx] = 0.0
+
+    def run(
+        self,
+        command: npt.NDArray[np.floating[Any]],
+        fresh: BoolArray,
+        obs: npt.NDArray[np.float32],
+        out: FloatArray,
+        flags: BoolArray,
+    ) -> None:
+        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
+        bad = self._kernel(
+            self.state, self.delay_buffer, self.head, command, self.dt, self.substeps,
+            self.plant_rows, self.rows, self.noise_state, self.config, fresh, obs, out, flags,
+        )  # fmt: skip
+        if bad >= 0:
+            raise ValueError(
+                f"action {command[bad]!r} (env {bad}) is not a finite number; actions must be "
+                "finite commands in physical units"
+            )
+        if self.delay_steps:
+            self.head = (self.head + 1) % self.delay_steps

@@ -1,0 +1,109 @@
+"""Domain randomisation: plant, friction and sensor factors drawn at every reset."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.friction import _core as fc
+from frictiongym.plants import _kernel as pk
+
+FloatArray = npt.NDArray[np.float64]
+Range = tuple[float, float]
+
+# Columns of a plant row each factor scales.
+_FRICTION_LEVELS = tuple(pk.F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG))
+_DAMPING = (pk.I_B, pk.F0 + fc.I_VISCOUS)
+
+
+@dataclass(frozen=True)
+class DomainRandomization:
+    """Ranges of multiplicative factors, each drawn uniformly at every reset.
+
+    A field left at ``None`` is not randomised (and draws nothing from the generator). Draws
+    happen in the order of the fields, from the env's ``np_random``.
+
+    Parameters
+    ----------
+    friction : (float, float), optional
+        Factor on every friction level (break-away ``u_s±`` and Coulomb ``u_c±`` together, so
+        ``u_c <= u_s`` still holds).
+    inertia : (float, float), optional
+        Factor on the inertia (servo) or mass (Altino) ``J``.
+    damping : (float, float), optional
+        Factor on the linear damping: the plant's ``B`` and the friction law's viscous slope.
+    sensor_gain : (float, float), optional
+        Factor on the sensor: the encoder's scale (a calibration error) for the servo, the IR
+        reflectivity for the Altino.
+
+    Examples
+    --------
+    >>> DomainRandomization(friction=(0.5, 1.5), inertia=(0.9, 1.1))  # doctest: +SKIP
+    """
+
+    friction: Range | None = None
+    inertia: Range | None = None
+    damping: Range | None = None
+    sensor_gain: Range | None = None
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            bounds = getattr(self, f.name)
+            if bounds is None:
+                continue
+            try:
+                low, high = (float(b) for b in bounds)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    f"DomainRandomization.{f.name} must be a (low, high) pair of factors, "
+                    f"got {bounds!r}"
+                ) from None
+            if not (math.isfinite(low) and math.isfinite(high) and 0.0 < low <= high):
+                raise ValueError(
+                    f"DomainRandomization.{f.name}={bounds!r} must satisfy 0 < low <= high "
+                    "(factors on the nominal value, e.g. (0.8, 1.2))"
+                )
+            object.__setattr__(self, f.name, (low, high))
+
+    @classmethod
+    def from_spec(cls, spec: object) -> DomainRandomization | None:
+        """Accept ``None``, a :class:`DomainRandomization` or a mapping of its fields."""
+        if spec is None or isinstance(spec, DomainRandomization):
+            return spec
+        if isinstance(spec, Mapping):
+            names = {f.name for f in fields(cls)}
+            unknown = set(spec) - names
+            if unknown:
+                raise ValueError(
+                    f"unknown randomisation keys {sorted(unknown)}; use {sorted(names)}"
+                )
+            return cls(**spec)
+        raise TypeError(
+            f"randomize must be None, a dict or a DomainRandomization, got {spec!r} "
+            "(e.g. randomize={'friction': (0.8, 1.2)})"
+        )
+
+    def draw(self, rng: np.random.Generator) -> dict[str, float]:
+        """One factor per randomised field, in field order."""
+        drawn = {}
+        for f in fields(self):
+            bounds = getattr(self, f.name)
+            if bounds is not None:
+                drawn[f.name] = float(rng.uniform(bounds[0], bounds[1]))
+        return drawn
+
+
+def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
+    """Scaled copy of a plant row, and the sensor-gain factor."""
+    row = plant_row.copy()
+    if "friction" in factors:
+        row[list(_FRICTION_LEVELS)] *= factors["friction"]
+    if "inertia" in factors:
+        row[pk.I_J] *= factors["inertia"]
+    if "damping" in factors:
+        row[list(_DAMPING)] *= factors["damping"]
+    return row, factors.get("sensor_gain", 1.0)

@@ -1,0 +1,129 @@
+"""``frictiongym/RotaryServo-v0``: position control of a Quanser QUBE-Servo 2 with friction."""
+
+from __future__ import annotations
+
+import math
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
+from frictiongym.envs.core import Device
+from frictiongym.envs.references import Ramp, RandomSteps, Sine, Step, StepSequence
+from frictiongym.friction import ROTARY_LUGRE, ROTARY_PAPER
+from frictiongym.plants.presets import ROTARY_DT, ROTARY_PLANT, ROTARY_VELOCITY_CUTOFF
+
+#: Registered episode length: 5 s at the default 2 ms period (the paper's servo plots).
+ROTARY_EPISODE_STEPS = 2500
+
+ROTARY_DEVICE = Device(
+    name="RotaryServo",
+    plant=ROTARY_PLANT,
+    dt=ROTARY_DT,
+    paper_friction=ROTARY_PAPER,
+    lugre_friction=ROTARY_LUGRE,
+    sensor=ek.SENSOR_ENCODER,
+    velocity_cutoff=ROTARY_VELOCITY_CUTOFF,
+    start=0.0,
+    # Defaults of each reference kind (rad); the step is the paper's demo step of 1 rad.
+    references={
+        "step": Step(1.0),
+        "step_sequence": StepSequence((1.0, -0.5, 0.5, 0.0), period=1.25),
+        "ramp": Ramp(0.5),
+        "sine": Sine(amplitude=1.0, period=2.0),
+        "random_steps": RandomSteps(-math.pi, math.pi, period=1.0),
+    },
+    error_scale=1.0,  # rad: the default step costs 1 per step until it moves
+    effort_weight=0.01,  # small: 10 V for a whole step costs as much as 10 mrad of error
+    limit=4.0 * math.pi,  # assumed run-away guard (two turns); the disk has no end stops
+    limit_penalty=100.0,
+    noise_std=2.0 * math.pi / 2048,  # assumed: one encoder count of vibration or noise
+    observation_names=("angle", "velocity", "reference"),
+)
+
+
+class RotaryServoEnv(FrictionEnv):
+    r"""Position control of a Quanser QUBE-Servo 2 inertia disk with stiction and Coulomb friction.
+
+    ## Description
+
+    A DC motor turns an inertia disk: ``J θ'' + B θ' = u - F(θ', u)`` with the paper's
+    identified ``J = 7.143e-3 V·s²``, ``B = 0.0446 V·s`` (Eq. (2)) and its asymmetric
+    stiction/Coulomb friction ``F`` (Fig. 8(b); ``u_s+ = 0.210 V``, ``u_s- = 0.190 V``,
+    ``u_c+ = 0.124 V``, ``u_c- = 0.104 V``). The disk sticks while the voltage lies in the
+    break-away band and the plant is stepped with true stick/slip, so a PID without friction
+    compensation stalls short of its target (docs/physics.md). The goal is to make the disk's
+    angle follow a reference.
+
+    ## Action Space
+
+    ``Box(-10, 10, (1,), float32)``: the motor voltage, V. A larger value is saturated at
+    ±10 V as the amplifier does, and ``info["command"]`` reports the applied voltage. NaN or
+    infinite actions raise ``ValueError``. RL code may rescale with
+    ``gymnasium.wrappers.RescaleAction``.
+
+    ## Observation Space
+
+    ``Box(-inf, inf, (3,), float32)``, what a QUBE controller measures:
+
+    | Num | Observation | Unit  | Source                                              |
+    |-----|-------------|-------|-----------------------------------------------------|
+    | 0   | angle       | rad   | encoder, 2048 counts/rev (``quantize``), + noise    |
+    | 1   | velocity    | rad/s | filtered derivative ``50 s/(s + 50)`` of the angle   |
+    | 2   | reference   | rad   | the reference at this sample                        |
+
+    ## Rewards
+
+    ``-|r - θ| / 1 rad - effort_weight * (u / 10 V)²`` per step, with the true angle θ and the
+    applied voltage ``u`` (``effort_weight`` 0.01); ``-limit_penalty`` (100) more on the step
+    that crosses the safety limit.
+
+    ## Starting State
+
+    At rest at 0 rad, stuck. ``reset(options=...)`` takes ``position`` (rad), ``velocity``
+    (rad/s) and ``reference`` (as the ``reference`` argument) for one episode.
+
+    ## Episode End
+
+    Terminated when ``|θ|`` exceeds ``safety_limit`` (4π rad, a run-away guard: the disk has
+    no end stops); truncated after 2500 steps (5 s at 2 ms) by the registered time limit.
+
+    ## Arguments
+
+    ``gym.make("frictiongym/RotaryServo-v0", **kwargs)`` with
+
+    * ``friction``: ``"paper"`` (default), ``"none"``, ``"coulomb"``, ``"stribeck"``,
+      ``"lugre"`` or a :class:`~frictiongym.friction.FrictionModel`;
+    * ``dt``: control period, s (default 0.002);
+    * ``reference``: ``"step"`` (1 rad, default), ``"step_sequence"``, ``"ramp"``, ``"sine"``,
+      ``"random_steps"`` (a new level in ±π every second), a number (a constant set-point) or a
+      :mod:`~frictiongym.envs.references` generator;
+    * ``sensor_noise``: False (default), True (one encoder count, std) or a std in rad;
+    * ``quantize``: encoder quantisation (default True);
+    * ``delay``: actuator dead time, s, whole periods (default 0);
+    * ``randomize``: factor ranges drawn at each reset, e.g. ``{"friction": (0.5, 1.5),
+      "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``;
+    * ``plant``: a :class:`~frictiongym.plants.PlantParams` replacing the nominal plant;
+    * ``effort_weight``, ``safety_limit`` (rad), ``limit_penalty``: reward and safety;
+    * ``backend``: ``"sim"`` (the only one in this version);
+    * ``render_mode``: ``"rgb_array"`` or ``"human"`` (needs pygame).
+
+    ``info`` of every step: ``position`` (true angle, rad), ``velocity`` (true, rad/s),
+    ``command`` (applied voltage), ``reference``, ``time`` (s since reset), ``stuck``.
+
+    ## Version History
+
+    * v0: first release.
+    """
+
+    device = ROTARY_DEVICE
+
+
+class RotaryServoVectorEnv(FrictionVectorEnv):
+    """``num_envs`` QUBE-Servo 2 envs stepped by one compiled call (see :class:`RotaryServoEnv`).
+
+    Takes the single env's arguments plus ``num_envs``, ``max_episode_steps`` (default 2500
+    through ``gym.make_vec``) and ``parallel`` (numba threads; default for 128 envs or more).
+    Autoreset mode: ``NEXT_STEP``. Env ``i`` of ``reset(seed=s)`` follows the single env
+    reset with ``seed=s + i`` exactly.
+    """
+
+    device = ROTARY_DEVICE
