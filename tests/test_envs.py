@@ -342,3 +342,17 @@ def test_dt_and_plant_arguments(env_id):
     env = gym.make(env_id, dt=0.01, plant=ALTINO_PLANT if env_id == ALTINO else ROTARY_PLANT)
     env.reset(seed=0)
     assert env.step([0.0])[4]["time"] == 0.01
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_sb3_trains_on_gym_make_without_glue(env_id):
+    """A user's training script: gym.make, SB3, learn, predict; nothing in between."""
+    from stable_baselines3 import SAC
+
+    env = gym.make(env_id, reference="random_steps")
+    model = SAC("MlpPolicy", env, learning_starts=32, batch_size=32, seed=0, device="cpu")
+    model.learn(total_timesteps=96)
+    obs, _ = env.reset(seed=0)
+    action, _ = model.predict(obs, deterministic=True)
+    assert env.action_space.contains(action)
+    assert np.isfinite(env.step(action)[1])
