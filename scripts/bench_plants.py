@@ -43,30 +43,34 @@ from __future__ import annotations
 import argparse
 import datetime
 import math
-import os
-import platform
 import shlex
 import statistics
-import subprocess
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import cycle, islice
 
 import numba
 import numpy as np
 import numpy.typing as npt
+from _bench import (
+    Runner,
+    machine_line,
+    measure,
+    paired_ratios,
+    ratio_stats,
+    single_threaded,
+    source_revision,
+    stats,
+    thousands,
+)
 
-import frictiongym
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
 from frictiongym.plants import Plant, PlantParams
 from frictiongym.plants.plant import PARALLEL_MIN_PLANTS
 
 FloatArray = npt.NDArray[np.float64]
-
-#: Runs a given number of steps of one variant.
-Runner = Callable[[int], None]
 
 PARAMS = PlantParams(inertia=7.143e-3, damping=0.0446, command_limit=10.0)
 DT = 0.002  #: control period, s
@@ -120,20 +124,6 @@ def plant_variant(
     if one_thread:
         run, kernel, default = single_threaded(run), ONE_THREAD, False
     return Variant(label, run, table.shape[1], plant.substeps, kernel, default)
-
-
-def single_threaded(run: Runner) -> Runner:
-    """``run`` with numba's thread count set to 1 for its duration."""
-
-    def run_one(steps: int) -> None:
-        threads = numba.get_num_threads()
-        numba.set_num_threads(1)
-        try:
-            run(steps)
-        finally:
-            numba.set_num_threads(threads)
-
-    return run_one
 
 
 def command_table(batch: int, seed: int) -> FloatArray:
@@ -272,42 +262,6 @@ def stick_slip_mix(friction: FrictionModel, seed: int, steps: int, batch: int = 
     return stuck_sum / steps, switches / (steps * batch)
 
 
-def timed(run: Runner, steps: int) -> float:
-    """Wall time of ``run(steps)``, s."""
-    start = time.perf_counter()
-    run(steps)
-    return time.perf_counter() - start
-
-
-def calibrate(run: Runner, seconds: float) -> int:
-    """Number of steps for which ``run`` takes about ``seconds``."""
-    steps = 1
-    while True:
-        elapsed = timed(run, steps)
-        if elapsed >= min(0.05, seconds / 4) or steps >= 1 << 26:
-            return max(1, round(steps * seconds / elapsed))
-        steps *= 4
-
-
-def measure(variants: Sequence[Variant], repeats: int, seconds: float, burn_in: int) -> None:
-    """Warm up, calibrate and time the variants interleaved; fills ``Variant.rates``."""
-    steps = []
-    for variant in variants:
-        variant.run(burn_in)
-        steps.append(calibrate(variant.run, seconds))
-    order = list(range(len(variants)))
-    for r in range(repeats):
-        shift = r % len(variants)
-        for i in order[shift:] + order[:shift]:
-            variant, n = variants[i], steps[i]
-            variant.rates.append(variant.batch * n / timed(variant.run, n))
-
-
-def paired_ratios(variant: Variant, reference: Variant) -> list[float]:
-    """Per-round ratios of a variant's rate to the reference's rate."""
-    return [a / b for a, b in zip(variant.rates, reference.rates, strict=True)]
-
-
 #: Kernel comparisons of ROTARY_PAPER: (numerator, denominator, description).
 KERNEL_RATIOS = (
     ("parallel", "serial", "parallel / serial"),
@@ -330,76 +284,6 @@ def print_kernel_ratios(variants: Sequence[Variant]) -> None:
     for (_, _, what), ratios in zip(KERNEL_RATIOS, kernel_ratios(variants), strict=True):
         if ratios is not None:
             print(f"  ROTARY_PAPER {what:33s} {ratio_stats(ratios)}")
-
-
-def si(rate: float) -> str:
-    """Format a rate like ``13.7 M``."""
-    for scale, suffix in ((1e9, " G"), (1e6, " M"), (1e3, " k")):
-        if rate >= scale:
-            return f"{rate / scale:.3g}{suffix}"
-    return f"{rate:.3g}"
-
-
-def thousands(n: int) -> str:
-    """Format an integer with space-separated thousands, like ``65 536``."""
-    return f"{n:,}".replace(",", " ")
-
-
-def machine_line() -> str:
-    """CPU, core count and software versions."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as info:
-            for line in info:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        pass
-    try:
-        import gymnasium
-
-        gym = f", gymnasium {gymnasium.__version__}"
-    except ImportError:
-        gym = ""
-    return (
-        f"{cpu}, {os.cpu_count()} CPUs, {platform.system()} {platform.release()}; "
-        f"Python {platform.python_version()}, numpy {np.__version__}, numba {numba.__version__} "
-        f"({numba.get_num_threads()} threads){gym}"
-    )
-
-
-def _git(root: str, *args: str) -> str:
-    """Output of a read-only git command in ``root`` (no optional index locks)."""
-    done = subprocess.run(
-        ["git", "--no-optional-locks", "-C", root, *args],
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=10,
-    )
-    return done.stdout.strip()
-
-
-def source_revision() -> str:
-    """Git commit of the checkout holding frictiongym, with ``+dirty`` if its files differ."""
-    root = os.path.dirname(os.path.dirname(os.path.abspath(frictiongym.__file__)))
-    try:
-        commit = _git(root, "rev-parse", "--short", "HEAD")
-        changed = _git(root, "status", "--porcelain", "--untracked-files=no", "--", "frictiongym")
-    except (OSError, subprocess.SubprocessError):
-        return "unknown (not a git checkout)"
-    return commit + (" +dirty (uncommitted changes under frictiongym/)" if changed else "")
-
-
-def stats(values: Sequence[float]) -> str:
-    """``median [min, max]`` of rates."""
-    return f"{si(statistics.median(values))} [{si(min(values))}, {si(max(values))}]"
-
-
-def ratio_stats(values: Sequence[float]) -> str:
-    """``median [min, max]`` of ratios."""
-    return f"{statistics.median(values):.3g} [{min(values):.3g}, {max(values):.3g}]"
 
 
 def build_parser() -> argparse.ArgumentParser:

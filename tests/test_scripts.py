@@ -30,3 +30,32 @@ def test_bench_plants_help_explains_its_options():
     assert done.returncode == 0
     for option in ("--batches", "--repeats", "--quick", "--markdown"):
         assert option in done.stdout
+
+
+def test_bench_envs_quick_reports_both_headline_ratios():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / "bench_envs.py"), "--quick", "--markdown"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
+    assert done.returncode == 0, done.stderr
+    out = done.stdout
+    assert "single env, time per step ours / CartPole-v1 (target <= 1)" in out
+    assert "env-steps/s ours / CartPoleVectorEnv (target >= 1.5)" in out
+    for name in ("RotaryServo-v0", "AltinoDistance-v0"):
+        assert name in out
+    assert "| comparison | target |" in out  # the markdown tables
+
+
+def test_bench_envs_help_explains_its_options():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / "bench_envs.py"), "--help"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0
+    for option in ("--repeats", "--seconds", "--num-envs", "--quick", "--markdown", "--seed"):
+        assert option in done.stdout
