@@ -202,6 +202,38 @@ def _env_element(
 
 
 @njit(cache=True)
+def reset_envs(
+    mask: npt.NDArray[np.bool_],
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    position: npt.NDArray[np.float64],
+    velocity: npt.NDArray[np.float64],
+    reference: npt.NDArray[np.float64],
+    set_rows: bool,
+) -> None:
+    """Put the envs of ``mask`` at rest-or-moving starts (k-th masked env: ``position[k]``).
+
+    With ``set_rows`` their task rows also get unit sensor gain and the ``reference`` row;
+    otherwise the caller has set the rows. The sensor offset is always zeroed.
+    """
+    k = 0
+    for i in range(mask.shape[0]):
+        if not mask[i]:
+            continue
+        state[i, :] = 0.0
+        state[i, pk.S_X] = position[k]
+        state[i, pk.S_V] = velocity[k]
+        state[i, pk.S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
+        delay_buffer[i, :] = 0.0
+        if set_rows:
+            rows[i, T_GAIN] = 1.0
+            rows[i, T_REF:] = reference
+        rows[i, T_OFFSET] = 0.0
+        k += 1
+
+
+@njit(**pk.SERIAL)
 def step_envs(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
