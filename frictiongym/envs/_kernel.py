@@ -233,7 +233,7 @@ def reset_envs(
         k += 1
 
 
-@njit(**pk.SERIAL)
+@pk.serial_njit
 def step_envs(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],

@@ -22,7 +22,6 @@ from frictiongym.envs import _kernel as ek
 from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
-from frictiongym.plants import _kernel as pk
 from frictiongym.plants.plant import PARALLEL_MIN_PLANTS, PlantParams, default_substeps, plant_row
 from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 
@@ -56,12 +55,12 @@ class Device:
     observation_names: tuple[str, ...]
 
 
-def _number(name: str, value: object, *, positive: bool = False, allow_zero: bool = True) -> float:
+def _number(name: str, value: object, rule: str = "finite") -> float:
+    """``value`` as a float, checked to be finite and, by ``rule``, ``">= 0"`` or ``"> 0"``."""
     if not (isinstance(value, numbers.Real) and not isinstance(value, bool)):
         raise TypeError(f"{name} must be a number, got {value!r}")
     v = float(value)
-    if not math.isfinite(v) or (positive and (v < 0.0 or (v == 0.0 and not allow_zero))):
-        rule = "> 0" if positive and not allow_zero else ">= 0" if positive else "finite"
+    if not math.isfinite(v) or (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
         raise ValueError(f"{name} must be {rule}, got {value!r}")
     return v
 
@@ -152,7 +151,7 @@ class Simulation:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.device = device
         self.num_envs = int(num_envs)
-        self.dt = device.dt if dt is None else _number("dt", dt, positive=True, allow_zero=False)
+        self.dt = device.dt if dt is None else _number("dt", dt, "> 0")
         if isinstance(friction, str):
             friction = friction_from_name(friction, device.paper_friction, device.lugre_friction)
         if not isinstance(friction, FrictionModel):
@@ -163,7 +162,7 @@ class Simulation:
             raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
         if delay is None:  # the device's dead time, in whole periods of this dt
             delay = round(nominal.dead_time / self.dt) * self.dt
-        self.plant = replace(nominal, dead_time=_number("delay", delay, positive=True))
+        self.plant = replace(nominal, dead_time=_number("delay", delay, ">= 0"))
         self.delay_steps = self.plant.delay_steps(self.dt)
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)
@@ -172,7 +171,7 @@ class Simulation:
         elif sensor_noise is False:
             noise = 0.0
         else:
-            noise = _number("sensor_noise", sensor_noise, positive=True)
+            noise = _number("sensor_noise", sensor_noise, ">= 0")
         if not isinstance(quantize, bool | np.bool_):
             raise TypeError(f"quantize must be True or False, got {quantize!r}")
         if max_episode_steps is not None and (
@@ -181,7 +180,9 @@ class Simulation:
             raise ValueError(
                 f"max_episode_steps must be a positive integer, got {max_episode_steps!r}"
             )
-        self.limit = device.limit if safety_limit is None else _number("safety_limit", safety_limit)
+        self.limit = (
+            device.limit if safety_limit is None else _number("safety_limit", safety_limit, ">= 0")
+        )
         self.config = np.zeros(ek.CONFIG_SIZE)
         self.config[ek.C_SENSOR] = device.sensor
         self.config[ek.C_QUANTIZE] = float(quantize)
@@ -193,12 +194,12 @@ class Simulation:
         self.config[ek.C_EFFORT_WEIGHT] = (
             device.effort_weight
             if effort_weight is None
-            else _number("effort_weight", effort_weight, positive=True)
+            else _number("effort_weight", effort_weight, ">= 0")
         )
         self.config[ek.C_PENALTY] = (
             device.limit_penalty
             if limit_penalty is None
-            else _number("limit_penalty", limit_penalty, positive=True)
+            else _number("limit_penalty", limit_penalty, ">= 0")
         )
         self.config[ek.C_LIMIT] = self.limit
         self.config[ek.C_MAX_STEPS] = max_episode_steps or 0

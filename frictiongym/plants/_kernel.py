@@ -33,18 +33,20 @@ import numpy.typing as npt
 from numba import njit, prange
 from numba.core.errors import NumbaPerformanceWarning
 
-#: The serial batch loops are compiled with ``parallel=True`` over a plain ``range``: they start
+from frictiongym.friction import _core as fc
+
+#: Decorator of the serial batch loops: ``parallel=True`` over a plain ``range``: they start
 #: no threads, but numba's parallel pipeline drops the reference counting that the plain
-#: pipeline keeps for every array argument of the inlined element function (about 3x faster per
-#: plant; docs/benchmarks.md). Numba warns that nothing was parallelised, which is the point.
-SERIAL = {"cache": True, "parallel": True}
+#: pipeline keeps for every array argument of the inlined element function (1.3x faster per
+#: plant here, 3x per env in the env kernel; docs/benchmarks.md). Numba then warns that nothing
+#: was parallelised, which is the point.
+serial_njit = njit(cache=True, parallel=True)
 warnings.filterwarnings(
     "ignore",
     message=r"(?s).*The keyword argument 'parallel=True' was specified but no transformation",
     category=NumbaPerformanceWarning,
 )
 
-from frictiongym.friction import _core as fc
 
 # Plant row: [J, B, u_max, lag] followed by the friction row.
 I_J = 0
@@ -408,7 +410,7 @@ def step_plant(
     state[i, S_STUCK] = 1.0 if v == 0.0 else 0.0
 
 
-@njit(**SERIAL)
+@serial_njit
 def step_batch(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
