@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import pickle
 
 import gymnasium as gym
 import numpy as np
@@ -122,3 +123,14 @@ def test_vector_render_gives_one_frame_per_env():
     frames = env.render()
     assert len(frames) == 2
     assert frames[0].shape == (400, 400, 3)
+
+
+def test_pickled_vector_envs_continue_identically():
+    env = make_vec(SERVO, 3, max_episode_steps=20, **RANDOM_KWARGS)
+    env.reset(seed=4)
+    actions = commands(SERVO, 60, shape=(3,))
+    for a in actions[:25]:
+        env.step(a)
+    clone = pickle.loads(pickle.dumps(env))
+    for a in actions[25:]:
+        np.testing.assert_array_equal(env.step(a)[0], clone.step(a)[0])
