@@ -12,8 +12,8 @@ Layouts (all float64 unless noted):
   they are randomised (a shared row keeps the working set of 4 096 envs in cache);
 * task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
   the episode;
-* state (N, ``ENV_STATE_SIZE``): the plant state, then the step count, the raw measurement,
-  the estimated position, the estimated velocity, the previous estimate and the reference;
+* state (N, ``ENV_STATE_SIZE``): the plant state, then the step count, the estimated
+  position, the estimated velocity and the reference of the last observation;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
   (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
@@ -49,12 +49,10 @@ TASK_ROW_SIZE = T_REF + REF_SIZE
 
 # State columns after the plant's.
 E_STEPS = pk.STATE_SIZE
-E_MEASURED = E_STEPS + 1  #: encoder angle (rad) or IR readout
-E_ESTIMATE = E_STEPS + 2  #: estimated position: angle (rad) or distance (cm)
-E_VELOCITY = E_STEPS + 3  #: filtered derivative of the estimate
-E_PREVIOUS = E_STEPS + 4  #: previous estimate
-E_REFERENCE = E_STEPS + 5
-ENV_STATE_SIZE = E_STEPS + 6
+E_ESTIMATE = E_STEPS + 1  #: estimated position: angle (rad) or distance (cm)
+E_VELOCITY = E_STEPS + 2  #: filtered derivative of the estimate
+E_REFERENCE = E_STEPS + 3
+ENV_STATE_SIZE = E_STEPS + 4
 
 # Config.
 C_SENSOR = 0
@@ -162,13 +160,11 @@ def _env_element(
         estimated_velocity = 0.0
     else:
         estimated_velocity = derivative_update(
-            state[i, E_VELOCITY], estimate, state[i, E_PREVIOUS], config[C_POLE], dt
+            state[i, E_VELOCITY], estimate, state[i, E_ESTIMATE], config[C_POLE], dt
         )
     reference = reference_at(t, rows, i, T_REF)
-    state[i, E_MEASURED] = measured
     state[i, E_ESTIMATE] = estimate
     state[i, E_VELOCITY] = estimated_velocity
-    state[i, E_PREVIOUS] = estimate
     state[i, E_REFERENCE] = reference
 
     applied = state[i, pk.S_COMMAND]
