@@ -31,7 +31,7 @@ ALTINO_DEVICE = Device(
     references={
         "step": Step(ALTINO_TARGET_CM),
         "step_sequence": StepSequence((5.0, 10.0, 7.0, 12.0), period=5.0),
-        "ramp": Ramp(-1.0, start=0.0, initial=20.0),
+        "ramp": Ramp(-0.5, start=0.0, initial=20.0),  # 20 to 10 cm over the 20 s episode
         "sine": Sine(amplitude=3.0, period=10.0, offset=10.0),
         "random_steps": RandomSteps(3.0, 18.0, period=5.0),
     },
