@@ -60,7 +60,7 @@ def test_random_steps_draw_their_levels_from_the_generator():
 @pytest.mark.parametrize(
     ("build", "match"),
     [
-        (lambda: Step(math.nan), "Step.value must be a finite number"),
+        (lambda: Step(math.nan), "Step.value must be finite"),
         (lambda: StepSequence((), period=1.0), "1 to 16"),
         (lambda: StepSequence((1.0,) * 17, period=1.0), "1 to 16"),
         (lambda: StepSequence((1.0,), period=0.0), "period must be > 0"),

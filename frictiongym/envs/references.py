@@ -15,11 +15,13 @@ import math
 import numbers
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 from numba import njit
+
+from frictiongym._validation import check_finite, check_positive
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -78,12 +80,6 @@ def _row(kind: int, *params: float, levels: tuple[float, ...] = ()) -> FloatArra
     return row
 
 
-def _check(name: str, **values: float) -> None:
-    for key, value in values.items():
-        if not (isinstance(value, numbers.Real) and math.isfinite(value)):
-            raise ValueError(f"{name}.{key} must be a finite number, got {value!r}")
-
-
 class Reference(ABC):
     """A reference signal, packed into a row for the env kernel at each reset."""
 
@@ -120,7 +116,7 @@ class Step(Reference):
     initial: float = 0.0
 
     def __post_init__(self) -> None:
-        _check("Step", value=self.value, time=self.time, initial=self.initial)
+        check_finite(self, "value", "time", "initial")
 
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102
         return _row(KIND_STEP, self.time, self.initial, self.value)
@@ -147,10 +143,11 @@ class StepSequence(Reference):
             raise ValueError(
                 f"StepSequence.values holds {len(self.values)} levels; give 1 to {MAX_LEVELS}"
             )
-        _check("StepSequence", period=self.period, **{f"values[{k}]": v for k, v in
-                                                      enumerate(self.values)})  # fmt: skip
-        if self.period <= 0.0:
-            raise ValueError(f"StepSequence.period must be > 0 s, got {self.period!r}")
+        for k, v in enumerate(self.values):
+            if not math.isfinite(v):
+                raise ValueError(f"StepSequence.values[{k}] must be finite, got {v!r}")
+        check_finite(self, "period")
+        check_positive(self, "period")
 
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102
         return _row(KIND_SEQUENCE, self.period, levels=self.values)
@@ -175,7 +172,7 @@ class Ramp(Reference):
     initial: float = 0.0
 
     def __post_init__(self) -> None:
-        _check("Ramp", slope=self.slope, start=self.start, initial=self.initial)
+        check_finite(self, "slope", "start", "initial")
 
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102
         return _row(KIND_RAMP, self.start, self.initial, self.slope)
@@ -203,10 +200,8 @@ class Sine(Reference):
     phase: float = 0.0
 
     def __post_init__(self) -> None:
-        _check("Sine", amplitude=self.amplitude, period=self.period, offset=self.offset,
-               phase=self.phase)  # fmt: skip
-        if self.period <= 0.0:
-            raise ValueError(f"Sine.period must be > 0 s, got {self.period!r}")
+        check_finite(self, "amplitude", "period", "offset", "phase")
+        check_positive(self, "period")
 
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102
         return _row(KIND_SINE, self.period, self.amplitude, self.offset, self.phase)
@@ -230,14 +225,12 @@ class RandomSteps(Reference):
     low: float
     high: float
     period: float
-    _count: int = field(default=MAX_LEVELS, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        _check("RandomSteps", low=self.low, high=self.high, period=self.period)
+        check_finite(self, "low", "high", "period")
         if self.low > self.high:
             raise ValueError(f"RandomSteps.low={self.low!r} exceeds high={self.high!r}")
-        if self.period <= 0.0:
-            raise ValueError(f"RandomSteps.period must be > 0 s, got {self.period!r}")
+        check_positive(self, "period")
 
     @property
     def random(self) -> bool:  # noqa: D102
@@ -246,7 +239,7 @@ class RandomSteps(Reference):
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102
         if rng is None:
             raise ValueError("RandomSteps.sample needs a generator (rng=np.random.default_rng())")
-        levels = rng.uniform(self.low, self.high, size=self._count)
+        levels = rng.uniform(self.low, self.high, size=MAX_LEVELS)
         return _row(KIND_SEQUENCE, self.period, levels=tuple(levels.tolist()))
 
 
