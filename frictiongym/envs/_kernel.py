@@ -31,11 +31,10 @@ from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import (
     IR_MAX_READOUT,
-    IR_NUMERATOR,
-    IR_OFFSET,
     derivative_update,
     encoder_angle,
     ir_count,
+    ir_estimate,
 )
 
 SENSOR_ENCODER = 0  #: servo: angle through an encoder, observation [angle, velocity, reference]
@@ -149,12 +148,9 @@ def _env_element(
         position, velocity = -x, -state[i, pk.S_V]
         if position <= 0.0:  # touching the wall: the nearest reading
             measured = float(IR_MAX_READOUT)
-        elif quantize:
-            measured = ir_count(position, rows[i, T_GAIN], rows[i, T_OFFSET], noise)
         else:
-            raw = rows[i, T_GAIN] * IR_NUMERATOR / position - IR_OFFSET + rows[i, T_OFFSET]
-            measured = min(max(raw + noise, 0.0), float(IR_MAX_READOUT))
-        estimate = IR_NUMERATOR / (measured + IR_OFFSET)
+            measured = ir_count(position, rows[i, T_GAIN], rows[i, T_OFFSET], noise, quantize)
+        estimate = ir_estimate(measured)
         terminated = position <= config[C_LIMIT]
     if fresh[i]:
         estimated_velocity = 0.0

@@ -22,6 +22,7 @@ from gymnasium.vector.utils import batch_space
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.core import Device, Simulation
 from frictiongym.plants import _kernel as pk
+from frictiongym.plants.sensors import IR_MAX_READOUT, ir_estimate
 
 ObsArray = npt.NDArray[np.float32]
 ActArray = npt.NDArray[np.float32]
@@ -37,8 +38,8 @@ def _spaces(device: Device, sim: Simulation) -> tuple[spaces.Space[Any], spaces.
     low = np.full(sim.observation_size, -np.inf, dtype=np.float32)
     high = np.full(sim.observation_size, np.inf, dtype=np.float32)
     if device.sensor == ek.SENSOR_IR:  # readout 0..800 and the distance it can stand for
-        low[0], high[0] = 0.0, 800.0
-        low[1], high[1] = 966.0 / 845.0, 966.0 / 45.0
+        low[0], high[0] = 0.0, IR_MAX_READOUT
+        low[1], high[1] = ir_estimate(IR_MAX_READOUT), ir_estimate(0.0)
     return action, spaces.Box(low, high, dtype=np.float32)
 
 

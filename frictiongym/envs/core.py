@@ -210,6 +210,7 @@ class Simulation:
         self.substeps = default_substeps([worst], [friction], self.dt)
         self._nominal_row = plant_row(self.plant, friction)
         self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
+        # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
         )
@@ -282,11 +283,10 @@ class Simulation:
         x0, v0 = self._start_state(options, int(np.count_nonzero(mask)))
         noisy = self.config[ek.C_NOISE] > 0.0
         draws = self.randomize is not None or reference.random or noisy
-        if not draws:
-            row = self._default_reference_row if reference is self.reference else None
-            ref_row = reference.sample() if row is None else row
-        else:
-            ref_row = self._default_reference_row  # unused: the loop below sets the rows
+        ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
+        if not draws and reference is not self.reference:
+            ref_row = reference.sample()
+        if draws:
             for j in np.flatnonzero(mask):
                 rng = rng_of(int(j))
                 gain = 1.0

@@ -1,6 +1,6 @@
 """What a controller actually measures: encoder counts, a filtered-derivative velocity, IR readouts.
 
-Each sensor is one compiled scalar function (``encoder_angle``, ``ir_count``,
+Each sensor is one compiled scalar function (``encoder_angle``, ``ir_count``, ``ir_estimate``,
 ``derivative_update``) that the env kernel calls per plant; the public functions here are ufuncs
 of the same code, vectorised over any batch shape. Randomness (sensor noise) is never drawn
 here: callers pass noise samples drawn from their own generator (an env's ``np_random``), so
@@ -37,10 +37,20 @@ def encoder_angle(angle: float, step: float) -> float:
 
 
 @njit(cache=True)
-def ir_count(distance: float, gain: float, offset: float, noise: float) -> float:
-    """IR readout as an integer-valued float in 0..800 at ``distance`` > 0 cm (see ir_readout)."""
+def ir_count(
+    distance: float, gain: float, offset: float, noise: float, quantize: bool = True
+) -> float:
+    """IR readout in 0..800 at ``distance`` > 0 cm (see ir_readout); ``quantize``: rounded."""
     raw = gain * IR_NUMERATOR / distance - IR_OFFSET + offset + noise
-    return min(max(np.rint(raw), 0.0), float(IR_MAX_READOUT))
+    if quantize:
+        raw = np.rint(raw)
+    return min(max(raw, 0.0), float(IR_MAX_READOUT))
+
+
+@njit(cache=True)
+def ir_estimate(readout: float) -> float:
+    """Distance in cm that a readout stands for, by the paper's calibration, Eq. (1)."""
+    return IR_NUMERATOR / (readout + IR_OFFSET)
 
 
 @njit(cache=True)
@@ -59,6 +69,11 @@ def _encoder_ufunc(angle: float, step: float) -> float:
 @vectorize([float64(float64, float64, float64, float64)], cache=True)
 def _ir_ufunc(distance: float, gain: float, offset: float, noise: float) -> float:
     return ir_count(distance, gain, offset, noise)
+
+
+@vectorize([float64(float64)], cache=True)
+def _ir_estimate_ufunc(readout: float) -> float:
+    return ir_estimate(readout)
 
 
 @vectorize([float64(float64, float64, float64, float64, float64)], cache=True)
@@ -174,4 +189,4 @@ def ir_readout(
 
 def ir_distance(readout: npt.ArrayLike) -> FloatArray:
     """Distance estimate from an IR readout with the paper's calibration, Eq. (1), in cm."""
-    return IR_NUMERATOR / (np.asarray(readout, dtype=np.float64) + IR_OFFSET)
+    return np.asarray(_ir_estimate_ufunc(np.asarray(readout, dtype=np.float64)))
