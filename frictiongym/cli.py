@@ -90,6 +90,12 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def _benchmark(args: argparse.Namespace) -> int:
+    from frictiongym.benchmark import command
+
+    return command.run(args, "frictiongym " + " ".join(sys.argv[1:]))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of ``frictiongym``."""
     parser = argparse.ArgumentParser(
@@ -126,6 +132,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     demo.add_argument("--plot", metavar="PNG", help="also write the responses to this PNG file")
     demo.set_defaults(func=_demo)
+
+    from frictiongym.benchmark import command as benchmark
+
+    bench = sub.add_parser(
+        "benchmark",
+        help="PID vs compensated PID on the paper's experiments and robustness grids",
+        description=benchmark.DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    benchmark.add_arguments(bench)
+    bench.set_defaults(func=_benchmark)
     return parser
 
 

@@ -12,6 +12,8 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym.controllers.base import LoopSpec
+from frictiongym.controllers.compensation import FrictionCompensator
 from frictiongym.controllers.pid import PID, PIDGains
 from frictiongym.friction import ALTINO_PAPER, ROTARY_PAPER, FrictionModel
 from frictiongym.metrics import StepMetrics, step_metrics
@@ -72,7 +74,7 @@ def rotary_step(
     """
     gains = gains or PIDGains(**ROTARY_PAPER_GAINS)
     sim = Plant(plant, friction, dt)
-    pid = PID(gains, dt, limit=plant.command_limit)
+    pid = PID(LoopSpec(dt, plant.command_limit), gains)
     tach = FilteredDerivative(ROTARY_VELOCITY_CUTOFF, dt)
     n = round(duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt
@@ -145,7 +147,11 @@ def altino_step(
     if derivative not in ("measurement", "error"):
         raise ValueError(f"derivative must be 'measurement' or 'error', got {derivative!r}")
     sim = Plant(plant, friction, dt)
-    pid = PID(gains, dt, limit=plant.command_limit, direction=-1.0)
+    # Observation layout of the loop: [estimated distance, its rate, target].
+    spec = LoopSpec(dt, plant.command_limit, position=0, velocity=1, reference=2, direction=-1.0)
+    pid = PID(spec, gains, derivative="difference")
+    # The "command" variant with an exact-zero rest band (docs/altino-model.md).
+    comp = None if compensator is None else FrictionCompensator(pid, compensator, rest_speed=0.0)
     n = round(duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt
     y, measured, command = np.empty(n), np.empty(n), np.empty(n)
@@ -165,13 +171,9 @@ def altino_step(
         # sees the rate -(e_0 - 0) / dt = (y_0 - r) / dt on the first sample.
         kick = (measured[i] - target_cm) / dt if derivative == "error" and i == 0 else None
         u = float(pid.update(target_cm, measured[i], kick))
-        if compensator is not None:
-            speed = 0.0 if previous is None else (previous - measured[i]) / dt
-            if speed != 0.0:
-                u += float(compensator.nonlinear_force(speed))
-            elif u != 0.0:
-                us_pos, us_neg = compensator.breakaway
-                u += us_pos if u > 0.0 else -us_neg
+        if comp is not None:
+            rate = 0.0 if previous is None else (measured[i] - previous) / dt
+            u += float(comp.compensation(np.array([measured[i], rate, target_cm]), u))
         previous = measured[i]
         command[i] = u
         sim.step(u)

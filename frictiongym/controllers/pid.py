@@ -1,27 +1,30 @@
-"""Discrete PID with derivative on the measurement and clamping anti-windup, batched.
+"""Discrete PID with derivative on the measurement, a derivative filter and anti-windup.
 
-Works on floats and on arrays (one loop per element), so the same controller drives one plant
-or a batch of them.
+Batched: one object drives one env or a vector of them (its state is an array per env).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym._validation import check_finite, check_nonnegative
+from frictiongym.controllers.base import Controller, FloatArray, LoopSpec, reset_mask
 
-FloatArray = npt.NDArray[np.float64]
+AntiWindup = Literal["clamping", "back-calculation", "none"]
+Derivative = Literal["velocity", "difference"]
 
 
 @dataclass(frozen=True)
 class PIDGains:
-    """PID gains, in command units per position unit.
+    """PID gains in per-second form.
 
-    ``ki`` is per position unit and second, ``kd`` per velocity unit.
+    ``kp`` is in command units per output unit, ``ki`` per output unit and second, ``kd`` per
+    output unit per second (volts per rad, per rad·s, per rad/s for the servo).
     """
 
     kp: float
@@ -33,87 +36,148 @@ class PIDGains:
         check_nonnegative(self, "kp", "ki", "kd")
 
 
-class PID:
-    """Discrete PID ``u = kp e + ki I + kd d(-y)/dt`` with ``e = r - y``.
+class PID(Controller):
+    """Discrete PID ``u = direction · (kp e + ki I - kd ŷ')`` with ``e = r - y``.
 
     * Integral: backward Euler, ``I_k = I_(k-1) + e_k dt``.
-    * Derivative on the measurement (no kick on reference steps), through a first-order filter
-      ``s / (tau s + 1)`` discretised ramp-invariantly, or taken from a velocity measurement
-      passed to :meth:`update`.
-    * Saturation at ``±limit``; the integrator is frozen while the output is saturated in the
-      direction of the error (clamping anti-windup).
+    * Derivative on the measurement, so a reference step does not kick the command. With
+      ``derivative="velocity"`` the rate is the observation's velocity entry (the QUBE's
+      filtered tachometer ``50 s/(s + 50)``, the Altino's backward difference); with
+      ``"difference"`` it is the measurement's backward difference through a first-order
+      filter ``1/(tau s + 1)`` (ramp-invariant discretisation; ``tau = 0``: none).
+    * Saturation at the spec's limit, with anti-windup: ``clamping`` freezes the integral while
+      the output is saturated in the direction of the error; ``back-calculation`` bleeds the
+      excess ``(u_sat - u)/(ki T_t)`` back into the integral with tracking time ``T_t``
+      (default ``sqrt(T_i T_d)``, or ``T_i`` without D, Åström & Hägglund's rule); ``none``
+      integrates regardless (for comparison).
 
     Parameters
     ----------
+    spec : LoopSpec
+        The loop (``PID.for_env(env, gains)`` reads it from an env).
     gains : PIDGains
-    dt : float
-        Control period, s.
-    limit : float, default inf
-        Output saturation, command units.
+    derivative : {"velocity", "difference"}, default "velocity"
+        Where the D term's rate comes from; ``velocity`` needs a velocity entry in the spec.
     derivative_tau : float, default 0.0
-        Time constant of the derivative filter, s (0: plain backward difference).
-    direction : float, default 1.0
-        ``-1.0`` when a positive command decreases the measurement (the Altino: driving forward
-        reduces the distance to the wall).
+        Filter time constant of the ``difference`` rate, s.
+    anti_windup : {"clamping", "back-calculation", "none"}, default "clamping"
+    tracking_time : float, optional
+        ``T_t`` of back-calculation, s.
     """
 
     def __init__(
         self,
+        spec: LoopSpec,
         gains: PIDGains,
-        dt: float,
-        limit: float = math.inf,
+        *,
+        derivative: Derivative = "velocity",
         derivative_tau: float = 0.0,
-        direction: float = 1.0,
+        anti_windup: AntiWindup = "clamping",
+        tracking_time: float | None = None,
     ) -> None:
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
-        if not limit > 0.0:
-            raise ValueError(f"limit must be > 0, got {limit!r}")
-        if direction not in (1.0, -1.0):
-            raise ValueError(f"direction must be 1.0 or -1.0, got {direction!r}")
+        if derivative not in ("velocity", "difference"):
+            raise ValueError(f"derivative must be 'velocity' or 'difference', got {derivative!r}")
+        if derivative == "velocity" and spec.velocity is None:
+            raise ValueError(
+                "derivative='velocity' needs a velocity entry in the observation; this spec "
+                "has none: use derivative='difference'"
+            )
+        if anti_windup not in ("clamping", "back-calculation", "none"):
+            raise ValueError(
+                f"anti_windup must be 'clamping', 'back-calculation' or 'none', got {anti_windup!r}"
+            )
+        if not (math.isfinite(derivative_tau) and derivative_tau >= 0.0):
+            raise ValueError(f"derivative_tau must be >= 0 s, got {derivative_tau!r}")
+        if tracking_time is None and gains.ki > 0.0 and gains.kp > 0.0:
+            ti = gains.kp / gains.ki
+            tracking_time = math.sqrt(ti * gains.kd / gains.kp) if gains.kd > 0.0 else ti
+        if (
+            anti_windup == "back-calculation"
+            and gains.ki > 0.0
+            and not (
+                tracking_time is not None and math.isfinite(tracking_time) and tracking_time > 0.0
+            )
+        ):
+            raise ValueError(
+                f"back-calculation needs a tracking_time > 0 s, got {tracking_time!r} "
+                "(give one when kp is 0)"
+            )
+        self.spec = spec
         self.gains = gains
-        self.dt = float(dt)
-        self.limit = float(limit)
-        self.direction = float(direction)
-        self._pole = math.exp(-self.dt / derivative_tau) if derivative_tau > 0.0 else 0.0
+        self.derivative = derivative
+        self.derivative_tau = float(derivative_tau)
+        self.anti_windup = anti_windup
+        self.tracking_time = tracking_time
+        self._pole = math.exp(-spec.dt / derivative_tau) if derivative_tau > 0.0 else 0.0
         self.reset()
 
-    def reset(self) -> None:
-        """Forget the integral and the derivative history."""
-        self.integral: FloatArray | float = 0.0
-        self._rate: FloatArray | float = 0.0
-        self._previous: FloatArray | float | None = None
+    def reset(self, mask: npt.ArrayLike | None = None) -> None:
+        """Forget the integral and the derivative history (of the masked envs)."""
+        if mask is not None and hasattr(self, "integral") and self.integral.ndim > 0:
+            m = reset_mask(mask, self.integral.size)
+            self.integral[m] = 0.0
+            self._rate[m] = 0.0
+            self._previous[m] = np.nan
+        elif mask is None or np.any(mask):  # a fresh or single-env (scalar) state
+            self.integral: FloatArray = np.zeros(())
+            self._rate: FloatArray = np.zeros(())
+            self._previous: FloatArray = np.full((), np.nan)  # NaN: no previous sample
+
+    def _state_for(self, shape: tuple[int, ...]) -> None:
+        """Give the state the batch shape on first use (it starts as scalars)."""
+        if self.integral.shape != shape:
+            if self.integral.shape != ():
+                raise ValueError(
+                    f"the controller runs a batch of shape {self.integral.shape} but got "
+                    f"{shape}: call reset() before switching batch sizes"
+                )
+            self.integral = np.broadcast_to(self.integral, shape).copy()
+            self._rate = np.broadcast_to(self._rate, shape).copy()
+            self._previous = np.broadcast_to(self._previous, shape).copy()
 
     def update(
         self,
-        reference: float | npt.ArrayLike,
-        measurement: float | npt.ArrayLike,
-        velocity: float | npt.ArrayLike | None = None,
+        reference: npt.ArrayLike,
+        measurement: npt.ArrayLike,
+        velocity: npt.ArrayLike | None = None,
     ) -> FloatArray:
-        """Return the command for the newest measurement.
+        """Return the saturated command for the newest measurement (the PID's core).
 
         Parameters
         ----------
         reference, measurement : float or array_like
-            Set point and measured position.
+            Set point and measured output.
         velocity : float or array_like, optional
-            Measured velocity; when given it replaces the filtered difference of the
-            measurement in the derivative term.
+            Measured rate of the output; without it the D term uses the filtered difference.
         """
         r = np.asarray(reference, dtype=np.float64)
         y = np.asarray(measurement, dtype=np.float64)
+        self._state_for(np.broadcast_shapes(r.shape, y.shape))
         error = r - y
         if velocity is not None:
-            self._rate = np.asarray(velocity, dtype=np.float64)
-        elif self._previous is not None:
-            slope = (y - self._previous) / self.dt
-            self._rate = self._pole * self._rate + (1.0 - self._pole) * slope
-        self._previous = y
-        g = self.gains
-        integral = self.integral + error * self.dt
+            self._rate = np.broadcast_to(np.asarray(velocity, dtype=np.float64), y.shape).copy()
+        else:
+            slope = (y - self._previous) / self.spec.dt
+            filtered = self._pole * self._rate + (1.0 - self._pole) * slope
+            self._rate = np.where(np.isnan(self._previous), self._rate, filtered)
+        self._previous = np.broadcast_to(y, self._previous.shape).copy()
+        g, limit = self.gains, self.spec.limit
+        integral = self.integral + error * self.spec.dt
         raw = g.kp * error + g.ki * integral - g.kd * self._rate
-        command = np.clip(raw, -self.limit, self.limit)
-        # Clamping: keep the integral only where it does not push further into saturation.
-        winding = (raw != command) & (np.sign(error) == np.sign(raw))
-        self.integral = np.where(winding, self.integral, integral)
-        return np.asarray(self.direction * command, dtype=np.float64)
+        command = np.clip(raw, -limit, limit)
+        if self.anti_windup == "clamping":
+            # Keep the new integral only where it does not push further into saturation.
+            winding = (raw != command) & (np.sign(error) == np.sign(raw))
+            integral = np.where(winding, self.integral, integral)
+        elif self.anti_windup == "back-calculation" and self.tracking_time is not None:
+            integral = integral + (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
+        self.integral = np.asarray(integral, dtype=np.float64)
+        return np.asarray(self.spec.direction * command, dtype=np.float64)
+
+    def command(self, observation: FloatArray) -> FloatArray:  # noqa: D102
+        reference, output, rate = self.spec.split(observation)
+        return self.update(reference, output, rate if self.derivative == "velocity" else None)
+
+    def __repr__(self) -> str:
+        g = self.gains
+        return f"PID(kp={g.kp:g}, ki={g.ki:g}, kd={g.kd:g})"

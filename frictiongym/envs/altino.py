@@ -41,6 +41,11 @@ ALTINO_DEVICE = Device(
     limit_penalty=100.0,
     noise_std=2.0,  # assumed: readout units (0.05 cm at 5 cm); docs/altino-model.md has none
     observation_names=("readout", "distance", "velocity", "reference"),
+    output="distance",
+    direction=-1.0,  # a positive command drives toward the wall, shortening the distance
+    # Assumed: at rest the noiseless backward difference is exactly 0, and one IR count at
+    # 5 cm per period is 0.52 cm/s; half of it separates the two (docs/controllers.md).
+    rest_speed=0.25,
 )
 
 

@@ -53,6 +53,10 @@ class Device:
     limit_penalty: float
     noise_std: float  #: sensor noise of ``sensor_noise=True``
     observation_names: tuple[str, ...]
+    output: str  #: observation name of the measured controlled output
+    direction: float  #: +1 if a positive command increases ``output``, -1 if it decreases it
+    #: speed (plant units) below which a friction compensator treats the body as at rest
+    rest_speed: float
 
 
 def _number(name: str, value: object, rule: str = "finite") -> float:

@@ -37,6 +37,12 @@ ROTARY_DEVICE = Device(
     limit_penalty=100.0,
     noise_std=2.0 * math.pi / 2048,  # assumed: one encoder count of vibration or noise
     observation_names=("angle", "velocity", "reference"),
+    output="angle",
+    direction=1.0,
+    # Assumed: at rest the filtered encoder derivative decays from a last count's pulse
+    # (1.5 rad/s for one count per period, times 1 - exp(-50 dt) = 0.095) toward 0; 0.1 rad/s
+    # is below that first pulse and 3 % of the paper's v0 (docs/controllers.md).
+    rest_speed=0.1,
 )
 
 

@@ -22,6 +22,7 @@ law                    sliding friction ``F(v)`` (``s = sign(v)``); at rest
 from __future__ import annotations
 
 import dataclasses
+import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -111,6 +112,17 @@ class FrictionModel(ABC):
     def replace(self, **changes: float | str) -> FrictionModel:
         """Return a copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)  # type: ignore[type-var]
+
+    def scaled(self, factor: float) -> FrictionModel:
+        """Return a copy with every break-away and Coulomb level multiplied by ``factor``.
+
+        Speeds, bristle parameters and the viscous slope are kept: this is the model-mismatch
+        knob of a compensator (``factor=1.2`` over-estimates the friction by 20 %).
+        """
+        if not (math.isfinite(factor) and factor >= 0.0):
+            raise ValueError(f"a friction scale factor must be finite and >= 0, got {factor!r}")
+        levels = ("us_pos", "us_neg", "uc_pos", "uc_neg")
+        return self.replace(**{f: getattr(self, f) * factor for f in levels if hasattr(self, f)})
 
 
 @dataclass(frozen=True)

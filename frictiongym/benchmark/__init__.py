@@ -1,0 +1,19 @@
+"""The benchmark: PID vs compensated PID on the paper's experiments and around them.
+
+``frictiongym benchmark`` (and ``scripts/benchmark.py``) call :func:`main`; the pieces are
+:mod:`~frictiongym.benchmark.scenarios` (what runs), :mod:`~frictiongym.benchmark.run`
+(running and records), :mod:`~frictiongym.benchmark.report` (JSON, CSV, markdown) and
+:mod:`~frictiongym.benchmark.figures` (PNG).
+"""
+
+from frictiongym.benchmark.run import Result, run_benchmark, run_scenario
+from frictiongym.benchmark.scenarios import Scenario, all_scenarios, paper_scenarios
+
+__all__ = [
+    "Result",
+    "Scenario",
+    "all_scenarios",
+    "paper_scenarios",
+    "run_benchmark",
+    "run_scenario",
+]

@@ -1,0 +1,160 @@
+"""``frictiongym benchmark``: arguments, progress, terminal summary (``scripts/benchmark.py``)."""
+
+from __future__ import annotations
+
+import argparse
+import fnmatch
+import shlex
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+from frictiongym.benchmark.scenarios import GROUPS, NOISE_SEEDS, Scenario, all_scenarios
+
+DESCRIPTION = """\
+Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
+the robustness grids around them on the simulated QUBE-Servo 2 and Altino, then write
+results.json (one record per run), results.csv, results.md (tables and the paper check) and
+PNG figures into --out.
+
+Groups: paper (the named scenarios: paper-rotary-pid, paper-rotary-compensated,
+paper-altino-pid-ki10, paper-altino-pid-ki20, paper-altino-compensated, and the servo PID on
+the nominal model), mismatch (every compensator variant with its model's friction levels
+x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, and on over several seeds), friction
+(each friction law in the plant). The default run takes well under 2 minutes on 2 cores.
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the benchmark's options to ``parser``."""
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("benchmark-results"),
+        metavar="DIR",
+        help="directory for results.json/.csv/.md and the figures, created if needed "
+        "(default: ./benchmark-results)",
+    )
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="a fast subset: the paper's scenarios and the 'command' compensator at x0.5 and "
+        "x1.5 mismatch (a few seconds; what CI runs)",
+    )
+    parser.add_argument(
+        "--group",
+        action="append",
+        choices=GROUPS,
+        help="run only this group of scenarios (repeatable; default: all)",
+    )
+    parser.add_argument(
+        "--scenario",
+        action="append",
+        metavar="PATTERN",
+        help="run only scenarios whose name matches this shell pattern, e.g. 'paper-altino-*' "
+        "(repeatable)",
+    )
+    parser.add_argument(
+        "--seeds",
+        type=int,
+        default=len(NOISE_SEEDS),
+        metavar="N",
+        help=f"seeds of the noisy scenarios, 0..N-1 (default: {len(NOISE_SEEDS)}); the "
+        "noiseless ones are deterministic and run once",
+    )
+    parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+
+
+def select(args: argparse.Namespace) -> list[Scenario]:
+    """Return the scenarios chosen by the command line."""
+    if args.seeds < 1:
+        raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
+    seeds = tuple(range(args.seeds))
+    chosen = []
+    for s in all_scenarios(quick=args.quick):
+        if args.group and s.group not in args.group:
+            continue
+        if args.scenario and not any(fnmatch.fnmatchcase(s.name, p) for p in args.scenario):
+            continue
+        if len(s.seeds) > 1:
+            s = Scenario(**{**s.__dict__, "seeds": seeds})
+        chosen.append(s)
+    if not chosen:
+        names = ", ".join(s.name for s in all_scenarios(quick=args.quick)[:6])
+        raise ValueError(
+            "no scenario matches --group/--scenario; see `frictiongym benchmark --list` "
+            f"(e.g. {names}, ...)"
+        )
+    return chosen
+
+
+def _summary(results: Sequence[object]) -> None:
+    from frictiongym.benchmark.report import format_metric, paper_claims
+    from frictiongym.benchmark.run import Result
+
+    runs = [r for r in results if isinstance(r, Result) and r.scenario.group == "paper"]
+    if runs:
+        print(f"\n{'scenario':<28}{'rise s':>8}{'settle s':>10}{'OS %':>8}{'SSE %':>8}"
+              f"{'cycle':>8}")  # fmt: skip
+        for r in runs:
+            m = r.metrics
+            print(f"{r.scenario.name:<28}{format_metric(m.rise_time, '.3f'):>8}"
+                  f"{format_metric(m.settling_time, '.3f'):>10}{m.overshoot_pct:>8.2f}"
+                  f"{m.steady_state_error_pct:>8.2f}{m.limit_cycle_amplitude:>8.3g}")  # fmt: skip
+    for c in paper_claims([r for r in results if isinstance(r, Result)]):
+        print(f"\n[{'agrees' if c.agrees else 'differs'}] {c.claim}\n  paper: {c.paper}"
+              f"\n  ours:  {c.ours}")  # fmt: skip
+
+
+def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int:
+    """Run the benchmark for parsed ``args``; return the exit status."""
+    try:
+        scenarios = select(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if args.list:
+        for s in scenarios:
+            seeds = f" (seeds {s.seeds[0]}..{s.seeds[-1]})" if len(s.seeds) > 1 else ""
+            print(f"{s.name:<36} {s.group:<9} {s.description}{seeds}")
+        return 0
+    if args.out.exists() and not args.out.is_dir():
+        print(f"error: --out {args.out} exists and is not a directory", file=sys.stderr)
+        return 2
+    from tqdm import tqdm
+
+    from frictiongym.benchmark.figures import write_figures
+    from frictiongym.benchmark.report import write_reports
+    from frictiongym.benchmark.run import run_benchmark
+
+    start = time.perf_counter()
+    with tqdm(total=len(scenarios), desc="benchmark", unit="scenario", disable=args.quiet,
+              file=sys.stderr) as bar:  # fmt: skip
+        results = run_benchmark(scenarios, progress=lambda s: bar.update())
+    written = write_reports(results, args.out, command,
+                            None if args.no_figures else write_figures)  # fmt: skip
+    if not args.quiet:
+        _summary(results)
+        print(f"\n{len(results)} runs of {len(scenarios)} scenarios in "
+              f"{time.perf_counter() - start:.1f} s; written to {args.out}/:")  # fmt: skip
+        print("  " + "  ".join(p.name for p in written))
+    return 0
+
+
+def build_parser(prog: str = "frictiongym benchmark") -> argparse.ArgumentParser:
+    """Build the benchmark's own parser (``scripts/benchmark.py``)."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` and run the benchmark."""
+    args = build_parser().parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    return run(args, shlex.join(["frictiongym", "benchmark", *words]))

@@ -1,0 +1,158 @@
+"""Benchmark figures in the spirit of the paper's: responses and friction curves.
+
+Responses as in Figs. 6, 7, 11 and 12, friction curves as in Figs. 8 and 10, and the
+compensator variants under model mismatch.
+
+matplotlib is imported inside the functions, with the non-interactive Agg backend.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from frictiongym.benchmark.run import Result
+from frictiongym.friction import (
+    ALTINO_LUGRE,
+    ALTINO_PAPER,
+    FRICTION_NAMES,
+    ROTARY_LUGRE,
+    ROTARY_PAPER,
+    FrictionModel,
+    friction_from_name,
+)
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _save(fig: Any, path: Path) -> Path:
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=120)
+    os.replace(tmp, path)
+    _pyplot().close(fig)
+    return path
+
+
+def _friction_panel(
+    ax: Any, title: str, laws: dict[str, FrictionModel], v_max: float, units: tuple[str, str]
+) -> None:
+    v = np.concatenate([np.linspace(-v_max, -1e-9, 600), np.linspace(1e-9, v_max, 600)])
+    for name, law in laws.items():
+        ax.plot(v, law.force(v), label=name, lw=1.6 if name == "paper" else 1.1)
+    us_pos, us_neg = laws["paper"].breakaway
+    ax.plot([0.0, 0.0], [-us_neg, us_pos], color="k", lw=3, solid_capstyle="butt",
+            label="at rest: holds inside")  # fmt: skip
+    viscous = getattr(laws["paper"], "viscous", 0.0)
+    if viscous:
+        ax.plot(v, viscous * v, color="grey", ls="-.", lw=0.9, label="viscous part")
+    ax.axhline(0.0, color="k", lw=0.5)
+    ax.set(title=title, xlabel=f"velocity [{units[1]}]", ylabel=f"friction [{units[0]}]")
+    ax.legend(fontsize="small", loc="upper left")
+
+
+def plot_friction_curves(path: Path) -> Path:
+    """Steady friction of every law for both devices (the paper's Figs. 8(b), 10(b))."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    rotary = {n: friction_from_name(n, ROTARY_PAPER, ROTARY_LUGRE) for n in FRICTION_NAMES}
+    altino = {n: friction_from_name(n, ALTINO_PAPER, ALTINO_LUGRE) for n in FRICTION_NAMES}
+    _friction_panel(axes[0], "QUBE-Servo 2 (B_e's viscous part is in the plant)", rotary, 6.0,
+                    ("V", "rad/s"))  # fmt: skip
+    _friction_panel(axes[1], "Altino", altino, 30.0, ("units", "cm/s"))
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def _responses(
+    results: Sequence[Result],
+    names: dict[str, str],
+    path: Path,
+    title: str,
+    units: tuple[str, str],
+    zoom: float,
+) -> Path | None:
+    """Output and command of the named runs on shared axes (output, error zoom, command)."""
+    runs = {r.scenario.name: r for r in results if r.seed == r.scenario.seeds[0]}
+    chosen = [(label, runs[name]) for name, label in names.items() if name in runs]
+    if not chosen:
+        return None
+    plt = _pyplot()
+    fig, (ax, ax_err, ax_u) = plt.subplots(3, 1, figsize=(8, 8), sharex=True,
+                                           gridspec_kw={"height_ratios": [3, 2, 2]})  # fmt: skip
+    for label, r in chosen:
+        t = r.rollout.t[: r.rollout.length[r.env]]
+        y = r.rollout.signal("position", r.env)
+        ref = r.rollout.signal("reference", r.env)
+        (line,) = ax.plot(t, y, label=label, lw=1.3)
+        ax_err.plot(t, ref - y, color=line.get_color(), lw=1.1)
+        ax_u.plot(t, r.rollout.signal("command", r.env), color=line.get_color(), lw=0.9)
+    first = chosen[0][1]
+    ax.plot(first.rollout.t, first.rollout.reference[:, first.env], "k--", lw=0.8,
+            label="reference")  # fmt: skip
+    ax.set(title=title, ylabel=f"output [{units[0]}]")
+    ax.legend(loc="best", fontsize="small")
+    ax_err.axhline(0.0, color="k", lw=0.6)
+    ax_err.set(ylabel=f"error r - y [{units[0]}]", ylim=(-zoom, zoom))
+    ax_u.set(xlabel="time [s]", ylabel=f"command [{units[1]}]")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
+    """SSE and limit-cycle amplitude of each compensator variant against model mismatch."""
+    runs = [r for r in results if r.scenario.group == "mismatch"]
+    if not runs:
+        return None
+    plt = _pyplot()
+    devices = sorted({r.scenario.device for r in runs}, reverse=True)
+    fig, axes = plt.subplots(2, len(devices), figsize=(5.5 * len(devices), 6.5), squeeze=False)
+    for col, device in enumerate(devices):
+        mine = [r for r in runs if r.scenario.device == device]
+        unit = "rad" if device == "rotary" else "cm"
+        for mode in dict.fromkeys(r.scenario.mode for r in mine):
+            pts = sorted((r.scenario.scale, r.metrics) for r in mine if r.scenario.mode == mode)
+            scales = [s for s, _ in pts]
+            axes[0, col].plot(scales, [m.steady_state_error_pct for _, m in pts], "o-",
+                              label=mode)  # fmt: skip
+            axes[1, col].plot(scales, [m.limit_cycle_amplitude for _, m in pts], "o-",
+                              label=mode)  # fmt: skip
+        axes[0, col].set(title=f"{device}: compensator model mismatch",
+                         ylabel="SSE [% of step]")  # fmt: skip
+        axes[1, col].set(xlabel="compensator friction / plant friction",
+                         ylabel=f"limit-cycle amplitude [{unit}]")  # fmt: skip
+        for ax in axes[:, col]:
+            ax.axvline(1.0, color="k", lw=0.6, ls=":")
+            ax.legend(fontsize="small")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
+    """Write every figure the results allow into ``out``; return the paths written."""
+    written = [
+        _responses(results, {"paper-rotary-nominal": "PID, nominal (no friction)",
+                             "paper-rotary-pid": "PID, paper friction",
+                             "paper-rotary-compensated": "PID + compensator"},
+                   out / "rotary_response.png", "QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
+                   ("rad", "V"), zoom=0.03),
+        _responses(results, {"paper-altino-pid-ki10": "PID Ki 10",
+                             "paper-altino-pid-ki20": "PID Ki 20",
+                             "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator"},
+                   out / "altino_response.png",
+                   "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)", ("cm", "units"),
+                   zoom=2.0),
+        plot_mismatch(results, out / "compensator_mismatch.png"),
+        plot_friction_curves(out / "friction_curves.png"),
+    ]  # fmt: skip
+    return [p for p in written if p is not None]

@@ -1,0 +1,195 @@
+"""Benchmark outputs: ``results.json``, ``results.csv``, ``results.md`` and the paper check.
+
+Files are written to a temporary name and renamed, so an interrupted run never leaves a
+half-written file behind.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from frictiongym.benchmark.run import METRICS, Result
+
+#: Table columns of the metrics: (field, header, format).
+COLUMNS = (
+    ("rise_time", "rise s", ".3f"),
+    ("peak_time", "peak s", ".3f"),
+    ("settling_time", "settle s", ".3f"),
+    ("overshoot_pct", "OS %", ".2f"),
+    ("steady_state_error", "SSE", ".4f"),
+    ("steady_state_error_pct", "SSE %", ".2f"),
+    ("iae", "IAE", ".4g"),
+    ("itae", "ITAE", ".4g"),
+    ("control_effort", "effort", ".4g"),
+    ("limit_cycle_amplitude", "LC amp", ".3g"),
+    ("limit_cycle_period", "LC period s", ".3g"),
+    ("time_stuck", "stuck s", ".2f"),
+)
+#: The paper's time-domain specs for the servo PID (§3.1): metric -> upper bound.
+SERVO_SPECS = {"rise_time": 0.05, "peak_time": 0.1, "settling_time": 1.5, "overshoot_pct": 20.0}
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file and a rename."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text, encoding="utf-8")
+    os.replace(tmp, path)
+
+
+def to_json(results: Sequence[Result]) -> str:
+    """``results.json``: a list of records (:meth:`Result.record`)."""
+    return json.dumps([r.record() for r in results], indent=1, allow_nan=False) + "\n"
+
+
+def to_csv(results: Sequence[Result]) -> str:
+    """``results.csv``: one flat row per run (empty cells: never reached / no cycle)."""
+    out = io.StringIO()
+    writer = csv.writer(out, lineterminator="\n")
+    head = ["scenario", "group", "env_id", "controller", "kp", "ki", "kd", "mode", "scale"]
+    writer.writerow([*head, "friction", "sensor_noise", "seed", "terminated", *METRICS])
+    for r in results:
+        rec, s = r.record(), r.scenario
+        writer.writerow(
+            [s.name, s.group, s.env_id, s.controller_name, s.gains.kp, s.gains.ki, s.gains.kd,
+             s.mode or "", s.scale if s.mode else "", s.env_kwargs.get("friction", "paper"),
+             s.env_kwargs.get("sensor_noise", False), r.seed, r.terminated,
+             *("" if v is None else repr(v) for v in rec["metrics"].values())]
+        )  # fmt: skip
+    return out.getvalue()
+
+
+def format_metric(value: float, fmt: str) -> str:
+    """``value`` for a table: ``never`` for inf (not reached), ``-`` for NaN (none)."""
+    if math.isnan(value):
+        return "-"
+    if math.isinf(value):
+        return "never"
+    return format(value, fmt)
+
+
+def _table(results: Sequence[Result]) -> list[str]:
+    head = ["scenario", "seed", *(h for _, h, _ in COLUMNS)]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for r in results:
+        m = r.metrics.as_dict()
+        name = r.scenario.name + (" (hit the wall)" if r.terminated else "")
+        cells = [name, str(r.seed), *(format_metric(m[f], fmt) for f, _, fmt in COLUMNS)]
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One of the paper's statements, what our model gives, and whether it agrees."""
+
+    claim: str
+    paper: str
+    ours: str
+    agrees: bool
+
+
+def paper_claims(results: Sequence[Result]) -> list[Claim]:
+    """Check the paper's statements against the runs (those present in ``results``)."""
+    by_name = {r.scenario.name: r.metrics for r in results if r.seed == r.scenario.seeds[0]}
+    claims: list[Claim] = []
+    nominal = by_name.get("paper-rotary-nominal")
+    if nominal is not None:
+        got = nominal.as_dict()
+        checks = [(f"{k} {got[k]:.3g} {'<' if got[k] < v else '≥'} {v:g}", got[k] < v)
+                  for k, v in SERVO_SPECS.items()]  # fmt: skip
+        claims.append(Claim("servo PID meets the four specs on the nominal model",
+                            "yes (random search)", "; ".join(text for text, _ in checks),
+                            all(ok for _, ok in checks)))  # fmt: skip
+    pid, comp = by_name.get("paper-rotary-pid"), by_name.get("paper-rotary-compensated")
+    if pid is not None and comp is not None:
+        claims.append(Claim(
+            "servo SSE: PID with friction → compensated",
+            "2.78 % → 1.11 % (hardware); 0 % (simulation)",
+            f"{pid.steady_state_error_pct:.2f} % → {comp.steady_state_error_pct:.2f} %",
+            comp.steady_state_error_pct < pid.steady_state_error_pct,
+        ))  # fmt: skip
+    ki10, ki20 = by_name.get("paper-altino-pid-ki10"), by_name.get("paper-altino-pid-ki20")
+    if ki10 is not None:
+        claims.append(Claim(
+            "Altino Ki 10: overshoots and stays around 3 cm (offset ≈ 2 cm)",
+            "offset ≈ 2 cm",
+            f"overshoot {ki10.overshoot_pct:.2f} %, SSE {ki10.steady_state_error:.2f} cm",
+            ki10.steady_state_error > 1.0,
+        ))  # fmt: skip
+    if ki20 is not None:
+        cycle = ki20.limit_cycle_amplitude > 0.0
+        claims.append(Claim(
+            "Altino Ki 20: limit cycle around 5 cm", "sustained oscillation",
+            f"amplitude {ki20.limit_cycle_amplitude:.2f} cm, period "
+            f"{format_metric(ki20.limit_cycle_period, '.1f')} s; "
+            f"SSE {ki20.steady_state_error:.2f} cm",
+            cycle,
+        ))  # fmt: skip
+    altino_comp = by_name.get("paper-altino-compensated")
+    if altino_comp is not None:
+        m = altino_comp
+        claims.append(Claim(
+            "Altino compensated (Kp 25, Ki 0.5, Kd 7): rise and settling < 1 s, no SSE, "
+            "no oscillation", "yes",
+            f"rise {format_metric(m.rise_time, '.2f')} s, "
+            f"settling {format_metric(m.settling_time, '.2f')} s, "
+            f"SSE {m.steady_state_error:.2f} cm, cycle amplitude {m.limit_cycle_amplitude:.2f}",
+            m.rise_time < 1.0 and m.settling_time < 1.0 and m.limit_cycle_amplitude == 0.0,
+        ))  # fmt: skip
+    return claims
+
+
+def to_markdown(results: Sequence[Result], command: str = "") -> str:
+    """``results.md``: the paper check and one table per scenario group."""
+    lines = ["# frictiongym benchmark", ""]
+    if command:
+        lines += [f"Produced by `{command}`.", ""]
+    claims = paper_claims(results)
+    if claims:
+        lines += ["## The paper's claims on our model", "",
+                  "| claim | paper | ours | agrees |", "|---|---|---|---|"]  # fmt: skip
+        lines += [f"| {c.claim} | {c.paper} | {c.ours} | {'yes' if c.agrees else 'no'} |"
+                  for c in claims]  # fmt: skip
+        lines.append("")
+    lines += [
+        "Metrics of the true output against the reference: 10-90 % rise, 2 % settling, SSE "
+        "= mean |r - y| over the last 10 % of the run (rad or cm, and % of the step), IAE and "
+        "ITAE in output units x s (x s), effort = RMS command (V or motor units), LC = a "
+        "sustained limit cycle in the second half of the run (half peak-to-peak), stuck = "
+        "time held by friction after the first motion. `never`: not reached; `-`: none.",
+        "",
+    ]
+    groups: dict[str, list[Result]] = {}
+    for r in results:
+        groups.setdefault(r.scenario.group, []).append(r)
+    for group, members in groups.items():
+        lines += [f"## {group}", "", *_table(members), ""]
+    return "\n".join(lines)
+
+
+def write_reports(
+    results: Sequence[Result],
+    out: Path,
+    command: str = "",
+    figures: Callable[[Sequence[Result], Path], list[Path]] | None = None,
+) -> list[Path]:
+    """Write ``results.json``, ``results.csv``, ``results.md`` (and figures) into ``out``."""
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, text in (
+        ("results.json", to_json(results)),
+        ("results.csv", to_csv(results)),
+        ("results.md", to_markdown(results, command)),
+    ):
+        write_atomic(out / name, text)
+        written.append(out / name)
+    if figures is not None:
+        written += figures(results, out)
+    return written

@@ -1,0 +1,182 @@
+"""Named benchmark scenarios: the paper's experiments and the robustness grids around them.
+
+A :class:`Scenario` is an env id with its keyword arguments, a controller recipe (PID gains,
+and the compensator's variant and model mismatch if any) and the seeds to run. Scenarios
+that differ only in their seed run side by side in one vector env.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
+from frictiongym.controllers.compensation import MODES, Mode
+from frictiongym.friction import FRICTION_NAMES
+from frictiongym.plants.presets import (
+    ALTINO_PAPER_GAINS_COMPENSATED,
+    ALTINO_PAPER_GAINS_KI10,
+    ALTINO_PAPER_GAINS_KI20,
+    ROTARY_PAPER_GAINS,
+)
+
+ROTARY_ID = "frictiongym/RotaryServo-v0"
+ALTINO_ID = "frictiongym/AltinoDistance-v0"
+#: Run lengths: the servo's registered 5 s episode (the paper's plots); 60 s for the Altino,
+#: long enough to tell a slow limit cycle from a stop (docs/altino-model.md §3).
+STEPS = {ROTARY_ID: 2500, ALTINO_ID: 1200}
+#: The compensator's model mismatch grid: ±20 % and ±50 % in friction level.
+MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
+#: Seeds of the noisy scenarios (the noiseless ones are deterministic: one run).
+NOISE_SEEDS = (0, 1, 2, 3, 4)
+GROUPS = ("paper", "mismatch", "noise", "friction")
+
+ROTARY_GAINS = PIDGains(**ROTARY_PAPER_GAINS)
+ALTINO_KI10 = PIDGains(**ALTINO_PAPER_GAINS_KI10)
+ALTINO_KI20 = PIDGains(**ALTINO_PAPER_GAINS_KI20)
+ALTINO_COMPENSATED = PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED)
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One benchmark case.
+
+    Parameters
+    ----------
+    name : str
+        Unique name, e.g. ``paper-rotary-pid``.
+    group : str
+        ``paper``, ``mismatch``, ``noise`` or ``friction``.
+    env_id : str
+    gains : PIDGains
+    mode : str or None
+        Compensator variant (:data:`frictiongym.controllers.MODES`); None: plain PID.
+    scale : float
+        Compensator model mismatch (friction levels times ``scale``).
+    env_kwargs : dict
+        ``gym.make`` keyword arguments (friction law, noise, ...).
+    seeds : tuple of int
+        One run per seed.
+    description : str
+        What the scenario shows, for the report.
+    """
+
+    name: str
+    group: str
+    env_id: str
+    gains: PIDGains
+    mode: Mode | None = None
+    scale: float = 1.0
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+    seeds: tuple[int, ...] = (0,)
+    description: str = ""
+
+    @property
+    def controller_name(self) -> str:
+        """``pid`` or ``compensated-pid``."""
+        return "pid" if self.mode is None else "compensated-pid"
+
+    @property
+    def steps(self) -> int:
+        """Steps per run."""
+        return STEPS[self.env_id]
+
+    @property
+    def device(self) -> str:
+        """``rotary`` or ``altino``."""
+        return "rotary" if self.env_id == ROTARY_ID else "altino"
+
+    def controller(self, env: Any) -> Controller:
+        """Build the scenario's controller for ``env``."""
+        pid = PID.for_env(env, self.gains)
+        if self.mode is None:
+            return pid
+        return FrictionCompensator(pid, mode=self.mode, scale=self.scale)
+
+
+def paper_scenarios() -> list[Scenario]:
+    """Return the paper's experiments with its gains (§3.1, §3.2, §5), on the default models."""
+    rotary = {"friction": "paper"}
+    return [
+        Scenario("paper-rotary-nominal", "paper", ROTARY_ID, ROTARY_GAINS,
+                 env_kwargs={"friction": "none"},
+                 description="the paper's PID on the nominal (frictionless) servo: the specs "
+                 "check"),
+        Scenario("paper-rotary-pid", "paper", ROTARY_ID, ROTARY_GAINS, env_kwargs=rotary,
+                 description="PID on the servo with the paper's friction (Figs. 6, 7)"),
+        Scenario("paper-rotary-compensated", "paper", ROTARY_ID, ROTARY_GAINS, mode="command",
+                 env_kwargs=rotary, description="the same PID plus the friction compensator"),
+        Scenario("paper-altino-pid-ki10", "paper", ALTINO_ID, ALTINO_KI10,
+                 description="Altino PID Kp 25, Ki 10, Kd 12: the paper sees an offset "
+                 "(Fig. 11)"),
+        Scenario("paper-altino-pid-ki20", "paper", ALTINO_ID, ALTINO_KI20,
+                 description="Altino PID with Ki 20: the paper sees a limit cycle (Fig. 11)"),
+        Scenario("paper-altino-compensated", "paper", ALTINO_ID, ALTINO_COMPENSATED,
+                 mode="command", description="compensated PID Kp 25, Ki 0.5, Kd 7: the paper "
+                 "sees rise and settling under 1 s (Fig. 12)"),
+    ]  # fmt: skip
+
+
+def _devices() -> Iterator[tuple[str, str, PIDGains, PIDGains]]:
+    """Yield (device, env id, PID gains, compensated-PID gains) of both devices."""
+    yield "rotary", ROTARY_ID, ROTARY_GAINS, ROTARY_GAINS
+    yield "altino", ALTINO_ID, ALTINO_KI10, ALTINO_COMPENSATED
+
+
+def mismatch_scenarios(
+    modes: tuple[Mode, ...] = MODES, scales: tuple[float, ...] = MISMATCH_SCALES
+) -> list[Scenario]:
+    """Return every compensator variant with its model's friction levels scaled (paper friction)."""
+    return [
+        Scenario(f"mismatch-{device}-{mode}-x{scale:g}", "mismatch", env_id, gains, mode=mode,
+                 scale=scale, description=f"{mode} variant, model friction x{scale:g}")
+        for device, env_id, _, gains in _devices()
+        for mode in modes
+        for scale in scales
+    ]  # fmt: skip
+
+
+def _pid_and_compensated(
+    name: str, group: str, what: str, env_kwargs: dict[str, Any], seeds: tuple[int, ...] = (0,)
+) -> list[Scenario]:
+    """Return the paper's PID and compensated PID on both devices (``name``: a template)."""
+    out = []
+    for device, env_id, pid_gains, comp_gains in _devices():
+        variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
+            ("pid", pid_gains, None),
+            ("compensated", comp_gains, "command"),
+        )
+        for kind, gains, mode in variants:
+            out.append(
+                Scenario(name.format(device=device, kind=kind), group, env_id, gains, mode=mode,
+                         env_kwargs=env_kwargs, seeds=seeds, description=f"{kind}, {what}")
+            )  # fmt: skip
+    return out
+
+
+def noise_scenarios(seeds: tuple[int, ...] = NOISE_SEEDS) -> list[Scenario]:
+    """Return PID and compensated PID with sensor noise off and on (several seeds when on)."""
+    return _pid_and_compensated(
+        "noise-{device}-{kind}-off", "noise", "sensor noise off", {"sensor_noise": False}
+    ) + _pid_and_compensated(
+        "noise-{device}-{kind}-on", "noise", "sensor noise on", {"sensor_noise": True}, seeds
+    )
+
+
+def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]:
+    """Return PID and compensated PID (paper model) against each friction law of the plant."""
+    return [
+        s
+        for law in laws
+        for s in _pid_and_compensated(
+            f"friction-{{device}}-{law}-{{kind}}", "friction", f"{law} law", {"friction": law}
+        )
+    ]
+
+
+def all_scenarios(quick: bool = False) -> list[Scenario]:
+    """Return the default benchmark; ``quick``: the paper's scenarios and a small mismatch grid."""
+    if quick:
+        return paper_scenarios() + mismatch_scenarios(("command",), (0.5, 1.5))
+    return paper_scenarios() + mismatch_scenarios() + noise_scenarios() + friction_scenarios()

@@ -1,0 +1,129 @@
+"""Model-based friction compensation in the velocity loop (the paper's compensator).
+
+The paper adds the modelled nonlinear friction, stiction and Coulomb, at the measured
+velocity to the command of the PID: if the model is right, the plant seen by the PID is the
+nominal linear one. The sign of friction is undefined at rest, and what the compensator does
+there decides whether it removes the steady-state error or drives a limit cycle; the
+variants below are the usual answers (docs/controllers.md compares them).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.friction import FrictionModel
+
+#: What the compensator does at (near) zero velocity.
+Mode = Literal["command", "error", "deadband", "smooth"]
+MODES: tuple[Mode, ...] = ("command", "error", "deadband", "smooth")
+
+
+class FrictionCompensator(Controller):
+    """Any controller plus the modelled stiction/Coulomb friction at the measured velocity.
+
+    Above the rest speed ``|v| > v_rest`` it adds ``F_nl(v)``, the model's friction without its
+    viscous part (the paper's velocity-loop compensator; the viscous part is the nominal
+    plant's damping, which the base controller was tuned for). At rest, by ``mode``:
+
+    ``"command"``
+        the break-away level ``u_s`` in the direction of the base controller's command: it
+        helps the command break the body free as soon as it asks to move (chatters between
+        ``±u_s`` when that command hovers around zero);
+    ``"error"``
+        the break-away level in the direction that reduces the tracking error: it pushes
+        toward the reference until the body moves (overshoots if the model is too strong);
+    ``"deadband"``
+        nothing: only sliding friction is compensated, the integral of the base controller
+        breaks the body free (no chatter, but a slower final approach);
+    ``"smooth"``
+        no rest band: ``|F_nl(v)| tanh(v / v_smooth)``, a continuous compensation that fades
+        out at rest.
+
+    Parameters
+    ----------
+    base : Controller
+        The controller to compensate (its :class:`LoopSpec` is shared).
+    model : FrictionModel, optional
+        The compensator's friction model; the device's identified (paper) friction by default.
+        A model different from the plant's is a structural mismatch.
+    mode : {"command", "error", "deadband", "smooth"}, default "command"
+    rest_speed : float, optional
+        ``v_rest``, output units per s; the spec's (the device's) by default.
+    smoothing : float, optional
+        ``v_smooth`` of ``mode="smooth"``; ``rest_speed`` by default.
+    scale : float, default 1.0
+        Model mismatch in level: every break-away and Coulomb level of ``model`` is
+        multiplied by it (1.2: friction over-estimated by 20 %).
+    """
+
+    def __init__(
+        self,
+        base: Controller,
+        model: FrictionModel | None = None,
+        *,
+        mode: Mode = "command",
+        rest_speed: float | None = None,
+        smoothing: float | None = None,
+        scale: float = 1.0,
+    ) -> None:
+        spec = base.spec
+        if spec.velocity is None:
+            raise ValueError(
+                "friction compensation needs a velocity entry in the observation; the "
+                "controller's LoopSpec has none"
+            )
+        if mode not in MODES:
+            raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+        model = model if model is not None else spec.friction
+        if model is None:
+            raise ValueError(
+                "no friction model: pass model=..., or build the base controller for a "
+                "frictiongym env (LoopSpec.friction)"
+            )
+        rest = spec.rest_speed if rest_speed is None else float(rest_speed)
+        smooth = rest if smoothing is None else float(smoothing)
+        if not (math.isfinite(rest) and rest >= 0.0):
+            raise ValueError(f"rest_speed must be >= 0, got {rest_speed!r}")
+        if mode == "smooth" and not (math.isfinite(smooth) and smooth > 0.0):
+            raise ValueError(f"mode='smooth' needs smoothing > 0, got {smooth!r}")
+        self.spec = spec
+        self.base = base
+        self.model = model.scaled(scale) if scale != 1.0 else model
+        self.mode: Mode = mode
+        self.rest_speed = rest
+        self.smoothing = smooth
+        self.scale = float(scale)
+
+    def reset(self, mask: npt.ArrayLike | None = None) -> None:  # noqa: D102
+        self.base.reset(mask)
+
+    def compensation(self, observation: npt.ArrayLike, base_command: npt.ArrayLike) -> FloatArray:
+        """Return the command added to ``base_command`` for ``observation`` (command units)."""
+        reference, output, rate = self.spec.split(observation)
+        direction = self.spec.direction
+        v = direction * rate  # the plant's velocity: positive where a positive command drives
+        if self.mode == "smooth":
+            # |F_nl(v)| is 0 at v = 0 exactly, where tanh is 0 too: continuous and odd.
+            magnitude = np.abs(self.model.nonlinear_force(v))
+            return np.asarray(magnitude * np.tanh(v / self.smoothing), dtype=np.float64)
+        sliding = np.where(np.abs(v) > self.rest_speed, self.model.nonlinear_force(v), 0.0)
+        if self.mode == "deadband":
+            return np.asarray(sliding, dtype=np.float64)
+        toward = base_command if self.mode == "command" else direction * (reference - output)
+        push = np.sign(toward)
+        us_pos, us_neg = self.model.breakaway
+        at_rest = np.where(push > 0.0, us_pos, np.where(push < 0.0, -us_neg, 0.0))
+        return np.asarray(np.where(np.abs(v) > self.rest_speed, sliding, at_rest), dtype=np.float64)
+
+    def command(self, observation: FloatArray) -> FloatArray:  # noqa: D102
+        u = self.base.command(observation)
+        return np.asarray(u + self.compensation(observation, u), dtype=np.float64)
+
+    def __repr__(self) -> str:
+        mismatch = f", scale={self.scale:g}" if self.scale != 1.0 else ""
+        return f"FrictionCompensator({self.base!r}, mode={self.mode!r}{mismatch})"

@@ -1,0 +1,146 @@
+"""Roll out any controller on any frictiongym env, single or vector, and keep the signals."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.metrics import ResponseMetrics, response_metrics
+
+BoolArray = npt.NDArray[np.bool_]
+#: ``info`` keys recorded by :func:`rollout` (the env contract, docs/envs.md).
+SIGNALS = ("position", "velocity", "command", "reference", "time")
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """Signals of a closed-loop run, sample ``k`` at time ``t[k]``, one column per env.
+
+    ``position``, ``velocity`` and ``reference`` are the true state from ``info``;
+    ``measured`` is the output the controller saw (its observation entry); ``command[k]`` is
+    the applied (saturated) command held from ``t[k]`` to ``t[k+1]`` (the last sample repeats
+    it); ``reward[k]`` is the reward of the step that ended at ``t[k]`` (0 at ``k = 0``);
+    ``stuck[k]`` tells whether friction held the body at ``t[k]``. Env ``i`` has ``length[i]``
+    valid samples (fewer when it terminated, e.g. the Altino touching the wall); the rest are
+    NaN.
+    """
+
+    t: FloatArray
+    position: FloatArray
+    velocity: FloatArray
+    measured: FloatArray
+    command: FloatArray
+    reference: FloatArray
+    reward: FloatArray
+    stuck: BoolArray
+    length: npt.NDArray[np.int64]
+    terminated: BoolArray
+
+    @property
+    def num_envs(self) -> int:
+        """Number of envs (columns)."""
+        return int(self.position.shape[1])
+
+    def signal(self, name: str, env: int = 0) -> FloatArray:
+        """Return the valid samples of signal ``name`` for env ``env``."""
+        values: FloatArray = getattr(self, name)
+        return values[: self.length[env], env]
+
+    def metrics(self, env: int = 0, **kwargs: Any) -> ResponseMetrics:
+        """Response metrics of env ``env``'s true output against its final reference.
+
+        Keyword arguments go to :func:`frictiongym.metrics.response_metrics`.
+        """
+        n = int(self.length[env])
+        if n < 2:
+            raise ValueError(f"env {env} has {n} sample(s): too short for metrics")
+        return response_metrics(
+            self.t[:n],
+            self.position[:n, env],
+            float(self.reference[n - 1, env]),
+            command=self.command[:n, env],
+            stuck=self.stuck[:n, env],
+            y0=float(self.position[0, env]),
+            **kwargs,
+        )
+
+
+def _episode_steps(env: Any) -> int | None:
+    spec = getattr(env, "spec", None)
+    steps = getattr(spec, "max_episode_steps", None)
+    return steps if steps is not None else getattr(env.unwrapped, "max_episode_steps", None)
+
+
+def rollout(
+    env: Any,
+    controller: Controller,
+    steps: int | None = None,
+    *,
+    seed: int | list[int] | None = None,
+    options: dict[str, Any] | None = None,
+) -> Rollout:
+    """Run one episode of ``controller`` on ``env`` and record every signal.
+
+    Parameters
+    ----------
+    env : gymnasium.Env or gymnasium.vector.VectorEnv
+        A frictiongym env (``gym.make`` or ``gym.make_vec``); a vector env runs its envs side
+        by side, each recorded until its episode ends (it is not followed into autoreset).
+    controller : Controller
+        Built for this env (``PID.for_env(env, gains)``); it is reset with the env.
+    steps : int, optional
+        Steps to run; the env's episode length by default.
+    seed, options
+        Passed to ``env.reset``.
+
+    Returns
+    -------
+    Rollout
+        ``steps + 1`` samples (the reset state, then one per step), fewer if every env's
+        episode ended earlier.
+    """
+    steps = steps if steps is not None else _episode_steps(env)
+    if steps is None or int(steps) < 1:
+        raise ValueError(f"steps must be a positive number of steps, got {steps!r}")
+    vector = hasattr(env, "num_envs")
+    n = int(env.num_envs) if vector else 1
+    size = (int(steps) + 1, n)
+    rec = {name: np.full(size, np.nan) for name in (*SIGNALS, "measured", "reward")}
+    stuck = np.zeros(size, dtype=bool)
+    active = np.ones(n, dtype=bool)
+    length = np.full(n, size[0], dtype=np.int64)
+    terminated = np.zeros(n, dtype=bool)
+
+    def record(k: int, obs: Any, info: dict[str, Any], mask: BoolArray) -> None:
+        for name in SIGNALS:
+            if name in info:
+                rec[name][k, mask] = np.asarray(info[name], dtype=np.float64).reshape(n)[mask]
+        rec["measured"][k, mask] = np.asarray(obs, dtype=np.float64).reshape(n, -1)[
+            mask, controller.spec.position
+        ]
+        if "stuck" in info:
+            stuck[k, mask] = np.asarray(info["stuck"], dtype=bool).reshape(n)[mask]
+
+    obs, info = env.reset(seed=seed, options=options)
+    controller.reset()
+    record(0, obs, info, active)
+    rec["reward"][0] = 0.0
+    for k in range(1, size[0]):
+        obs, reward, term, trunc, info = env.step(controller(obs))
+        record(k, obs, info, active)
+        rec["reward"][k, active] = np.asarray(reward, dtype=np.float64).reshape(n)[active]
+        rec["command"][k - 1, active] = rec["command"][k, active]
+        ended = active & (np.asarray(term).reshape(n) | np.asarray(trunc).reshape(n))
+        terminated |= active & np.asarray(term).reshape(n)
+        length[ended] = k + 1
+        active &= ~ended
+        if not active.any():
+            break
+    m = int(length.max())  # every env may have ended before ``steps``
+    t = rec.pop("time")[:m, int(np.argmax(length))]
+    trimmed = {name: values[:m] for name, values in rec.items()}
+    return Rollout(t=t, stuck=stuck[:m], length=length, terminated=terminated, **trimmed)

@@ -1,0 +1,11 @@
+"""Run the benchmark: the same function as ``frictiongym benchmark`` (see ``--help``).
+
+python scripts/benchmark.py --out benchmark-results
+"""
+
+from __future__ import annotations
+
+from frictiongym.benchmark.command import main
+
+if __name__ == "__main__":
+    raise SystemExit(main())
