@@ -1,7 +1,7 @@
 """Closed-loop step experiments of the paper, on the simulated plants.
 
 Small, explicit loops (sensor → controller → plant) used by the demo, the Altino model check
-and the tests. The env-based runner of the benchmark issue supersedes them for RL work.
+and the tests. `frictiongym.controllers.rollout` runs any controller on the envs instead.
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def altino_step(
     the modelled stiction and Coulomb friction at the estimated velocity (backward difference
     of the estimated distance) is added to the command; at rest (estimated velocity exactly
     zero) it pushes in the direction of the PID command with the break-away level, which is
-    the variant this check uses (the benchmark issue compares the others).
+    the variant this check uses (docs/results.md compares the others).
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-"""The README's Python examples run as written."""
+"""The Python examples of the README and of the docs that have them run as written."""
 
 from __future__ import annotations
 
@@ -7,19 +7,27 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parent.parent / "README.md"
-BLOCKS = re.findall(r"```python\n(.*?)```", README.read_text(), flags=re.DOTALL)
+ROOT = Path(__file__).resolve().parent.parent
+README = ROOT / "README.md"
+DOCS = (README, ROOT / "docs" / "controllers.md")
+BLOCKS = [
+    (path, block)
+    for path in DOCS
+    for block in re.findall(r"```python\n(.*?)```", path.read_text(), flags=re.DOTALL)
+]
 
 
 def test_the_readme_has_python_examples():
-    assert len(BLOCKS) >= 2
+    assert sum(path == README for path, _ in BLOCKS) >= 2
 
 
-@pytest.mark.parametrize("block", BLOCKS, ids=[f"block{i}" for i in range(len(BLOCKS))])
-def test_readme_example_runs(block):
+@pytest.mark.parametrize(
+    ("path", "block"), BLOCKS, ids=[f"{p.stem}-block{i}" for i, (p, _) in enumerate(BLOCKS)]
+)
+def test_example_runs(path, block):
     shown = re.search(r"# ValueError: (.{20})", block)  # an example showing a user's error
     if shown is None:
-        exec(compile(block, str(README), "exec"), {})
+        exec(compile(block, str(path), "exec"), {})
     else:
         with pytest.raises(ValueError, match=re.escape(shown.group(1))):
-            exec(compile(block, str(README), "exec"), {})
+            exec(compile(block, str(path), "exec"), {})

@@ -21,7 +21,8 @@ PNG figures into --out.
 Groups: paper (the named scenarios: paper-rotary-pid, paper-rotary-compensated,
 paper-altino-pid-ki10, paper-altino-pid-ki20, paper-altino-compensated, and the servo PID on
 the nominal model), mismatch (every compensator variant with its model's friction levels
-x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, and on over several seeds), friction
+x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, on over several seeds, and an ideal
+sensor without quantisation), friction
 (each friction law in the plant). The default run takes well under 2 minutes on 2 cores.
 """
 

@@ -156,12 +156,19 @@ def _pid_and_compensated(
 
 
 def noise_scenarios(seeds: tuple[int, ...] = NOISE_SEEDS) -> list[Scenario]:
-    """Return PID and compensated PID with sensor noise off and on (several seeds when on)."""
-    return _pid_and_compensated(
-        "noise-{device}-{kind}-off", "noise", "sensor noise off", {"sensor_noise": False}
-    ) + _pid_and_compensated(
-        "noise-{device}-{kind}-on", "noise", "sensor noise on", {"sensor_noise": True}, seeds
-    )
+    """Return PID and compensated PID with sensor noise off, on (several seeds) and ideal."""
+    return (
+        _pid_and_compensated(
+            "noise-{device}-{kind}-off", "noise", "sensor noise off", {"sensor_noise": False}
+        )
+        + _pid_and_compensated(
+            "noise-{device}-{kind}-on", "noise", "sensor noise on", {"sensor_noise": True}, seeds
+        )
+        + _pid_and_compensated(
+            "noise-{device}-{kind}-ideal", "noise", "ideal sensor: no noise, no quantisation",
+            {"quantize": False},
+        )
+    )  # fmt: skip
 
 
 def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]:
