@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import fnmatch
 import shlex
 import sys
@@ -81,7 +82,7 @@ def select(args: argparse.Namespace) -> list[Scenario]:
         if args.scenario and not any(fnmatch.fnmatchcase(s.name, p) for p in args.scenario):
             continue
         if len(s.seeds) > 1:
-            s = Scenario(**{**s.__dict__, "seeds": seeds})
+            s = dataclasses.replace(s, seeds=seeds)
         chosen.append(s)
     if not chosen:
         names = ", ".join(s.name for s in all_scenarios(quick=args.quick)[:6])
