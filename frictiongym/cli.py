@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import shlex
 import sys
 from collections.abc import Sequence
 
@@ -93,7 +94,7 @@ def _demo(args: argparse.Namespace) -> int:
 def _benchmark(args: argparse.Namespace) -> int:
     from frictiongym.benchmark import command
 
-    return command.run(args, "frictiongym " + " ".join(sys.argv[1:]))
+    return command.run(args, shlex.join(["frictiongym", *sys.argv[1:]]))
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -3,9 +3,6 @@
 import csv
 import json
 import math
-import subprocess
-import sys
-from pathlib import Path
 
 import pytest
 
@@ -124,13 +121,3 @@ def test_bad_input_is_reported(tmp_path, capsys):
     assert "not a directory" in capsys.readouterr().err
     assert target.read_text() == "keep me"
     assert main(["benchmark", "--seeds", "0", "--list"]) == 2
-
-
-def test_script_and_help_explain_every_option():
-    script = Path(__file__).resolve().parents[1] / "scripts" / "benchmark.py"
-    done = subprocess.run(
-        [sys.executable, str(script), "--help"], capture_output=True, text=True, check=False
-    )
-    assert done.returncode == 0, done.stderr
-    for option in ("--out", "--quick", "--group", "--scenario", "--seeds", "--no-figures"):
-        assert option in done.stdout

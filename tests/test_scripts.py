@@ -20,15 +20,25 @@ def test_plot_friction_writes_a_png(tmp_path):
     assert out.stat().st_size > 10_000
 
 
-def test_bench_plants_help_explains_its_options():
+@pytest.mark.parametrize(
+    ("script", "options"),
+    [
+        ("bench_plants.py", ("--batches", "--repeats", "--quick", "--markdown")),
+        ("bench_envs.py", ("--repeats", "--seconds", "--num-envs", "--quick", "--markdown",
+                           "--seed")),
+        ("benchmark.py", ("--out", "--quick", "--group", "--scenario", "--seeds",
+                          "--no-figures")),
+    ],
+)  # fmt: skip
+def test_script_help_explains_its_options(script, options):
     done = subprocess.run(
-        [sys.executable, str(SCRIPTS / "bench_plants.py"), "--help"],
+        [sys.executable, str(SCRIPTS / script), "--help"],
         capture_output=True,
         text=True,
         check=False,
     )
-    assert done.returncode == 0
-    for option in ("--batches", "--repeats", "--quick", "--markdown"):
+    assert done.returncode == 0, done.stderr
+    for option in options:
         assert option in done.stdout
 
 
@@ -47,15 +57,3 @@ def test_bench_envs_quick_reports_both_headline_ratios():
     for name in ("RotaryServo-v0", "AltinoDistance-v0"):
         assert name in out
     assert "| comparison | target |" in out  # the markdown tables
-
-
-def test_bench_envs_help_explains_its_options():
-    done = subprocess.run(
-        [sys.executable, str(SCRIPTS / "bench_envs.py"), "--help"],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    assert done.returncode == 0
-    for option in ("--repeats", "--seconds", "--num-envs", "--quick", "--markdown", "--seed"):
-        assert option in done.stdout

@@ -11,6 +11,9 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from frictiongym.benchmark.figures import write_figures
+from frictiongym.benchmark.report import format_metric, paper_claims, write_reports
+from frictiongym.benchmark.run import Result, run_benchmark
 from frictiongym.benchmark.scenarios import GROUPS, NOISE_SEEDS, Scenario, all_scenarios
 
 DESCRIPTION = """\
@@ -93,11 +96,8 @@ def select(args: argparse.Namespace) -> list[Scenario]:
     return chosen
 
 
-def _summary(results: Sequence[object]) -> None:
-    from frictiongym.benchmark.report import format_metric, paper_claims
-    from frictiongym.benchmark.run import Result
-
-    runs = [r for r in results if isinstance(r, Result) and r.scenario.group == "paper"]
+def _summary(results: Sequence[Result]) -> None:
+    runs = [r for r in results if r.scenario.group == "paper"]
     if runs:
         print(f"\n{'scenario':<28}{'rise s':>8}{'settle s':>10}{'OS %':>8}{'SSE %':>8}"
               f"{'cycle':>8}")  # fmt: skip
@@ -106,7 +106,7 @@ def _summary(results: Sequence[object]) -> None:
             print(f"{r.scenario.name:<28}{format_metric(m.rise_time, '.3f'):>8}"
                   f"{format_metric(m.settling_time, '.3f'):>10}{m.overshoot_pct:>8.2f}"
                   f"{m.steady_state_error_pct:>8.2f}{m.limit_cycle_amplitude:>8.3g}")  # fmt: skip
-    for c in paper_claims([r for r in results if isinstance(r, Result)]):
+    for c in paper_claims(results):
         print(f"\n[{'agrees' if c.agrees else 'differs'}] {c.claim}\n  paper: {c.paper}"
               f"\n  ours:  {c.ours}")  # fmt: skip
 
@@ -126,11 +126,7 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
     if args.out.exists() and not args.out.is_dir():
         print(f"error: --out {args.out} exists and is not a directory", file=sys.stderr)
         return 2
-    from tqdm import tqdm
-
-    from frictiongym.benchmark.figures import write_figures
-    from frictiongym.benchmark.report import write_reports
-    from frictiongym.benchmark.run import run_benchmark
+    from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
     start = time.perf_counter()
     with tqdm(total=len(scenarios), desc="benchmark", unit="scenario", disable=args.quiet,
