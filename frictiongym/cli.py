@@ -97,6 +97,12 @@ def _benchmark(args: argparse.Namespace) -> int:
     return command.run(args, shlex.join(["frictiongym", *sys.argv[1:]]))
 
 
+def _identify(args: argparse.Namespace) -> int:
+    from frictiongym.identification import command
+
+    return command.run(args, shlex.join(["frictiongym", *sys.argv[1:]]))
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Build the argument parser of ``frictiongym``."""
     parser = argparse.ArgumentParser(
@@ -144,6 +150,17 @@ def build_parser() -> argparse.ArgumentParser:
     )
     benchmark.add_arguments(bench)
     bench.set_defaults(func=_benchmark)
+
+    from frictiongym.identification import command as identification
+
+    ident = sub.add_parser(
+        "identify",
+        help="measure a device's friction map, break-away levels, J and B; write friction.json",
+        description=identification.DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    identification.add_arguments(ident)
+    ident.set_defaults(func=_identify)
     return parser
 
 

@@ -50,7 +50,9 @@ class LoopSpec:
     rest_speed : float
         Speed of the output below which a friction compensator treats the body as at rest.
     friction : FrictionModel or None
-        The device's identified friction (the paper's preset): the compensator's default model.
+        The device's identified friction, the compensator's default model: the env's
+        ``params`` file if it was made with one, else the device's paper preset (also when the
+        env simulates another law, e.g. ``friction="coulomb"``: a structural mismatch).
     """
 
     dt: float
@@ -100,7 +102,7 @@ class LoopSpec:
             reference=names.index("reference"),
             direction=device.direction,
             rest_speed=device.rest_speed,
-            friction=device.paper_friction,
+            friction=getattr(sim, "model_friction", device.paper_friction),
         )
 
     def split(self, observation: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:

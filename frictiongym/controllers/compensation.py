@@ -10,6 +10,7 @@ variants below are the usual answers (docs/controllers.md compares them).
 from __future__ import annotations
 
 import math
+import os
 from typing import Literal
 
 import numpy as np
@@ -17,6 +18,7 @@ import numpy.typing as npt
 
 from frictiongym.controllers.base import Controller, FloatArray
 from frictiongym.friction import FrictionModel
+from frictiongym.params import DeviceParams, resolve_params
 
 #: What the compensator does at (near) zero velocity.
 Mode = Literal["command", "error", "deadband", "smooth"]
@@ -48,9 +50,13 @@ class FrictionCompensator(Controller):
     ----------
     base : Controller
         The controller to compensate (its :class:`LoopSpec` is shared).
-    model : FrictionModel, optional
-        The compensator's friction model; the device's identified (paper) friction by default.
-        A model different from the plant's is a structural mismatch.
+    model : FrictionModel, DeviceParams, str or PathLike, optional
+        The compensator's friction model: a law, identified parameters (their ``friction``), or
+        the path of a ``friction.json`` (or of its directory). By default the spec's: the env's
+        ``params`` file if it was made with one, else the device's paper preset. Only the
+        stiction/Coulomb part is used (:meth:`FrictionModel.nonlinear_force`), so a fitted
+        viscous slope is never compensated twice. A model different from the plant's is a
+        structural mismatch.
     mode : {"command", "error", "deadband", "smooth"}, default "command"
     rest_speed : float, optional
         ``v_rest``, output units per s; the spec's (the device's) by default.
@@ -64,7 +70,7 @@ class FrictionCompensator(Controller):
     def __init__(
         self,
         base: Controller,
-        model: FrictionModel | None = None,
+        model: FrictionModel | DeviceParams | str | os.PathLike[str] | None = None,
         *,
         mode: Mode = "command",
         rest_speed: float | None = None,
@@ -79,7 +85,10 @@ class FrictionCompensator(Controller):
             )
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
-        model = model if model is not None else spec.friction
+        if model is None:
+            model = spec.friction
+        elif not isinstance(model, FrictionModel):
+            model = resolve_params(model).friction
         if model is None:
             raise ValueError(
                 "no friction model: pass model=..., or build the base controller for a "

@@ -106,8 +106,10 @@ class AltinoDistanceEnv(FrictionEnv):
     ``"ramp"``, ``"sine"``, ``"random_steps"``: a new level in 3–18 cm every 5 s; a number; or a
     generator), ``sensor_noise`` (True: 2 readout units, std), ``quantize`` (integer readout),
     ``delay`` (default one period, 0.05 s), ``randomize`` (``"inertia"`` is the car's mass,
-    ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``effort_weight``,
-    ``safety_limit`` (cm), ``limit_penalty``, ``backend``, ``render_mode``.
+    ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``params`` (an identified
+    ``friction.json`` of this car: its ``J`` is the mass, its ``B`` the total damping, viscous
+    slope included; the preset is the file ``J = 2.2``, ``B = viscous = 10.93``),
+    ``effort_weight``, ``safety_limit`` (cm), ``limit_penalty``, ``backend``, ``render_mode``.
 
     ``info`` of every step: ``position`` (true distance to the wall, cm), ``velocity`` (its
     true rate, cm/s), ``command`` (applied), ``reference``, ``time`` (s), ``stuck``.

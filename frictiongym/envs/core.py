@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
@@ -22,6 +23,7 @@ from frictiongym.envs import _kernel as ek
 from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
+from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
 from frictiongym.plants.plant import PARALLEL_MIN_PLANTS, PlantParams, default_substeps, plant_row
 from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 
@@ -69,6 +71,33 @@ def _number(name: str, value: object, rule: str = "finite") -> float:
     return v
 
 
+def _device_params(
+    device: Device,
+    params: str | os.PathLike[str] | DeviceParams,
+    friction: object,
+    plant: object,
+) -> DeviceParams:
+    """Load ``params`` and check it fits this device and is the only source of the physics.
+
+    ``friction="paper"``, the default law, is accepted: the file's law replaces it.
+    """
+    pairs = (("friction", None if friction == "paper" else friction), ("plant", plant))
+    given = [name for name, value in pairs if value is not None]
+    if given:
+        raise ValueError(
+            f"params and {' and '.join(given)} both set the simulated physics; pick one: "
+            "params=PATH (the identified file) or friction=/plant= (presets or objects)"
+        )
+    loaded = resolve_params(params)
+    if loaded.device is not None and loaded.device != device.name:
+        raise ParamsFileError(
+            f"{loaded.source or 'params'}: identified on device {loaded.device!r}, but this env "
+            f"simulates {device.name!r}; their units differ (identify this device, or make the "
+            f"env of {loaded.device!r})"
+        )
+    return loaded
+
+
 class Simulation:
     """N simulated envs of one device.
 
@@ -78,9 +107,9 @@ class Simulation:
         What to simulate.
     num_envs : int
         Batch size.
-    friction : str or FrictionModel, default "paper"
+    friction : str or FrictionModel, optional
         A law's name (``paper``, ``none``, ``coulomb``, ``stribeck``, ``lugre``) built from the
-        device's presets, or a model.
+        device's presets, or a model (default ``"paper"``; with ``params``, the file's law).
     dt : float, optional
         Control period, s (default: the device's).
     reference : str, float or Reference, default "step"
@@ -97,6 +126,12 @@ class Simulation:
         Factors drawn at each reset.
     plant : PlantParams, optional
         Nominal plant (default: the device's).
+    params : str, PathLike or DeviceParams, optional
+        Identified parameters (a ``friction.json``, its directory, or loaded): the plant gets
+        the file's ``J`` and total damping ``B``, the friction its law without the viscous
+        slope (``B`` includes it; :mod:`frictiongym.params`). Excludes ``plant`` and
+        a ``friction`` other than ``"paper"``. Also the compensators' default model
+        (:attr:`model_friction`).
     effort_weight, safety_limit, limit_penalty : float, optional
         Reward and safety settings (defaults: the device's).
     max_episode_steps : int, optional
@@ -112,6 +147,10 @@ class Simulation:
     num_envs: int
     dt: float
     friction: FrictionModel
+    #: The identified friction a compensator models by default: ``params.friction``, else the
+    #: device's paper preset (whatever law the plant runs).
+    model_friction: FrictionModel
+    params: DeviceParams | None
     plant: PlantParams
     delay_steps: int
     reference: Reference
@@ -131,7 +170,7 @@ class Simulation:
         device: Device,
         num_envs: int = 1,
         *,
-        friction: str | FrictionModel = "paper",
+        friction: str | FrictionModel | None = None,
         dt: float | None = None,
         reference: str | float | Reference = "step",
         sensor_noise: bool | float = False,
@@ -139,6 +178,7 @@ class Simulation:
         delay: float | None = None,
         randomize: Mapping[str, Any] | DomainRandomization | None = None,
         plant: PlantParams | None = None,
+        params: str | os.PathLike[str] | DeviceParams | None = None,
         effort_weight: float | None = None,
         safety_limit: float | None = None,
         limit_penalty: float | None = None,
@@ -156,11 +196,18 @@ class Simulation:
         self.device = device
         self.num_envs = int(num_envs)
         self.dt = device.dt if dt is None else _number("dt", dt, "> 0")
+        self.params = None if params is None else _device_params(device, params, friction, plant)
+        if self.params is not None:
+            friction = self.params.plant_friction()
+            plant = self.params.plant(device.plant)
+        elif friction is None:
+            friction = "paper"
         if isinstance(friction, str):
             friction = friction_from_name(friction, device.paper_friction, device.lugre_friction)
         if not isinstance(friction, FrictionModel):
             raise TypeError(f"friction must be a law's name or a FrictionModel, got {friction!r}")
         self.friction = friction
+        self.model_friction = device.paper_friction if self.params is None else self.params.friction
         nominal = device.plant if plant is None else plant
         if not isinstance(nominal, PlantParams):
             raise TypeError(f"plant must be a PlantParams, got {nominal!r}")

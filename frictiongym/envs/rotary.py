@@ -108,6 +108,11 @@ class RotaryServoEnv(FrictionEnv):
     * ``randomize``: factor ranges drawn at each reset, e.g. ``{"friction": (0.5, 1.5),
       "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``;
     * ``plant``: a :class:`~frictiongym.plants.PlantParams` replacing the nominal plant;
+    * ``params``: identified parameters, the path of a ``friction.json`` (or its directory) or
+      a :class:`~frictiongym.params.DeviceParams`: the plant gets the file's ``J`` and total
+      damping ``B``, the friction its law with the viscous slope left out (``B`` includes it),
+      and compensators built with ``for_env`` model its friction. Not with ``plant`` or another
+      ``friction``; a file identified on another device is refused;
     * ``effort_weight``, ``safety_limit`` (rad), ``limit_penalty``: reward and safety;
     * ``backend``: ``"sim"`` (the only one in this version);
     * ``render_mode``: ``"rgb_array"`` or ``"human"`` (needs pygame).

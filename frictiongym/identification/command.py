@@ -1,0 +1,205 @@
+"""``frictiongym identify``: measure a device's friction and linear part into ``friction.json``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from frictiongym.identification.estimates import IdentificationError
+from frictiongym.identification.fit import LAWS
+from frictiongym.identification.identify import PLANS, Identification, identify, make_env
+
+DESCRIPTION = """\
+Identify the friction and the linear part of a device through its env, as the paper does
+(section 4): slow ramps from rest give the break-away levels u_s+/-, levels held in both
+directions give the steady-state friction map, velocity steps give J and B, and least squares
+fits the paper's law (and the Stribeck, smooth and Coulomb alternatives) to the map.
+
+Writes to --out:
+  friction.json   the parameters (us_pos us_neg uc_pos uc_neg v0_pos v0_neg viscous J B law),
+                  their standard errors and the experiments; load it with
+                  gym.make(ID, params=PATH) or FrictionCompensator(pid, model=PATH)
+  friction_map.png  the measured map with the fitted laws and residuals (paper Fig. 8)
+  summary.md      the table printed at the end
+
+On the simulator the table also shows the simulated truth. Every experiment runs through
+the env's observations only, so a device backend (--backend, issue E) runs the same procedure.
+"""
+
+UNITS = {"RotaryServo": ("rad/s", "V"), "AltinoDistance": ("cm/s", "motor units")}
+KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous", "J", "B")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
+    parser.add_argument(
+        "--env", required=True, metavar="ID",
+        help="env id of the device, e.g. frictiongym/RotaryServo-v0 or "
+        "frictiongym/AltinoDistance-v0",
+    )  # fmt: skip
+    parser.add_argument(
+        "--out", default="identify-results", metavar="DIR",
+        help="directory for friction.json, friction_map.png and summary.md "
+        "(default: ./identify-results)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--backend", default="sim", metavar="URI",
+        help="where the env runs: sim (default) or a device backend URI",
+    )  # fmt: skip
+    parser.add_argument(
+        "--law", default="paper", choices=[*LAWS, "best"],
+        help="law written to friction.json: the paper's (default) or the lowest-AIC one",
+    )  # fmt: skip
+    parser.add_argument(
+        "--friction", default="paper", metavar="LAW",
+        help="simulator only: the true friction law of the simulated device (default: paper)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--noise", action="store_true",
+        help="simulator only: add the device's default sensor noise",
+    )  # fmt: skip
+    parser.add_argument("--seed", type=int, default=0, help="seed of the simulator (default: 0)")
+    parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _truth(env: Any) -> dict[str, float] | None:
+    """Return the simulated device's true parameters, B including the viscous slope."""
+    sim = getattr(env.unwrapped, "sim", None)
+    if sim is None:
+        return None
+    friction = sim.friction
+    viscous = float(getattr(friction, "viscous", 0.0))
+    truth = {k: float(getattr(friction, k, math.nan)) for k in KEYS[:6]}
+    total = sim.plant.damping + viscous
+    truth.update(viscous=total, J=sim.plant.inertia, B=total)
+    return truth
+
+
+def summary(result: Identification, law: str, truth: dict[str, float] | None) -> str:
+    """Return the result as a markdown table (value, standard error, simulated truth, error)."""
+    params = result.params(law)
+    values = params.to_dict()
+    header = "| parameter | identified | std. error |"
+    rule = "|---|---|---|"
+    if truth is not None:
+        header += " simulated truth | error |"
+        rule += "---|---|"
+    shape = getattr(params.friction, "shape", None)
+    lines = [
+        f"Identification of {result.device} ({params.law} law"
+        f"{f', shape {shape}' if shape else ''}): {len(result.traces)} experiments, "
+        f"{result.env_steps} env steps, {result.seconds:.1f} s",
+        "",
+        header,
+        rule,
+    ]
+    for key in KEYS:
+        value = values.get(key)
+        if value is None:
+            continue
+        se = params.uncertainty.get(key, math.nan)
+        row = f"| {key} | {value:.6g} | {se:.2g} |"
+        if truth is not None:
+            true = truth.get(key, math.nan)
+            error = (value - true) / true * 100.0 if true else math.nan
+            row += f" {true:.6g} | {error:+.2f} % |"
+        lines.append(row)
+    lines += ["", "| law | RMS of the map fit | AIC |", "|---|---|---|"]
+    for fit in result.fits.values():
+        rms = "refined on all samples" if math.isnan(fit.rms) else f"{fit.rms:.3g}"
+        lines.append(f"| {fit.law} | {rms} | {fit.aic:.1f} |")
+    return "\n".join(lines) + "\n"
+
+
+def run(args: argparse.Namespace, command_line: str) -> int:
+    """Run the command; return the exit status."""
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        print(f"error: --out {out} is a file; give a directory", file=sys.stderr)
+        return 2
+    name = args.env.split("/")[-1].split("-")[0]
+    plan = PLANS.get(name)
+    sim = args.backend in ("sim", "sim://")
+    kwargs: dict[str, Any] = {"backend": args.backend}
+    if sim:
+        kwargs.update(friction=args.friction, sensor_noise=bool(args.noise))
+    elif args.noise or args.friction != "paper":
+        print("error: --noise and --friction apply to the simulator only", file=sys.stderr)
+        return 2
+    try:
+        env = make_env(args.env, plan, **kwargs)
+    except (ValueError, TypeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    bar: Any = None
+    if not args.quiet:
+        from tqdm import tqdm
+
+        total = (
+            2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats) + plan.refine
+            if plan
+            else None
+        )
+        bar = tqdm(total=total, unit="run", desc="identify", leave=False)
+
+    def progress(label: str) -> None:
+        if bar is not None:
+            bar.set_postfix_str(label, refresh=False)
+            bar.update(1)
+
+    try:
+        result = identify(env, plan, seed=args.seed, progress=progress)
+    except IdentificationError as exc:
+        print(f"error: identification failed: {exc}", file=sys.stderr)
+        return 1
+    finally:
+        if bar is not None:
+            bar.close()
+        env.close()
+    from frictiongym.params import save_params
+
+    out.mkdir(parents=True, exist_ok=True)
+    params = result.params(args.law)
+    metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
+    from dataclasses import replace
+
+    path = save_params(out / "friction.json", replace(params, metadata=metadata))
+    table = summary(result, args.law, _truth(env) if sim else None)
+    (out / "summary.md").write_text(table)
+    if not args.no_figures:
+        from frictiongym.identification.figures import plot_map
+
+        plot_map(result, out / "friction_map.png", UNITS.get(result.device, ("units/s", "units")))
+    print(table)
+    print(f"wrote {path}" + ("" if args.no_figures else f" and {out / 'friction_map.png'}"))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the parser of ``scripts/identify.py`` (the options of ``frictiongym identify``)."""
+    parser = argparse.ArgumentParser(
+        prog="identify.py", description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    add_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` and run."""
+    args = build_parser().parse_args(argv)
+    return run(args, shlex.join(["identify.py", *(sys.argv[1:] if argv is None else argv)]))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "json", "main", "run", "summary"]

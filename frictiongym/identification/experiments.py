@@ -1,0 +1,268 @@
+"""Identification experiments run through the env interface, so they run unchanged on a device.
+
+An experiment is a command profile held from rest (``env.reset``): a constant level, a slow
+ramp, or a velocity step between two levels. Each returns a :class:`Trace` of what a controller
+would see: the time, the command sent and the measured output, read from the observation the
+env's :class:`~frictiongym.controllers.LoopSpec` points at and turned into the plant's own
+direction (a positive command moves the output positively). Nothing here reads the simulator's
+true state (``info``), so a hardware backend with the same observations gives the same
+analysis.
+
+A run ends early when the measured output leaves the plan's usable span (the Altino's IR
+sensor sees only the last 21 cm before the wall) or when the env terminates; the command
+sent after that is zero.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.controllers.base import LoopSpec
+
+FloatArray = npt.NDArray[np.float64]
+Kind = Literal["constant", "ramp", "step"]
+
+#: Samples at the start of a ramp taken as the rest position (the ramp starts below break-away).
+REST_SAMPLES = 20
+#: Consecutive samples beyond the span that end a run (a single one may be sensor noise).
+_OUTSIDE_SAMPLES = 2
+
+
+@dataclass(frozen=True)
+class Trace:
+    """One experiment as measured.
+
+    Attributes
+    ----------
+    kind : {"constant", "ramp", "step"}
+    sign : float
+        Direction of the command profile, +1 or -1.
+    t : ndarray
+        Sample times, s from the first command.
+    command : ndarray
+        Command sent at each sample (held until the next one), command units.
+    position : ndarray
+        Measured output in the plant's direction (``direction * observation``), output units.
+    valid : ndarray of bool
+        Whether each sample was inside the sensor's range (not saturated at an observation
+        bound); analyses use only valid samples.
+    settings : dict
+        The profile's parameters (``level``, ``rate``, ``levels``, ``step_time``...).
+    """
+
+    kind: Kind
+    sign: float
+    t: FloatArray
+    command: FloatArray
+    position: FloatArray
+    valid: npt.NDArray[np.bool_]
+    settings: dict[str, float] = field(default_factory=dict)
+
+    def record(self) -> dict[str, Any]:
+        """Return a JSON-ready summary (settings and sample count, not the samples)."""
+        return {
+            "kind": self.kind,
+            "sign": self.sign,
+            "samples": int(self.t.size),
+            "valid_samples": int(np.count_nonzero(self.valid)),
+            "duration": float(self.t[-1]) if self.t.size else 0.0,
+            **self.settings,
+        }
+
+
+@dataclass(frozen=True)
+class Span:
+    """Usable range of the measured output (env units) and where a run starts in it.
+
+    The Altino's IR sensor reads only the last 21.47 cm before the wall, so a run toward the
+    wall starts near the far end and one away from it near the wall.
+    """
+
+    low: float
+    high: float
+    margin: float  #: distance kept from either end before the run is stopped
+
+    def start(self, moving_up: bool) -> float:
+        """Start position (env units) of a run whose output increases when ``moving_up``."""
+        return self.low + self.margin if moving_up else self.high - self.margin
+
+
+def _observation_bounds(env: Any, index: int) -> tuple[float, float]:
+    space = env.observation_space
+    low = getattr(space, "low", None)
+    high = getattr(space, "high", None)
+    if low is None or high is None:
+        return -np.inf, np.inf
+    return float(low[index]), float(high[index])
+
+
+class Runner:
+    """Runs command profiles on one env and records :class:`Trace` objects.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A frictiongym env (simulated or on a device backend), single, not vectorised.
+    span : Span, optional
+        Usable range of the output; runs start inside it and stop at its ends.
+    seed : int, optional
+        Seed of the first reset (noise draws in simulation); later resets continue the stream.
+    """
+
+    def __init__(self, env: Any, span: Span | None = None, seed: int | None = None) -> None:
+        self.env = env
+        self.spec = LoopSpec.from_env(env)
+        self.span = span
+        self._seed = seed
+        self._bounds = _observation_bounds(env, self.spec.position)
+        self.steps = 0  #: env steps taken so far
+
+    @property
+    def dt(self) -> float:
+        """Control period, s."""
+        return self.spec.dt
+
+    def _measure(self, observation: npt.ArrayLike) -> tuple[float, bool]:
+        y = float(np.asarray(observation, dtype=np.float64).reshape(-1)[self.spec.position])
+        low, high = self._bounds
+        return self.spec.direction * y, bool(low < y < high)
+
+    def _outside(self, y_env: float) -> bool:
+        span = self.span
+        return span is not None and not (span.low < y_env < span.high)
+
+    def run(
+        self,
+        profile: Callable[[FloatArray], FloatArray],
+        duration: float,
+        kind: Kind,
+        sign: float,
+        settings: dict[str, float] | None = None,
+        stop: Callable[[FloatArray, int], bool] | None = None,
+        start_at: float | None = None,
+    ) -> Trace:
+        """Reset the env at rest, apply ``profile(t)`` for ``duration`` s and record it.
+
+        Parameters
+        ----------
+        profile : callable
+            Command as a function of the sample times (vectorised), before saturation.
+        duration : float
+            Longest run, s.
+        kind, sign, settings
+            Stored in the trace.
+        stop : callable, optional
+            ``stop(positions_so_far, k)`` ends the run early when true (after sample ``k``).
+        start_at : float, optional
+            Start position, env units (default: the span's start for this direction).
+        """
+        n = max(1, round(duration / self.dt))
+        t = np.arange(n, dtype=np.float64) * self.dt
+        command = np.clip(profile(t), -self.spec.limit, self.spec.limit)
+        if not np.all(np.isfinite(command)):
+            raise ValueError(f"the {kind} profile produced non-finite commands")
+        options: dict[str, float] = {}
+        if start_at is not None:
+            options["position"] = float(start_at)
+        elif self.span is not None:
+            options["position"] = self.span.start(sign * self.spec.direction > 0)
+        obs, _ = self.env.reset(seed=self._seed, options=options or None)
+        self._seed = None
+        position = np.empty(n)
+        valid = np.empty(n, dtype=bool)
+        action = np.zeros(1, dtype=np.float32)
+        count = n
+        outside = 0  # consecutive samples beyond the span (one may be noise)
+        for k in range(n):
+            position[k], valid[k] = self._measure(obs)
+            outside = outside + 1 if self._outside(self.spec.direction * position[k]) else 0
+            if k > 0 and (outside >= _OUTSIDE_SAMPLES or (stop and stop(position[: k + 1], k))):
+                count = k + 1
+                break
+            action[0] = command[k]
+            obs, _, terminated, truncated, _ = self.env.step(action)
+            self.steps += 1
+            if terminated or truncated:
+                count = k + 1
+                break
+        self.env.step(np.zeros(1, dtype=np.float32))  # leave the motor off between runs
+        self.steps += 1
+        return Trace(
+            kind=kind,
+            sign=float(sign),
+            t=t[:count],
+            command=command[:count],
+            position=position[:count],
+            valid=valid[:count],
+            settings=dict(settings or {}),
+        )
+
+    def constant(self, level: float, duration: float) -> Trace:
+        """Hold ``level`` (signed, command units) from rest."""
+        return self.run(
+            lambda t: np.full(t.shape, level),
+            duration,
+            "constant",
+            float(np.sign(level)),
+            {"level": float(level)},
+        )
+
+    def ramp(
+        self,
+        sign: float,
+        start: float,
+        rate: float,
+        duration: float,
+        factor: float = 15.0,
+        start_at: float | None = None,
+    ) -> Trace:
+        """Ramp ``sign * (start + rate t)`` from rest until the output moved ``factor`` scatters.
+
+        ``start`` must lie below the break-away level, so the first samples are at rest: their
+        scatter (noise, or one quantisation step once the body moves) sets the threshold.
+        ``start_at`` (env units) overrides the span's start.
+        """
+
+        def stop(y: FloatArray, k: int) -> bool:
+            if k < REST_SAMPLES:
+                return False
+            rest = y[:REST_SAMPLES]
+            scatter = max(float(rest.std()), smallest_step(y))
+            return bool(abs(y[-1] - rest.mean()) > factor * scatter > 0.0)
+
+        return self.run(
+            lambda t: sign * (start + rate * t),
+            duration,
+            "ramp",
+            sign,
+            {"start": float(start), "rate": float(rate)},
+            stop,
+            start_at,
+        )
+
+    def step(self, first: float, second: float, step_time: float, duration: float) -> Trace:
+        """Hold ``first`` until ``step_time``, then ``second`` (signed levels, same sign)."""
+        return self.run(
+            lambda t: np.where(t < step_time, first, second),
+            duration,
+            "step",
+            float(np.sign(second)),
+            {"first": float(first), "second": float(second), "step_time": float(step_time)},
+        )
+
+
+def smallest_step(position: FloatArray) -> float:
+    """Smallest non-zero change between samples: one quantisation step once the body moves."""
+    steps = np.abs(np.diff(position))
+    steps = steps[steps > 0.0]
+    return float(steps.min()) if steps.size else 0.0
+
+
+def signed_levels(magnitudes: Sequence[float], signs: Sequence[float] = (1.0, -1.0)) -> list[float]:
+    """Levels of ``magnitudes`` in each direction, positive direction first."""
+    return [s * m for s in signs for m in magnitudes]

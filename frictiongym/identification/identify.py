@@ -1,0 +1,370 @@
+"""The identification procedure: experiments in order, then the fits, then a parameter file.
+
+1. A fast **probe** ramp finds a rough break-away level, which scales everything after it
+   (so the same plan serves volts and the Altino's motor units).
+2. Slow **ramps** from rest in each direction give the break-away levels ``u_s±``.
+3. **Constant levels** above break-away in each direction give the steady map ``u(v)``
+   (the paper's Fig. 8(a)/10(a)).
+4. **Velocity steps** between two fast levels give ``J`` and ``B`` (first-order fits, the
+   paper's identification of Eq. (2)).
+5. The ramps' onsets are corrected with ``J`` and the map's slope at rest, and the laws are
+   fitted to the map (:mod:`~frictiongym.identification.fit`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from frictiongym.friction import StictionCoulomb
+from frictiongym.identification import estimates as est
+from frictiongym.identification.experiments import Runner, Span, Trace
+from frictiongym.identification.fit import LAWS, LawFit, fit_law, inertia_from_map, rest_slope
+from frictiongym.identification.refine import Refinement, refine
+from frictiongym.params import DeviceParams
+
+
+@dataclass(frozen=True)
+class Plan:
+    """The experiments of one identification, in units of the probe's break-away level.
+
+    Attributes
+    ----------
+    levels : tuple of float
+        Constant levels as multiples of the rough break-away (each held in both directions).
+    constant_duration : float
+        Longest constant run, s (at least five time constants of the slowest approach).
+    ramp_repeats : int
+        Slow ramps per direction.
+    ramp_from, ramp_to : float
+        Ramp start and end as multiples of the rough break-away.
+    ramp_duration : float
+        Time of one slow ramp from ``ramp_from`` to ``ramp_to``, s.
+    step_levels : tuple of float
+        The velocity step's two levels as multiples of the rough break-away.
+    step_time, step_duration : float
+        When the level steps and how long the run lasts, s.
+    step_repeats : int
+        Velocity steps per direction.
+    probe_to, probe_duration : float
+        The probe ramp's end (fraction of the command limit) and duration, s.
+    refine : bool
+        Refine ``J``, ``B`` and the paper's law against every sample by an output-error fit
+        (:mod:`~frictiongym.identification.refine`), for sensors whose range is too short for
+        the runs to reach a steady speed.
+    span : Span, optional
+        Usable range of the measured output; runs start inside it and stop at its ends.
+    ramp_positions : tuple of float, optional
+        Start positions (env units) of the ramps with a positive and with a negative command
+        (default: the span's start); where the sensor resolves small motions best.
+    env_kwargs : dict
+        Keyword arguments the plan needs from ``gym.make`` (e.g. a wider safety limit).
+    """
+
+    levels: tuple[float, ...] = (
+        1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5, 3.2, 4.0, 5.0, 6.0,
+    )  # fmt: skip
+    constant_duration: float = 4.5
+    ramp_repeats: int = 3
+    ramp_from: float = 0.6
+    ramp_to: float = 1.2
+    ramp_duration: float = 8.0
+    step_levels: tuple[float, float] = (3.0, 6.0)
+    step_time: float = 2.0
+    step_duration: float = 4.0
+    step_repeats: int = 2
+    probe_to: float = 0.3
+    probe_duration: float = 3.0
+    refine: bool = False
+    span: Span | None = None
+    ramp_positions: tuple[float, float] | None = None
+    env_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    @property
+    def longest_run(self) -> float:
+        """The longest experiment, s (the env's episode must allow it)."""
+        return max(self.constant_duration, self.ramp_duration, self.step_duration)
+
+
+#: Plans by device name. The QUBE-Servo 2's disk has no end stops, so its run-away guard is
+#: widened (a 4.5 s run at 26 rad/s turns 120 rad). The Altino's IR sensor reads only the last
+#: 21.47 cm before the wall (paper Eq. (1)): its runs start at the far end of that range and
+#: stop 3 cm from the wall, and its fastest levels cannot reach a steady speed inside it.
+PLANS: dict[str, Plan] = {
+    "RotaryServo": Plan(env_kwargs={"safety_limit": 1.0e5}),
+    "AltinoDistance": Plan(
+        levels=(1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5),
+        constant_duration=20.0,
+        ramp_from=0.8,
+        ramp_to=1.1,
+        ramp_duration=15.0,
+        step_levels=(1.5, 2.5),
+        step_time=0.6,
+        step_duration=2.0,
+        probe_to=0.4,
+        step_repeats=0,
+        refine=True,
+        span=Span(low=3.0, high=21.4, margin=0.4),
+        ramp_positions=(10.0, 4.0),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Everything an identification measured and fitted."""
+
+    device: str
+    env_id: str | None
+    breakaways: list[est.Breakaway]
+    points: list[est.SteadyPoint]
+    steps: list[est.StepResponse]
+    fits: dict[str, LawFit]
+    inertia: tuple[float, float]  #: J and its standard error
+    damping: tuple[float, float]  #: B (total linear damping) and its standard error
+    breakaway: dict[str, tuple[float, float]]  #: us_pos/us_neg: (value, standard error)
+    traces: list[Trace]
+    refinement: Refinement | None
+    env_steps: int
+    seconds: float
+    plan: Plan
+
+    def best_law(self) -> str:
+        """Return the law with the lowest AIC."""
+        return min(self.fits.values(), key=lambda f: f.aic).law
+
+    def params(self, law: str = "paper") -> DeviceParams:
+        """Return the parameters with ``law`` (``"best"``: lowest AIC) as a file's content."""
+        name = self.best_law() if law == "best" else law
+        if name not in self.fits:
+            raise ValueError(f"no fit of law {law!r}; choose one of best, {', '.join(self.fits)}")
+        fit = self.fits[name]
+        uncertainty = {k: v for k, v in fit.stderr.items() if math.isfinite(v)}
+        uncertainty["J"], uncertainty["B"] = self.inertia[1], self.damping[1]
+        return DeviceParams.from_model(
+            fit.model,
+            inertia=self.inertia[0],
+            damping=self.damping[0],
+            device=self.device,
+            env_id=self.env_id,
+            uncertainty={k: v for k, v in uncertainty.items() if math.isfinite(v)},
+            metadata=self.record(name),
+        )
+
+    def record(self, law: str) -> dict[str, Any]:
+        """Metadata of the run for the parameter file: experiments, fits, timing."""
+        return {
+            "law_fitted": law,
+            "fits": {
+                f.law: {"rms": f.rms, "aic": f.aic, "points": f.points, "values": f.values}
+                for f in self.fits.values()
+            },
+            "breakaway_ramps": [
+                {"sign": b.sign, "level": b.level, "detected": b.detected} for b in self.breakaways
+            ],
+            "map": [
+                {"level": p.level, "sign": p.sign, "velocity": p.velocity, "moved": p.moved}
+                for p in self.points
+            ],
+            "velocity_steps": [
+                {"first": s.first, "second": s.second, "tau": s.tau, "J": s.inertia, "B": s.damping}
+                for s in self.steps
+            ],
+            "refinement": None
+            if self.refinement is None
+            else {
+                "dead_time": self.refinement.dead_time,
+                "rms": self.refinement.rms,
+                "rms_start": self.refinement.rms_start,
+            },
+            "experiments": len(self.traces),
+            "env_steps": self.env_steps,
+            "seconds": self.seconds,
+        }
+
+
+def _mean_se(values: list[float]) -> tuple[float, float]:
+    arr = np.asarray(values, dtype=np.float64)
+    se = float(arr.std(ddof=1) / math.sqrt(arr.size)) if arr.size > 1 else math.nan
+    return float(arr.mean()), se
+
+
+def identify(
+    env: Any,
+    plan: Plan | None = None,
+    *,
+    seed: int | None = None,
+    laws: tuple[str, ...] = tuple(LAWS),
+    progress: Callable[[str], None] | None = None,
+) -> Identification:
+    """Identify the friction map, break-away levels, ``J`` and ``B`` of the device behind ``env``.
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A frictiongym env, made with the plan's ``env_kwargs`` and an episode limit of at
+        least ``plan.longest_run`` (:func:`make_env` does both).
+    plan : Plan, optional
+        The experiments; the device's entry of :data:`PLANS` by default.
+    seed : int, optional
+        Seed of the first reset (the simulator's noise).
+    laws : tuple of str
+        Laws to fit (keys of :data:`~frictiongym.identification.fit.LAWS`).
+    progress : callable, optional
+        Called with a short label before each experiment.
+    """
+    started = time.perf_counter()
+    device = env.unwrapped.sim.device.name if hasattr(env.unwrapped, "sim") else "device"
+    plan = plan or PLANS.get(device, Plan())
+    runner = Runner(env, plan.span, seed)
+    limit = runner.spec.limit
+    note = progress or (lambda _: None)
+    traces: list[Trace] = []
+
+    def keep(trace: Trace) -> Trace:
+        traces.append(trace)
+        return trace
+
+    # 1. Probe: a fast ramp to a fraction of the command limit, once per direction.
+    rough = {}
+    start = dict(zip((1.0, -1.0), plan.ramp_positions or (None, None), strict=True))
+    for sign in (1.0, -1.0):
+        note(f"probe ramp {'+' if sign > 0 else '-'}")
+        rate = plan.probe_to * limit / plan.probe_duration
+        probe = keep(runner.ramp(sign, 0.0, rate, plan.probe_duration, start_at=start[sign]))
+        if probe.t[-1] >= plan.probe_duration - 2 * runner.dt:
+            raise est.IdentificationError(
+                f"the probe ramp to {plan.probe_to * limit:g} did not move the body in the "
+                f"{'positive' if sign > 0 else 'negative'} direction: raise Plan.probe_to"
+            )
+        rough[sign] = est.breakaway_level(probe).detected
+    # 2. Slow ramps from below break-away.
+    ramps: list[Trace] = []
+    for sign in (1.0, -1.0):
+        for i in range(plan.ramp_repeats):
+            note(f"ramp {'+' if sign > 0 else '-'} {i + 1}/{plan.ramp_repeats}")
+            lo, hi = plan.ramp_from * rough[sign], plan.ramp_to * rough[sign]
+            rate = (hi - lo) / plan.ramp_duration
+            ramps.append(
+                keep(runner.ramp(sign, lo, rate, plan.ramp_duration, start_at=start[sign]))
+            )
+    first_pass = {
+        s: _mean_se([est.breakaway_level(r).level for r in ramps if r.sign == s])[0]
+        for s in (1.0, -1.0)
+    }
+    # 3. The steady map.
+    points: list[est.SteadyPoint] = []
+    for sign in (1.0, -1.0):
+        for m in plan.levels:
+            level = min(m * first_pass[sign], 0.95 * limit)
+            note(f"constant {sign * level:+.4g}")
+            trace = keep(runner.constant(sign * level, plan.constant_duration))
+            points.append(est.steady_velocity(trace))
+    # 4. Velocity steps.
+    steps: list[est.StepResponse] = []
+    for sign in (1.0, -1.0):
+        a, b = (min(m * first_pass[sign], 0.95 * limit) for m in plan.step_levels)
+        for i in range(plan.step_repeats):
+            note(f"velocity step {'+' if sign > 0 else '-'} {i + 1}/{plan.step_repeats}")
+            trace = keep(runner.step(sign * a, sign * b, plan.step_time, plan.step_duration))
+            steps.append(est.velocity_step(trace))
+    # 5. Break-away with the onset correction, then the fits. Without velocity steps (a sensor
+    #    range too short for them), J comes from the constant runs' approach and B from the
+    #    map's slope, refined once the break-away levels are corrected.
+    rough_us = {"us_pos": (first_pass[1.0], math.nan), "us_neg": (first_pass[-1.0], math.nan)}
+    if steps:
+        inertia = _mean_se([s.inertia for s in steps])
+        damping = _mean_se([s.damping for s in steps])
+    else:
+        fit = fit_law(points, rough_us, "paper")
+        inertia = inertia_from_map(points, fit)
+        if not math.isfinite(inertia[0]):  # no clear transient: every run's, as a start
+            inertia = inertia_from_map(points, fit, min_transient=0.0)
+        damping = (fit.values["viscous"], fit.stderr["viscous"])
+    if not math.isfinite(inertia[0]):
+        raise est.IdentificationError(
+            "no experiment determined the inertia J: add velocity steps to the plan "
+            "(Plan.step_repeats) or constant runs that show their approach to steady speed"
+        )
+    breakaway = {}
+    for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
+        slope = rest_slope(points, sign)
+        levels = [est.breakaway_level(r, inertia[0], slope).level for r in ramps if r.sign == sign]
+        breakaway[key] = _mean_se(levels)
+    if not steps:
+        fit = fit_law(points, breakaway, "paper")
+        inertia = inertia_from_map(points, fit, min_transient=0.0)
+        damping = (fit.values["viscous"], fit.stderr["viscous"])
+    fits = {law: fit_law(points, breakaway, law) for law in laws}
+    refinement = None
+    if plan.refine and "paper" in fits:
+        note("output-error refinement")
+        fits["paper"], refinement = _refined(fits["paper"], traces, inertia, damping, runner)
+        inertia = (refinement.values["J"], refinement.stderr["J"])
+        damping = (refinement.values["B"], refinement.stderr["B"])
+        breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
+    breakaways = [
+        replace(est.breakaway_level(r, inertia[0], rest_slope(points, r.sign))) for r in ramps
+    ]
+    return Identification(
+        device=device,
+        env_id=getattr(getattr(env, "spec", None), "id", None),
+        breakaways=breakaways,
+        points=points,
+        steps=steps,
+        fits=fits,
+        inertia=inertia,
+        damping=damping,
+        breakaway=breakaway,
+        traces=traces,
+        refinement=refinement,
+        env_steps=runner.steps,
+        seconds=time.perf_counter() - started,
+        plan=plan,
+    )
+
+
+def _refined(
+    fit: LawFit,
+    traces: list[Trace],
+    inertia: tuple[float, float],
+    damping: tuple[float, float],
+    runner: Runner,
+) -> tuple[LawFit, Refinement]:
+    """Return the paper's law after the output-error fit, and the refinement itself."""
+    shape = fit.model.shape if isinstance(fit.model, StictionCoulomb) else "linear"
+    start = {"J": inertia[0], "B": damping[0], **fit.values}
+    runs = [t for t in traces if t.kind in ("constant", "ramp")]
+    result = refine(runs, start, runner.dt, runner.spec.limit, shape)
+    v = result.values
+    model = StictionCoulomb(
+        v["us_pos"], v["us_neg"], v["uc_pos"], v["uc_neg"], v["v0_pos"], v["v0_neg"],
+        v["B"], shape,
+    )  # fmt: skip
+    values = {**{k: v[k] for k in fit.values if k != "viscous"}, "viscous": v["B"]}
+    stderr = {**{k: result.stderr[k] for k in values if k != "viscous"}}
+    stderr["viscous"] = result.stderr["B"]
+    refined = replace(fit, model=model, values=values, stderr=stderr, rms=math.nan)
+    return refined, result
+
+
+def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:
+    """``gym.make(env_id, ...)`` with what the device's plan needs (episode length, guards)."""
+    import gymnasium as gym
+
+    import frictiongym  # noqa: F401  (registers the ids)
+    from frictiongym.envs import ENV_IDS
+
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
+    name = env_id.split("/")[-1].split("-")[0]
+    plan = plan or PLANS.get(name, Plan())
+    env_kwargs = {**plan.env_kwargs, **kwargs}
+    dt = float(env_kwargs.get("dt", 0.0) or 0.0) or None
+    steps = None if dt is None else math.ceil(plan.longest_run / dt) + 10
+    return gym.make(env_id, max_episode_steps=steps or 1_000_000, **env_kwargs)

@@ -1,0 +1,442 @@
+"""Identified device parameters: the ``friction.json`` file, its validation, saving and loading.
+
+Identification writes one JSON object per device; ``gym.make(id, params=PATH)`` simulates it
+and ``FrictionCompensator(base, model=PATH)`` compensates with it. A file of the paper's servo:
+
+.. code-block:: json
+
+    {
+      "us_pos": 0.21, "us_neg": 0.19, "uc_pos": 0.124, "uc_neg": 0.104,
+      "v0_pos": 3.015, "v0_neg": 2.53, "viscous": 0.0411,
+      "J": 0.007143, "B": 0.0446, "law": "paper", "shape": "linear",
+      "device": "RotaryServo", "env_id": "frictiongym/RotaryServo-v0",
+      "units": {"force": "V", "velocity": "rad/s", "viscous": "V·s/rad", "J": "V·s²/rad",
+                "B": "V·s/rad"},
+      "uncertainty": {"us_pos": 0.004}, "metadata": {"date": "2024-05-01"},
+      "format": "frictiongym.params/1"
+    }
+
+Required: the seven friction keys of :data:`PARAM_KEYS` (command units; levels are
+magnitudes, ``>= 0``, as in :class:`~frictiongym.friction.StictionCoulomb`), ``J``, ``B`` and
+``law`` (``"paper"``, ``"stribeck"`` or ``"coulomb"``). Optional: ``shape`` (the decay of
+``paper``, default ``"linear"``; ``stribeck`` is ``exponential``), ``device`` (the
+``Device.name`` it was identified on), ``env_id``, ``units``, ``uncertainty`` (standard errors,
+same units) and free-form ``metadata``. For ``coulomb`` ``us_*`` equal ``uc_*`` or are null and
+``v0_*`` may be null (no stiction, no decay).
+
+**B and viscous.** ``B`` is the *total* linear damping the plant sees: the paper's ``B_e`` of
+Eq. (2), which includes the viscous slope of the friction map (paper §4.1). ``viscous`` is
+that slope as fitted and reported (Fig. 8(b): 0.0411 V/(rad/s) beside ``B_e`` = 0.0446 V·s),
+kept for the record but **not added a second time**: a loaded file simulates a plant of
+damping ``B`` with the law's ``viscous`` set to 0 (:meth:`DeviceParams.plant_friction`). So the
+Altino preset (plant damping 0, law viscous 10.93) is the file ``B = viscous = 10.93``.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+import numbers
+import os
+import secrets
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb
+from frictiongym.friction import _core as fc
+from frictiongym.plants.plant import PlantParams
+
+__all__ = [
+    "FILE_NAME",
+    "FORMAT",
+    "LAWS",
+    "PARAM_KEYS",
+    "DeviceParams",
+    "ParamsFileError",
+    "load_params",
+    "resolve_params",
+    "save_params",
+]
+
+#: The friction keys of a params file, in the order the file lists them.
+PARAM_KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous")
+#: Every key a file must hold.
+REQUIRED_KEYS = (*PARAM_KEYS, "J", "B", "law")
+#: Optional keys, in file order after the required ones.
+OPTIONAL_KEYS = ("shape", "device", "env_id", "units", "uncertainty", "metadata", "format")
+#: Version tag written into every file.
+FORMAT = "frictiongym.params/1"
+#: The name of the file inside a results directory.
+FILE_NAME = "friction.json"
+#: Laws a file can hold (friction/laws.py names).
+LAWS = ("paper", "stribeck", "coulomb")
+
+#: Units of each device's parameters: paper Eq. (2) and Fig. 8(b) (servo, volts and rad/s),
+#: Fig. 10(b) and docs/altino-model.md (Altino, motor units and cm/s).
+DEVICE_UNITS: dict[str, dict[str, str]] = {
+    "RotaryServo": {
+        "force": "V", "velocity": "rad/s", "viscous": "V·s/rad", "J": "V·s²/rad", "B": "V·s/rad",
+    },
+    "AltinoDistance": {
+        "force": "units", "velocity": "cm/s", "viscous": "units·s/cm", "J": "units·s²/cm",
+        "B": "units·s/cm",
+    },
+}  # fmt: skip
+
+#: The paper's servo (Eq. (2), Fig. 8(b)) as a minimal file, shown in error messages.
+_EXAMPLE = (
+    '{"us_pos": 0.21, "us_neg": 0.19, "uc_pos": 0.124, "uc_neg": 0.104, "v0_pos": 3.015, '
+    '"v0_neg": 2.53, "viscous": 0.0411, "J": 0.007143, "B": 0.0446, "law": "paper"}'
+)
+
+
+class ParamsFileError(ValueError):
+    """A params file (or mapping) that cannot be read, is incomplete or is invalid."""
+
+
+def _json_value(value: Any) -> Any:
+    """Metadata as JSON values: numpy as numbers and lists, NaN and infinities as null."""
+    if isinstance(value, Mapping):
+        return {k: _json_value(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_json_value(v) for v in value]
+    if hasattr(value, "tolist") and not isinstance(value, str | bytes):
+        return _json_value(value.tolist())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None  # JSON has no NaN
+    return value
+
+
+def _fail(source: str, message: str) -> ParamsFileError:
+    return ParamsFileError(f"{source}: {message}")
+
+
+def _real(source: str, key: str, value: object, rule: str = ">= 0") -> float:
+    """``value`` as a float, finite and ``>= 0`` (or ``> 0``), else :class:`ParamsFileError`."""
+    if not isinstance(value, numbers.Real) or isinstance(value, bool):
+        raise _fail(source, f"{key!r} must be a number, got {value!r}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise _fail(source, f"{key!r} must be finite, got {value!r}")
+    if (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
+        hint = " (levels are magnitudes: drop the minus sign)" if key.endswith("_neg") else ""
+        raise _fail(source, f"{key!r} must be {rule}, got {value!r}{hint}")
+    return v
+
+
+def _optional_str(source: str, data: Mapping[str, Any], key: str) -> str | None:
+    value = data.get(key)
+    if value is not None and not isinstance(value, str):
+        raise _fail(source, f"{key!r} must be a string or null, got {value!r}")
+    return value
+
+
+def _mapping(source: str, data: Mapping[str, Any], key: str) -> dict[str, Any]:
+    value = data.get(key)
+    if value is None:
+        return {}
+    if not isinstance(value, Mapping):
+        raise _fail(source, f"{key!r} must be a JSON object, got {value!r}")
+    return dict(value)
+
+
+def _friction(source: str, data: Mapping[str, Any], law: str) -> FrictionModel:
+    """Build the law of a validated-complete mapping."""
+    get = {k: data[k] for k in PARAM_KEYS}
+    shape = data.get("shape")
+    if law == "coulomb":
+        if shape not in (None, "step"):
+            raise _fail(source, f"law 'coulomb' has no decay shape; drop 'shape' ({shape!r})")
+        uc = {d: _real(source, f"uc_{d}", get[f"uc_{d}"]) for d in ("pos", "neg")}
+        for d in ("pos", "neg"):
+            us = get[f"us_{d}"]
+            if us is not None and _real(source, f"us_{d}", us) != uc[d]:
+                raise _fail(
+                    source,
+                    f"law 'coulomb' has no stiction: us_{d}={us!r} must equal uc_{d}="
+                    f"{uc[d]!r} or be null; use law 'paper' for a break-away level above it",
+                )
+            if get[f"v0_{d}"] is not None:
+                _real(source, f"v0_{d}", get[f"v0_{d}"], "> 0")
+        return CoulombViscous(uc["pos"], uc["neg"], _real(source, "viscous", get["viscous"]))
+    if law == "stribeck":
+        if shape not in (None, "exponential"):
+            raise _fail(
+                source, f"law 'stribeck' is the exponential decay; drop 'shape' ({shape!r})"
+            )
+        shape = "exponential"
+    elif shape is None:
+        shape = "linear"
+    elif not isinstance(shape, str) or shape not in fc.SHAPES:
+        raise _fail(source, f"'shape' must be one of {sorted(fc.SHAPES)}, got {shape!r}")
+    v = {k: _real(source, k, get[k], "> 0" if k.startswith("v0") else ">= 0") for k in get}
+    for d, word in (("pos", "positive"), ("neg", "negative")):
+        if v[f"uc_{d}"] > v[f"us_{d}"]:
+            raise _fail(
+                source,
+                f"uc_{d}={v[f'uc_{d}']!r} exceeds us_{d}={v[f'us_{d}']!r} in the {word} "
+                f"direction: the Coulomb level must not exceed the break-away level",
+            )
+    return StictionCoulomb(**v, shape=shape)  # type: ignore[arg-type]  # checked above
+
+
+@dataclass(frozen=True)
+class DeviceParams:
+    """A device's identified friction and linear plant: the content of a ``friction.json``.
+
+    Parameters
+    ----------
+    friction : FrictionModel
+        The law as identified, with its fitted ``viscous`` slope (:class:`StictionCoulomb` for
+        ``paper``/``stribeck``, :class:`CoulombViscous` for ``coulomb``).
+    inertia : float
+        ``J``, command units per acceleration unit (> 0).
+    damping : float
+        ``B``, the *total* linear damping (the paper's ``B_e``, viscous slope included), >= 0.
+    law : {"paper", "stribeck", "coulomb"}
+        The law's name in the file.
+    device : str, optional
+        ``Device.name`` it was identified on (``"RotaryServo"``, ``"AltinoDistance"``).
+    env_id : str, optional
+        Gymnasium id of that device's env.
+    uncertainty : mapping of str to float, optional
+        Standard errors of the keys of :data:`PARAM_KEYS`, ``"J"`` and ``"B"``, same units.
+    metadata : mapping, optional
+        Free-form, JSON-serialisable: experiments, residuals, software version, date (numpy
+        values are written as numbers and lists, NaN and infinities as null).
+    units : mapping of str to str, optional
+        Units of the quantities (see :data:`DEVICE_UNITS`).
+    source : str, optional
+        Where it was read from (for messages; not compared).
+    """
+
+    friction: FrictionModel
+    inertia: float
+    damping: float
+    law: str
+    device: str | None = None
+    env_id: str | None = None
+    uncertainty: Mapping[str, float] = field(default_factory=dict)
+    metadata: Mapping[str, Any] = field(default_factory=dict)
+    units: Mapping[str, str] = field(default_factory=dict)
+    source: str | None = field(default=None, compare=False, repr=False)
+
+    def __post_init__(self) -> None:
+        where = self.source or "DeviceParams"
+        if self.law not in LAWS:
+            raise _fail(
+                where, f"law {self.law!r} has no params-file form; supported: {', '.join(LAWS)}"
+            )
+        kind = CoulombViscous if self.law == "coulomb" else StictionCoulomb
+        if type(self.friction) is not kind:
+            raise _fail(
+                where,
+                f"law {self.law!r} needs a {kind.__name__}, got {self.friction!r}; a params file "
+                f"stores {', '.join(LAWS)} only",
+            )
+        if self.law == "stribeck" and getattr(self.friction, "shape", None) != "exponential":
+            raise _fail(where, "law 'stribeck' needs a StictionCoulomb with shape='exponential'")
+        _real(where, "J", self.inertia, "> 0")
+        _real(where, "B", self.damping)
+        for key, value in self.uncertainty.items():
+            if key not in (*PARAM_KEYS, "J", "B"):
+                raise _fail(
+                    where,
+                    f"uncertainty of unknown key {key!r}; use {', '.join(REQUIRED_KEYS[:-1])}",
+                )
+            _real(where, f"uncertainty.{key}", value)
+        if not all(isinstance(k, str) and isinstance(u, str) for k, u in self.units.items()):
+            raise _fail(where, f"'units' must map names to strings, got {dict(self.units)!r}")
+        for name in ("uncertainty", "metadata", "units"):  # private copies: callers keep theirs
+            object.__setattr__(self, name, copy.deepcopy(dict(getattr(self, name))))
+        object.__setattr__(self, "inertia", float(self.inertia))
+        object.__setattr__(self, "damping", float(self.damping))
+
+    @classmethod
+    def from_model(
+        cls,
+        friction: FrictionModel,
+        *,
+        inertia: float,
+        damping: float,
+        law: str | None = None,
+        device: str | None = None,
+        env_id: str | None = None,
+        units: Mapping[str, str] | None = None,
+        uncertainty: Mapping[str, float] | None = None,
+        metadata: Mapping[str, Any] | None = None,
+    ) -> DeviceParams:
+        """Wrap an identified law and linear plant (what identification calls).
+
+        ``law`` defaults to ``friction.name`` (``StictionCoulomb`` of any shape is ``paper``);
+        ``units`` to the device's (:data:`DEVICE_UNITS`) when ``device`` is known.
+        """
+        if units is None:
+            units = DEVICE_UNITS.get(device or "", {})
+        return cls(
+            friction, inertia, damping, law or friction.name, device, env_id,
+            dict(uncertainty or {}), dict(metadata or {}), dict(units),
+        )  # fmt: skip
+
+    def plant(self, base: PlantParams) -> PlantParams:
+        """Return ``base`` with this inertia and (total) damping; limit, lag, dead time kept."""
+        return replace(base, inertia=self.inertia, damping=self.damping)
+
+    def plant_friction(self) -> FrictionModel:
+        """Return the law with ``viscous=0``: what a plant of damping ``B`` adds to it."""
+        return self.friction.replace(viscous=0.0)
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return the JSON mapping, in file order (the required keys first)."""
+        f = self.friction
+        out: dict[str, Any] = {}
+        if isinstance(f, StictionCoulomb):
+            out.update((k, float(getattr(f, k))) for k in PARAM_KEYS)
+        elif isinstance(f, CoulombViscous):  # no stiction, no decay (checked on construction)
+            pos, neg = float(f.uc_pos), float(f.uc_neg)
+            out.update(us_pos=pos, us_neg=neg, uc_pos=pos, uc_neg=neg, v0_pos=None, v0_neg=None)
+            out["viscous"] = float(f.viscous)
+        out.update(J=self.inertia, B=self.damping, law=self.law)
+        if isinstance(f, StictionCoulomb):
+            out["shape"] = f.shape
+        out.update(device=self.device, env_id=self.env_id, units=dict(self.units))
+        out.update(uncertainty=dict(self.uncertainty), metadata=_json_value(self.metadata))
+        out["format"] = FORMAT
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], source: str = "<mapping>") -> DeviceParams:
+        """Validate a file's mapping and build the parameters.
+
+        Raises
+        ------
+        ParamsFileError
+            Naming ``source`` and the problem: missing or unknown keys, a wrong type, a
+            non-finite or negative value, ``uc > us``, an unknown law or shape.
+        """
+        if not isinstance(data, Mapping):
+            raise _fail(source, f"a params file holds one JSON object, got {type(data).__name__}")
+        missing = [k for k in REQUIRED_KEYS if k not in data]
+        if missing:
+            raise _fail(
+                source,
+                f"missing keys {', '.join(missing)}. A params file looks like (friction in "
+                f"command units, levels as magnitudes):\n  {_EXAMPLE}\nWrite one with "
+                "`frictiongym identify --out DIR` or by hand",
+            )
+        unknown = sorted(set(data) - set(REQUIRED_KEYS) - set(OPTIONAL_KEYS))
+        if unknown:
+            raise _fail(
+                source,
+                f"unknown keys {', '.join(map(repr, unknown))}; the keys are "
+                f"{', '.join(REQUIRED_KEYS + OPTIONAL_KEYS)} (put anything else in 'metadata')",
+            )
+        fmt = data.get("format", FORMAT)
+        if fmt != FORMAT:
+            raise _fail(source, f"format {fmt!r} is not {FORMAT!r}; update frictiongym")
+        law = data["law"]
+        if law not in LAWS:
+            raise _fail(source, f"unknown law {law!r}; supported: {', '.join(LAWS)}")
+        try:
+            return cls(
+                _friction(source, data, law),
+                _real(source, "J", data["J"], "> 0"),
+                _real(source, "B", data["B"]),
+                law,
+                _optional_str(source, data, "device"),
+                _optional_str(source, data, "env_id"),
+                _mapping(source, data, "uncertainty"),
+                _mapping(source, data, "metadata"),
+                _mapping(source, data, "units"),
+                source,
+            )
+        except ParamsFileError:
+            raise
+        except (TypeError, ValueError) as err:
+            raise _fail(source, str(err)) from None
+
+
+def _file(path: str | os.PathLike[str]) -> Path:
+    p = Path(path)
+    return p / FILE_NAME if p.is_dir() else p
+
+
+def load_params(path: str | os.PathLike[str]) -> DeviceParams:
+    """Read and validate a params file (a directory means ``DIR/friction.json``).
+
+    Raises
+    ------
+    ParamsFileError
+        If the file is missing, unreadable, not JSON or not a valid params file.
+    """
+    file = _file(path)
+    source = str(file)
+    if not file.exists():
+        where = "directory has no friction.json" if Path(path).is_dir() else "no such file"
+        raise _fail(source, f"{where}; write one with `frictiongym identify --out DIR`")
+
+    def no_constant(name: str) -> None:
+        raise ValueError(f"{name} is not JSON; write numbers or null")
+
+    try:
+        data = json.loads(file.read_text(encoding="utf-8"), parse_constant=no_constant)
+    except OSError as err:
+        raise _fail(source, f"cannot read: {err.strerror or err}") from None
+    except UnicodeDecodeError as err:
+        raise _fail(source, f"not UTF-8 text ({err.reason}); is it a params file?") from None
+    except ValueError as err:  # json.JSONDecodeError too
+        raise _fail(source, f"not valid JSON: {err}") from None
+    return DeviceParams.from_dict(data, source=source)
+
+
+def save_params(path: str | os.PathLike[str], params: DeviceParams) -> Path:
+    """Write ``params`` atomically as pretty JSON; return the file written.
+
+    ``path`` ending in ``.json`` is the file; any other path is a directory (created if
+    needed) that receives ``friction.json``. The text goes to a temporary file beside the
+    target, then replaces it in one step (``os.replace``): an error leaves an existing file
+    untouched and no temporary file behind.
+
+    Raises
+    ------
+    ParamsFileError
+        If ``metadata`` holds something JSON cannot represent or the file cannot be written.
+    """
+    if not isinstance(params, DeviceParams):
+        raise TypeError(f"save_params takes a DeviceParams, got {params!r}")
+    p = Path(path)
+    file = p / FILE_NAME if p.is_dir() or p.suffix.lower() != ".json" else p
+    try:
+        text = json.dumps(params.to_dict(), indent=2, ensure_ascii=False, allow_nan=False)
+    except (TypeError, ValueError) as err:
+        raise _fail(
+            str(file), f"cannot write as JSON ({err}); keep metadata to JSON values"
+        ) from None
+    tmp = file.with_name(f".{file.name}.{secrets.token_hex(6)}.tmp")
+    try:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "w", encoding="utf-8") as handle:
+            handle.write(text + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        os.replace(tmp, file)
+    except OSError as err:
+        tmp.unlink(missing_ok=True)
+        raise _fail(str(file), f"cannot write: {err.strerror or err}") from None
+    return file
+
+
+def resolve_params(value: str | os.PathLike[str] | DeviceParams) -> DeviceParams:
+    """``value`` if it is a :class:`DeviceParams`, else the file it names (:func:`load_params`)."""
+    if isinstance(value, DeviceParams):
+        return value
+    if isinstance(value, str | os.PathLike):
+        return load_params(value)
+    raise TypeError(
+        f"params must be a path to a friction.json (or its directory) or a DeviceParams, "
+        f"got {value!r}"
+    )

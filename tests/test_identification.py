@@ -1,0 +1,206 @@
+"""Friction identification: estimators against closed forms, the procedure against known plants."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from frictiongym.controllers import PID, FrictionCompensator, PIDGains, rollout
+from frictiongym.friction import ALTINO_PAPER, ROTARY_PAPER, StictionCoulomb
+from frictiongym.identification import command
+from frictiongym.identification.estimates import (
+    SteadyPoint,
+    fit_exponential,
+    onset_displacement,
+)
+from frictiongym.identification.experiments import Runner
+from frictiongym.identification.fit import fit_law
+from frictiongym.identification.identify import identify, make_env
+from frictiongym.params import load_params, save_params
+from frictiongym.plants.plant import PlantParams
+from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_PAPER_GAINS, ROTARY_PLANT
+
+ROTARY = "frictiongym/RotaryServo-v0"
+ALTINO = "frictiongym/AltinoDistance-v0"
+FRICTION_KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
+
+
+# --- estimators against closed forms ---------------------------------------------------------
+
+
+def test_exponential_fit_recovers_a_first_order_approach():
+    t = np.arange(0.0, 2.0, 0.002)
+    y = 0.3 + 4.0 * t - 1.2 * np.exp(-t / 0.17)
+    fit = fit_exponential(t, y, tau_max=2.0)
+    assert fit.velocity == pytest.approx(4.0, rel=1e-6)
+    assert fit.tau == pytest.approx(0.17, rel=1e-4)
+
+
+def test_onset_displacement_limits():
+    # Small s: the cubic of a pure inertia; b' = 0 gives it exactly.
+    assert onset_displacement(0.01, 2.0, 0.5, 0.0) == pytest.approx(2.0 * 1e-6 / 3.0)
+    assert onset_displacement(1e-3, 2.0, 0.5, 0.3) == pytest.approx(2.0 * 1e-9 / 3.0, rel=1e-3)
+    # Long after the onset the body follows the ramp's steady lag: v -> rate s / b'.
+    s, rate, inertia, slope = 50.0, 2.0, 0.5, 0.3
+    tau = inertia / slope
+    assert onset_displacement(s, rate, inertia, slope) == pytest.approx(
+        rate / slope * (s * s / 2 - tau * s + tau * tau), rel=1e-9
+    )
+
+
+@pytest.mark.parametrize("shape", ["linear", "exponential", "smooth"])
+def test_fit_law_recovers_an_exact_map(shape):
+    law = {"linear": "paper", "exponential": "stribeck", "smooth": "smooth"}[shape]
+    truth = ROTARY_PAPER.replace(viscous=0.0446, shape=shape)
+    speeds = np.array([0.3, 0.8, 1.5, 2.2, 2.8, 3.5, 5.0, 8.0, 14.0, 25.0])
+    points = [
+        SteadyPoint(float(abs(truth.force(s * v))), float(v), 0.0, 0.1, True, s)
+        for s in (1.0, -1.0)
+        for v in speeds
+    ]
+    breakaway = {"us_pos": (truth.us_pos, 0.0), "us_neg": (truth.us_neg, 0.0)}
+    fit = fit_law(points, breakaway, law)
+    for key in (*FRICTION_KEYS, "viscous"):
+        assert fit.values[key] == pytest.approx(getattr(truth, key), rel=1e-5), key
+    assert fit.rms < 1e-8
+
+
+def test_ramp_breakaway_matches_the_static_law_oracle():
+    """A slow ramp on the static law breaks away exactly at u_s (research/friction.md §6.3)."""
+    env = make_env(ROTARY, quantize=False)
+    runner = Runner(env)
+    from frictiongym.identification.estimates import breakaway_level
+
+    trace = runner.ramp(1.0, 0.1, 0.05, 6.0, factor=15.0)
+    slope = 0.0446 - (0.210 - 0.124) / 3.015  # the map's slope at rest
+    level = breakaway_level(trace, inertia=ROTARY_PLANT.inertia, slope=slope).level
+    assert level == pytest.approx(0.210, rel=2e-3)
+
+
+# --- the procedure on simulated devices with known parameters --------------------------------
+
+
+def _draw(rng: np.random.Generator, friction: StictionCoulomb, plant: PlantParams):
+    """Parameters within ±15 % of a preset whose low-speed map branch is still rising.
+
+    An open-loop map cannot observe a falling branch (research/friction.md §6.2).
+    """
+    while True:
+        f = {k: getattr(friction, k) * rng.uniform(0.85, 1.15) for k in FRICTION_KEYS}
+        inertia = plant.inertia * rng.uniform(0.85, 1.15)
+        damping = plant.damping * rng.uniform(0.85, 1.15)
+        viscous = friction.viscous * rng.uniform(0.85, 1.15)
+        total = damping + viscous
+        rising = all(
+            total - (f[f"us_{d}"] - f[f"uc_{d}"]) / f[f"v0_{d}"] > 0.2 * total
+            for d in ("pos", "neg")
+        )
+        if rising and f["uc_pos"] < f["us_pos"] and f["uc_neg"] < f["us_neg"]:
+            law = StictionCoulomb(**f, viscous=viscous)
+            return law, PlantParams(inertia, damping, plant.command_limit, plant.lag,
+                                    plant.dead_time)  # fmt: skip
+
+
+def _errors(env_id, friction, plant, **kwargs):
+    env = make_env(env_id, friction=friction, plant=plant, **kwargs)
+    params = identify(env, seed=3).params()
+    total = plant.damping + friction.viscous
+    truth = {**{k: getattr(friction, k) for k in FRICTION_KEYS}, "viscous": total}
+    errors = {k: getattr(params.friction, k) / v - 1.0 for k, v in truth.items()}
+    errors["J"] = params.inertia / plant.inertia - 1.0
+    errors["B"] = params.damping / total - 1.0
+    return errors
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_servo_identification_recovers_random_parameters_with_noise(seed):
+    friction, plant = _draw(np.random.default_rng(seed), ROTARY_PAPER, ROTARY_PLANT)
+    errors = _errors(ROTARY, friction, plant, sensor_noise=True, quantize=True)
+    for key in (*FRICTION_KEYS, "viscous"):
+        assert abs(errors[key]) < 0.03, (key, errors)
+    assert abs(errors["J"]) < 0.02, errors
+    assert abs(errors["B"]) < 0.02, errors
+
+
+def test_altino_identification_recovers_the_preset_through_the_ir_sensor():
+    """Quantised IR readout, no noise: the output-error refinement over 18 cm of track."""
+    errors = _errors(ALTINO, ALTINO_PAPER, ALTINO_PLANT)
+    for key in (*FRICTION_KEYS, "viscous"):
+        assert abs(errors[key]) < 0.03, (key, errors)
+    assert abs(errors["J"]) < 0.02, errors
+    assert abs(errors["B"]) < 0.02, errors
+
+
+def test_identified_file_drives_the_env_and_the_compensator(tmp_path):
+    env = make_env(ROTARY, sensor_noise=True)
+    path = save_params(tmp_path, identify(env, seed=0).params())
+    data = json.loads(path.read_text())
+    for key in (*FRICTION_KEYS, "viscous", "J", "B", "law"):
+        assert key in data
+    gains = PIDGains(**ROTARY_PAPER_GAINS)
+    model_env = gym.make(ROTARY, params=path)
+    assert model_env.unwrapped.sim.plant.inertia == pytest.approx(data["J"])
+    pid = rollout(model_env, PID.for_env(model_env, gains))
+    compensated = rollout(model_env, FrictionCompensator(PID.for_env(model_env, gains), model=path))
+    sse_pid = pid.metrics().steady_state_error_pct
+    sse_comp = compensated.metrics().steady_state_error_pct
+    assert sse_comp < sse_pid
+    assert load_params(path).friction.breakaway[0] == pytest.approx(0.21, rel=0.01)
+
+
+# --- the command ---------------------------------------------------------------------------
+
+
+def test_command_writes_the_file_the_figure_and_the_summary(tmp_path, capsys):
+    status = command.main(["--env", ROTARY, "--out", str(tmp_path), "--quiet"])
+    assert status == 0
+    assert (tmp_path / "friction.json").is_file()
+    assert (tmp_path / "friction_map.png").stat().st_size > 10_000
+    text = (tmp_path / "summary.md").read_text()
+    assert "| us_pos |" in text
+    assert "simulated truth" in text
+    assert "wrote" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--env", "frictiongym/Nope-v0"], "unknown env id"),
+        (["--env", ROTARY, "--backend", "serial:///dev/ttyACM0"], "backend"),
+        (["--env", ROTARY, "--backend", "serial:///dev/ttyACM0", "--noise"], "simulator only"),
+    ],
+)
+def test_command_rejects_bad_input(tmp_path, capsys, argv, message):
+    assert command.main([*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_command_rejects_a_file_as_out(tmp_path, capsys):
+    target = tmp_path / "file"
+    target.write_text("keep")
+    assert command.main(["--env", ROTARY, "--out", str(target), "--quiet"]) == 2
+    assert "is a file" in capsys.readouterr().err
+    assert target.read_text() == "keep"
+
+
+def test_identification_uses_only_observations():
+    """The procedure never reads info: a wrapper that hides it changes nothing."""
+
+    class NoInfo(gym.Wrapper):
+        def step(self, action):
+            obs, reward, terminated, truncated, _ = self.env.step(action)
+            return obs, reward, terminated, truncated, {}
+
+        def reset(self, **kwargs):
+            obs, _ = self.env.reset(**kwargs)
+            return obs, {}
+
+    a = identify(make_env(ROTARY), seed=0).params()
+    b = identify(NoInfo(make_env(ROTARY)), seed=0).params()
+    assert a.to_dict()["us_pos"] == b.to_dict()["us_pos"]
+    assert math.isclose(a.inertia, b.inertia)
