@@ -9,7 +9,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
-DOCS = (README, ROOT / "docs" / "controllers.md")
+DOCS = (README, ROOT / "docs" / "controllers.md", ROOT / "docs" / "identification.md")
 BLOCKS = [
     (path, block)
     for path in DOCS
@@ -24,7 +24,8 @@ def test_the_readme_has_python_examples():
 @pytest.mark.parametrize(
     ("path", "block"), BLOCKS, ids=[f"{p.stem}-block{i}" for i, (p, _) in enumerate(BLOCKS)]
 )
-def test_example_runs(path, block):
+def test_example_runs(path, block, monkeypatch):
+    monkeypatch.chdir(ROOT)  # the docs' examples name files relative to the repository
     shown = re.search(r"# ValueError: (.{20})", block)  # an example showing a user's error
     if shown is None:
         exec(compile(block, str(path), "exec"), {})

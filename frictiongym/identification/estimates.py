@@ -126,10 +126,12 @@ def steady_velocity(trace: Trace, skip: float = 0.4, tau_max: float = 2.0) -> St
     level = abs(trace.settings["level"])
     y = trace.position
     index = np.flatnonzero(trace.valid)
+    if index.size < 6:  # (almost) nothing in the sensor's range
+        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.sign)
     head = y[index[: min(5, index.size)]]
     tail = y[index[-min(10, index.size) :]]
     scatter = rest_scatter(head, y[index])
-    if index.size < 6 or abs(tail.mean() - head.mean()) <= 10.0 * scatter:
+    if abs(tail.mean() - head.mean()) <= 10.0 * scatter:
         return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.sign)
     index = index[int(skip * index.size) :]
     fit = fit_exponential(trace.t[index], y[index], tau_max)
