@@ -8,6 +8,7 @@ import os
 import shlex
 import sys
 from collections.abc import Sequence
+from typing import Any
 
 from frictiongym import __version__
 
@@ -91,16 +92,35 @@ def _demo(args: argparse.Namespace) -> int:
     return 0
 
 
-def _benchmark(args: argparse.Namespace) -> int:
-    from frictiongym.benchmark import command
+def _command_module(name: str) -> Any:
+    """Import the module of a tool command (only when the parser is built)."""
+    import importlib
 
-    return command.run(args, shlex.join(["frictiongym", *sys.argv[1:]]))
+    return importlib.import_module(TOOLS[name][0])
 
 
-def _identify(args: argparse.Namespace) -> int:
-    from frictiongym.identification import command
+def _run_tool(args: argparse.Namespace) -> int:
+    status: int = _command_module(args.command).run(
+        args, shlex.join(["frictiongym", *sys.argv[1:]])
+    )
+    return status
 
-    return command.run(args, shlex.join(["frictiongym", *sys.argv[1:]]))
+
+#: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).
+TOOLS = {
+    "benchmark": (
+        "frictiongym.benchmark.command",
+        "PID vs compensated PID on the paper's experiments and robustness grids",
+    ),
+    "identify": (
+        "frictiongym.identification.command",
+        "measure a device's friction map, break-away levels, J and B; write friction.json",
+    ),
+    "tune": (
+        "frictiongym.tuning.command",
+        "the paper's random-search PID tuning against rise/peak/settling/overshoot specs",
+    ),
+}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -140,27 +160,16 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--plot", metavar="PNG", help="also write the responses to this PNG file")
     demo.set_defaults(func=_demo)
 
-    from frictiongym.benchmark import command as benchmark
-
-    bench = sub.add_parser(
-        "benchmark",
-        help="PID vs compensated PID on the paper's experiments and robustness grids",
-        description=benchmark.DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    benchmark.add_arguments(bench)
-    bench.set_defaults(func=_benchmark)
-
-    from frictiongym.identification import command as identification
-
-    ident = sub.add_parser(
-        "identify",
-        help="measure a device's friction map, break-away levels, J and B; write friction.json",
-        description=identification.DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    identification.add_arguments(ident)
-    ident.set_defaults(func=_identify)
+    for name, (_, summary) in TOOLS.items():
+        module = _command_module(name)
+        tool = sub.add_parser(
+            name,
+            help=summary,
+            description=module.DESCRIPTION,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        module.add_arguments(tool)
+        tool.set_defaults(func=_run_tool)
     return parser
 
 

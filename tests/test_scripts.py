@@ -28,6 +28,8 @@ def test_plot_friction_writes_a_png(tmp_path):
                            "--seed")),
         ("benchmark.py", ("--out", "--quick", "--group", "--scenario", "--seeds",
                           "--no-figures")),
+        ("identify.py", ("--env", "--out", "--backend", "--law", "--noise", "--seed")),
+        ("tune.py", ("--samples", "--seed", "--out", "--model", "--params", "--rule")),
     ],
 )  # fmt: skip
 def test_script_help_explains_its_options(script, options):

@@ -308,9 +308,7 @@ def identify(
         inertia = (refinement.values["J"], refinement.stderr["J"])
         damping = (refinement.values["B"], refinement.stderr["B"])
         breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
-    breakaways = [
-        replace(est.breakaway_level(r, inertia[0], rest_slope(points, r.sign))) for r in ramps
-    ]
+    breakaways = [est.breakaway_level(r, inertia[0], rest_slope(points, r.sign)) for r in ramps]
     return Identification(
         device=device,
         env_id=getattr(getattr(env, "spec", None), "id", None),
