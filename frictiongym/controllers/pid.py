@@ -5,7 +5,9 @@ Batched: one object drives one env or a vector of them (its state is an array pe
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -25,15 +27,78 @@ class PIDGains:
 
     ``kp`` is in command units per output unit, ``ki`` per output unit and second, ``kd`` per
     output unit per second (volts per rad, per rad·s, per rad/s for the servo).
+
+    Each gain is a number, or a numpy array of one gain per env of a batch (arrays broadcast
+    against each other and against the batch: ``kp`` of shape ``(N,)`` gives each of N envs its
+    own ``kp``; random-search tuning evaluates N candidates this way). Array gains are stored
+    as read-only float64 arrays; such a ``PIDGains`` cannot be hashed or compared with ``==``.
     """
 
-    kp: float
-    ki: float = 0.0
-    kd: float = 0.0
+    kp: float | FloatArray
+    ki: float | FloatArray = 0.0
+    kd: float | FloatArray = 0.0
 
     def __post_init__(self) -> None:
-        check_finite(self, "kp", "ki", "kd")
-        check_nonnegative(self, "kp", "ki", "kd")
+        if not self.batched:
+            check_finite(self, "kp", "ki", "kd")
+            check_nonnegative(self, "kp", "ki", "kd")
+            return
+        try:
+            arrays = np.broadcast_arrays(*(np.asarray(g, dtype=np.float64) for g in self))
+        except ValueError as error:
+            shapes = ", ".join(str(np.shape(g)) for g in self)
+            raise ValueError(
+                f"PIDGains arrays must broadcast to one batch shape, got shapes {shapes}"
+            ) from error
+        for name, value in zip(("kp", "ki", "kd"), arrays, strict=True):
+            if not np.all(np.isfinite(value)):
+                raise ValueError(f"PIDGains.{name} must be finite, got {value!r}")
+            if np.any(value < 0.0):
+                raise ValueError(f"PIDGains.{name} must be >= 0, got {value!r}")
+            stored = value.copy()
+            stored.flags.writeable = False
+            object.__setattr__(self, name, stored)
+
+    def __iter__(self) -> Iterator[float | FloatArray]:
+        """Iterate over ``kp, ki, kd``."""
+        return iter((self.kp, self.ki, self.kd))
+
+    @property
+    def batched(self) -> bool:
+        """Whether the gains are arrays (one set per env) rather than numbers."""
+        return any(isinstance(g, np.ndarray) for g in self)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        """Batch shape of the gains: ``()`` for numbers."""
+        return np.broadcast_shapes(*(np.shape(g) for g in self))
+
+    def take(self, index: npt.ArrayLike) -> PIDGains:
+        """Return the gains of the batch entries ``index`` (integer array or boolean mask)."""
+        if not self.batched:
+            return self
+        idx = np.asarray(index)
+        arrays = np.broadcast_arrays(*(np.asarray(g) for g in self))
+        kp, ki, kd = (np.asarray(a[idx], dtype=np.float64) for a in arrays)
+        return PIDGains(kp, ki, kd)
+
+
+def _tracking_time(gains: PIDGains) -> float | FloatArray | None:
+    """Åström & Hägglund's default ``T_t``: ``sqrt(T_i T_d)``, or ``T_i`` without D.
+
+    None (numbers) or NaN (per env of array gains) where it is undefined (``ki`` or ``kp`` 0).
+    """
+    if not gains.batched:
+        kp, ki, kd = (float(g) for g in gains)
+        if not (ki > 0.0 and kp > 0.0):
+            return None
+        ti = kp / ki
+        return math.sqrt(ti * kd / kp) if kd > 0.0 else ti
+    p, i, d = np.broadcast_arrays(*(np.asarray(g, dtype=np.float64) for g in gains))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        integral_time = p / i
+        tracking = np.where(d > 0.0, np.sqrt(integral_time * d / p), integral_time)
+    return np.where((i > 0.0) & (p > 0.0), tracking, np.nan)
 
 
 class PID(Controller):
@@ -88,26 +153,26 @@ class PID(Controller):
             )
         if not (math.isfinite(derivative_tau) and derivative_tau >= 0.0):
             raise ValueError(f"derivative_tau must be >= 0 s, got {derivative_tau!r}")
-        if tracking_time is None and gains.ki > 0.0 and gains.kp > 0.0:
-            ti = gains.kp / gains.ki
-            tracking_time = math.sqrt(ti * gains.kd / gains.kp) if gains.kd > 0.0 else ti
-        if (
-            anti_windup == "back-calculation"
-            and gains.ki > 0.0
-            and not (
-                tracking_time is not None and math.isfinite(tracking_time) and tracking_time > 0.0
+        tt: float | FloatArray | None = (
+            _tracking_time(gains) if tracking_time is None else tracking_time
+        )
+        if anti_windup == "back-calculation":
+            needed = np.asarray(gains.ki) > 0.0
+            valid = not np.any(needed) or (
+                tt is not None
+                and bool(np.all(~needed | (np.isfinite(tt) & (np.asarray(tt) > 0.0))))
             )
-        ):
-            raise ValueError(
-                f"back-calculation needs a tracking_time > 0 s, got {tracking_time!r} "
-                "(give one when kp is 0)"
-            )
+            if not valid:
+                raise ValueError(
+                    f"back-calculation needs a tracking_time > 0 s, got {tt!r} "
+                    "(give one when kp is 0)"
+                )
         self.spec = spec
         self.gains = gains
         self.derivative = derivative
         self.derivative_tau = float(derivative_tau)
         self.anti_windup = anti_windup
-        self.tracking_time = tracking_time
+        self.tracking_time = tt
         self._pole = math.exp(-spec.dt / derivative_tau) if derivative_tau > 0.0 else 0.0
         self.reset()
 
@@ -152,7 +217,7 @@ class PID(Controller):
         """
         r = np.asarray(reference, dtype=np.float64)
         y = np.asarray(measurement, dtype=np.float64)
-        self._state_for(np.broadcast_shapes(r.shape, y.shape))
+        self._state_for(np.broadcast_shapes(r.shape, y.shape, self.gains.shape))
         error = r - y
         if velocity is not None:
             self._rate = np.broadcast_to(np.asarray(velocity, dtype=np.float64), y.shape).copy()
@@ -170,7 +235,12 @@ class PID(Controller):
             winding = (raw != command) & (np.sign(error) == np.sign(raw))
             integral = np.where(winding, self.integral, integral)
         elif self.anti_windup == "back-calculation" and self.tracking_time is not None:
-            integral = integral + (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
+            if g.batched:  # envs without an integral (ki = 0) have nothing to bleed
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    bleed = (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
+                integral = integral + np.where(np.asarray(g.ki) > 0.0, bleed, 0.0)
+            else:
+                integral = integral + (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
         self.integral = np.asarray(integral, dtype=np.float64)
         return np.asarray(self.spec.direction * command, dtype=np.float64)
 
@@ -178,6 +248,29 @@ class PID(Controller):
         reference, output, rate = self.spec.split(observation)
         return self.update(reference, output, rate if self.derivative == "velocity" else None)
 
+    def take(self, index: npt.ArrayLike) -> PID:
+        """Return a PID for the batch entries ``index`` only, with their gains and state.
+
+        ``index`` is an integer array or boolean mask of the batch (the last axis of the state).
+        The new PID continues exactly where these entries of this one stand, e.g. to stop
+        stepping envs that are done.
+        """
+        if self.integral.ndim == 0:
+            raise ValueError("take() needs a batched PID: call update() on a batch first")
+        idx = np.asarray(index)
+        pid = copy.copy(self)
+        tt = self.tracking_time
+        if self.gains.batched:
+            pid.gains = self.gains.take(idx)
+            if isinstance(tt, np.ndarray):
+                pid.tracking_time = np.broadcast_to(tt, self.gains.shape)[idx]
+        pid.integral = self.integral[..., idx]
+        pid._rate = self._rate[..., idx]
+        pid._previous = self._previous[..., idx]
+        return pid
+
     def __repr__(self) -> str:
         g = self.gains
+        if g.batched:
+            return f"PID(batch of {int(np.prod(g.shape))} gain sets)"
         return f"PID(kp={g.kp:g}, ki={g.ki:g}, kd={g.kd:g})"

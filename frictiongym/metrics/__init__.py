@@ -8,6 +8,8 @@ Contents
 --------
 :func:`step_metrics` → :class:`StepMetrics`
     Rise time, peak time, settling time, overshoot and steady-state error of a step.
+:func:`step_metrics_batch` → :class:`StepMetricsBatch`
+    The same for N responses at once (one per column), column by column equal.
 :func:`iae`, :func:`itae`
     Integral of ``|e|`` and of ``(t - t[0]) |e|`` (trapezoidal rule).
 :func:`control_effort`
@@ -61,17 +63,19 @@ import numpy.typing as npt
 
 from frictiongym.metrics._checks import as_samples, as_times
 from frictiongym.metrics.signals import control_effort, iae, itae, limit_cycle, time_stuck
-from frictiongym.metrics.step import StepMetrics, step_metrics
+from frictiongym.metrics.step import StepMetrics, StepMetricsBatch, step_metrics, step_metrics_batch
 
 __all__ = [
     "ResponseMetrics",
     "StepMetrics",
+    "StepMetricsBatch",
     "control_effort",
     "iae",
     "itae",
     "limit_cycle",
     "response_metrics",
     "step_metrics",
+    "step_metrics_batch",
     "time_stuck",
 ]
 

@@ -1,0 +1,216 @@
+"""``frictiongym tune``: arguments, progress, output files and summary (``scripts/tune.py``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from frictiongym.tuning.evaluate import TuningModel
+from frictiongym.tuning.search import (
+    DEFAULT_CHUNK,
+    DEFAULT_HORIZON,
+    DEFAULT_SAMPLES,
+    RULES,
+    TuneResult,
+    random_search,
+)
+
+DESCRIPTION = f"""\
+The paper's random-search PID tuning for the QUBE-Servo 2 (section 3.1): draw --samples gain
+triples uniformly from 0 < Kp < 10, 0 < Ki < 5, 0 < Kd < 0.5, simulate each unit step on the
+batched plant (2 ms sampled-data loop: exact ZOH plant, the PID class with derivative on the
+true velocity and clamping anti-windup at +-10 V), keep those with rise time < 0.05 s, peak
+time < 0.1 s, settling time (2 % band) < 1.5 s and overshoot < 20 %, and choose one by --rule.
+The paper's gains (7.8, 1.5, 0.275) are evaluated in the same model.
+
+Models: nominal (default; Eq. (2) without friction, as the paper tuned), friction (the paper's
+identified stiction/Coulomb law in the plant), or --params PATH (J, B and friction of a
+friction.json written by `frictiongym identify`; with --model nominal its J and B only).
+--velocity filtered feeds the D term the QUBE's filtered angle derivative instead of the true
+velocity, as the envs and the benchmark do (a much larger feasible set; docs/tuning.md).
+
+Rules: {"; ".join(f"{k}: {v}" for k, v in RULES.items())}.
+
+Writes to --out: tune.json (n_samples, n_feasible, every feasible candidate with its metrics,
+the chosen gains and rule, the paper's gains, specs, bounds, model, seed, dt, horizon,
+software version, wall time) and tune.png (the feasible set in the three gain planes and the
+feasible step responses). {DEFAULT_SAMPLES} samples take about a second on 2 cores.
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the tuner's options to ``parser``."""
+    parser.add_argument(
+        "--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
+        help=f"gain triples to draw (default: {DEFAULT_SAMPLES}, about a second)",
+    )  # fmt: skip
+    parser.add_argument("--seed", type=int, default=0, metavar="S",
+                        help="seed of numpy's default_rng (default: 0)")  # fmt: skip
+    parser.add_argument(
+        "--out", type=Path, default=Path("tune-results"), metavar="DIR",
+        help="directory for tune.json and tune.png, created if needed (default: ./tune-results)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--model", choices=("nominal", "friction"), default=None,
+        help="nominal: no friction (default without --params); friction: the paper's friction "
+        "law in the plant (default with --params: the file's law)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--params", type=Path, metavar="PATH",
+        help="a friction.json (or its directory) from `frictiongym identify`: tune on its J, B "
+        "and friction",
+    )  # fmt: skip
+    parser.add_argument(
+        "--velocity", choices=("ideal", "filtered"), default="ideal",
+        help="the D term's velocity: ideal (the plant's true velocity, an ideal tachometer; "
+        "default) or filtered (the QUBE's 50 s/(s+50) estimate of the angle, as the env "
+        "observes it)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--rule", choices=tuple(RULES), default="itae",
+        help="how to choose among the feasible candidates (default: itae)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--horizon", type=float, default=DEFAULT_HORIZON, metavar="SECONDS",
+        help=f"simulated time per candidate, longer than the 1.5 s settling spec (default: "
+        f"{DEFAULT_HORIZON:g})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--chunk", type=int, default=DEFAULT_CHUNK, metavar="N",
+        help=f"candidates simulated at once; memory only, not results (default: {DEFAULT_CHUNK})",
+    )  # fmt: skip
+    parser.add_argument(
+        "--full", action="store_true",
+        help="simulate every candidate to the horizon instead of dropping those that have "
+        "provably failed (same feasible set, about 50x slower; gives every candidate's "
+        "per-spec failures in tune.json)",
+    )  # fmt: skip
+    parser.add_argument("--no-figures", action="store_true", help="skip tune.png")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
+
+
+def _model(args: argparse.Namespace) -> TuningModel:
+    """Build the model chosen by --model/--params (ValueError with the reason)."""
+    if args.params is None:
+        return TuningModel.paper(with_friction=args.model == "friction")
+    from frictiongym.params import load_params
+
+    params = load_params(args.params)  # ParamsFileError (a ValueError) names the file
+    if params.device not in (None, "RotaryServo"):
+        raise ValueError(
+            f"{args.params}: identified on {params.device}; tune works on the QUBE-Servo 2 "
+            "(RotaryServo) only, the paper's specs are for it"
+        )
+    return TuningModel.from_params(params, args.model != "nominal", source=str(args.params))
+
+
+def check_args(args: argparse.Namespace) -> TuningModel:
+    """Validate the options and build the model; raise ValueError saying what to change."""
+    if args.samples < 1:
+        raise ValueError(f"--samples must be at least 1, got {args.samples}")
+    if args.seed < 0:
+        raise ValueError(f"--seed must be a whole number >= 0, got {args.seed}")
+    if args.chunk < 1:
+        raise ValueError(f"--chunk must be at least 1, got {args.chunk}")
+    if not (math.isfinite(args.horizon) and args.horizon > 1.5):
+        raise ValueError(
+            f"--horizon must be a number of seconds longer than the 1.5 s settling-time spec "
+            f"(so settling can be judged), got {args.horizon}"
+        )
+    if args.out.exists() and not args.out.is_dir():
+        raise ValueError(f"--out {args.out} exists and is not a directory; give a directory")
+    return dataclasses.replace(_model(args), velocity=args.velocity)
+
+
+def _fmt(value: float | None, spec: str = ".3f") -> str:
+    return "never" if value is None else format(value, spec)
+
+
+def summary(result: TuneResult) -> str:
+    """Return the terminal summary: counts, chosen gains, the paper's gains."""
+    rec = result.record()
+    n, f = rec["n_samples"], rec["n_feasible"]
+    law = rec["model"]["friction"]["law"]
+    law = "no" if law == "none" else f"'{law}'"
+    lines = [
+        f"model {rec['model']['name']} ({law} friction, {rec['model']['velocity']} velocity), "
+        f"seed "
+        f"{rec['seed']}, horizon {rec['horizon']:g} s, dt {rec['dt'] * 1e3:g} ms",
+        f"{'':<18}{'Kp':>7}{'Ki':>7}{'Kd':>7}{'rise s':>8}{'peak s':>8}{'settle s':>9}"
+        f"{'OS %':>7}{'feasible':>10}",
+    ]
+    rows = []
+    if rec["chosen"] is not None:
+        rows.append((f"chosen ({result.rule})", rec["chosen"], "yes"))
+    p = rec["paper_gains"]
+    verdict = "yes" if p["feasible"] else "no: " + ", ".join(p["failing_specs"])
+    rows.append(("paper", {**p, **p["metrics"]}, verdict))
+    for label, c, ok in rows:
+        lines.append(
+            f"{label:<18}{c['kp']:>7.3f}{c['ki']:>7.3f}{c['kd']:>7.3f}"
+            f"{_fmt(c['rise_time']):>8}{_fmt(c['peak_time']):>8}{_fmt(c['settling_time']):>9}"
+            f"{c['overshoot_pct']:>7.2f}  {ok}"
+        )
+    head = f"{f} of {n} candidates feasible ({100 * f / n:.2f} %; the paper found 328)"
+    if rec["chosen"] is None:
+        head += "; none to choose: try more --samples"
+    return "\n".join([head, *lines])
+
+
+def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int:
+    """Run the tuner for parsed ``args``; return the exit status."""
+    try:
+        model = check_args(args)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    try:
+        args.out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        print(f"error: cannot create --out {args.out}: {error.strerror or error}", file=sys.stderr)
+        return 2
+    from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
+
+    from frictiongym.benchmark.report import write_atomic
+
+    with tqdm(total=args.samples, desc="tune", unit="cand", unit_scale=True,
+              disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
+        result = random_search(
+            args.samples, args.seed, model, horizon=args.horizon, rule=args.rule,
+            chunk=args.chunk, early_stop=not args.full, progress=bar.update,
+        )  # fmt: skip
+    result.extra["command"] = command_line
+    written = [args.out / "tune.json"]
+    write_atomic(written[0], json.dumps(result.record(), indent=1, allow_nan=False) + "\n")
+    if not args.no_figures:
+        from frictiongym.tuning.figures import plot_feasible_set
+
+        written.append(plot_feasible_set(result, args.out / "tune.png"))
+    if not args.quiet:
+        print(summary(result))
+        print(f"\n{result.n_samples} candidates in {result.wall_time:.1f} s "
+              f"({result.n_samples / result.wall_time:,.0f}/s); written to {args.out}/: "
+              + "  ".join(p.name for p in written))  # fmt: skip
+    return 0
+
+
+def build_parser(prog: str = "frictiongym tune") -> argparse.ArgumentParser:
+    """Build the tuner's own parser (``scripts/tune.py``)."""
+    parser = argparse.ArgumentParser(
+        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    add_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` and run the tuner."""
+    args = build_parser().parse_args(argv)
+    words = sys.argv[1:] if argv is None else list(argv)
+    return run(args, shlex.join(["frictiongym", "tune", *words]))

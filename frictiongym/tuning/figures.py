@@ -1,0 +1,132 @@
+"""``tune.png``: the feasible set in the three gain planes and the feasible step responses.
+
+matplotlib is imported inside the functions, with the non-interactive Agg backend.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from frictiongym.tuning.evaluate import STEP, simulate
+from frictiongym.tuning.search import PAPER_GAINS, RULES, TuneResult
+
+#: Infeasible samples drawn in the planes at most (a random subset: the grey cloud's density is
+#: all it shows, and 100 000 markers make a slow, heavy PNG).
+MAX_GREY = 4_000
+#: Feasible step responses drawn at most (the best by the rule's score).
+MAX_RESPONSES = 200
+
+_LABELS = {0: "Kp [V/rad]", 1: "Ki [V/(rad·s)]", 2: "Kd [V·s/rad]"}
+
+
+def _pyplot() -> Any:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _zoom(result: TuneResult, i: int) -> tuple[float, float]:
+    """Axis range around the feasible set and the paper's gains along gain ``i``."""
+    values = [*result.gains[result.feasible_indices, i], PAPER_GAINS[i]]
+    lo, hi = min(values), max(values)
+    pad = 0.1 * (hi - lo) or 0.05 * float(result.bounds.high[i])
+    return max(lo - pad, float(result.bounds.low[i])), min(hi + pad, float(result.bounds.high[i]))
+
+
+def _planes(axes: Any, result: TuneResult, pairs: Any, zoom: bool) -> Any:
+    gains, feasible = result.gains, result.evaluation.feasible
+    grey = np.flatnonzero(~feasible)
+    if grey.size > MAX_GREY:
+        grey = np.random.default_rng(0).choice(grey, MAX_GREY, replace=False)
+    good = result.feasible_indices
+    good = good[np.argsort(-result.scores[good])]  # best drawn last, on top
+    sc = None
+    for ax, (i, j) in zip(axes, pairs, strict=True):
+        ax.scatter(gains[grey, i], gains[grey, j], s=1.5, c="0.82", lw=0, rasterized=True,
+                   label=f"infeasible ({result.n_samples - result.n_feasible})")  # fmt: skip
+        if good.size:
+            sc = ax.scatter(gains[good, i], gains[good, j], s=8, c=result.scores[good],
+                            cmap="viridis_r", lw=0, label=f"feasible ({good.size})")  # fmt: skip
+        if result.chosen is not None:
+            c = result.gains[result.chosen]
+            ax.plot(c[i], c[j], "*", ms=15, mfc="red", mec="k", label="chosen")
+        ax.plot(PAPER_GAINS[i], PAPER_GAINS[j], "X", ms=10, mfc="orange", mec="k",
+                label="paper (7.8, 1.5, 0.275)")  # fmt: skip
+        lo, hi = result.bounds.low, result.bounds.high
+        xlim, ylim = ((lo[i], hi[i]), (lo[j], hi[j]))
+        if zoom and good.size:
+            xlim, ylim = _zoom(result, i), _zoom(result, j)
+        ax.set(xlim=xlim, ylim=ylim, xlabel=_LABELS[i], ylabel=_LABELS[j],
+               title="zoom on the feasible set" if zoom else "")  # fmt: skip
+    return sc
+
+
+def _responses(ax: Any, result: TuneResult) -> None:
+    s, good = result.specs, result.feasible_indices
+    good = good[np.argsort(result.scores[good])][:MAX_RESPONSES]
+    picks = [*good, *([] if result.chosen is None else [result.chosen])]
+    rows = np.vstack([result.gains[picks], np.array([PAPER_GAINS])]) if picks else None
+    gains = np.array([PAPER_GAINS]) if rows is None else rows
+    ev = simulate(gains, result.model, s, result.horizon, early_stop=False, keep_traces=True)
+    if ev.traces is None:  # pragma: no cover - keep_traces=True always returns them
+        raise RuntimeError("simulate() returned no traces")
+    t, y = ev.t, ev.traces
+    n = len(good)
+    if n:
+        ax.plot(t, y[:, :n], color="tab:blue", lw=0.5, alpha=0.25)
+        ax.plot([], [], color="tab:blue", lw=0.8, label=f"feasible (best {n} by {result.rule})")
+    if result.chosen is not None:
+        ax.plot(t, y[:, n], color="red", lw=1.8, label="chosen")
+    ax.plot(t, y[:, -1], color="orange", lw=1.8, ls="--", label="paper's gains")
+    ax.axhline(STEP * (1 + s.overshoot_pct / 100), color="k", lw=0.8, ls=":",
+               label=f"overshoot limit {s.overshoot_pct:g} %")  # fmt: skip
+    ax.axvline(s.peak_time, color="k", lw=0.8, ls="-.", label=f"peak-time limit {s.peak_time:g} s")
+    ax.axvspan(0, s.rise_time, color="tab:green", alpha=0.08,
+               label=f"rise-time limit {s.rise_time:g} s (10→90 %)")  # fmt: skip
+    band = f"±{s.settling_band * 100:g} % band (settled by {s.settling_time:g} s)"
+    ax.axhspan(STEP * (1 - s.settling_band), STEP * (1 + s.settling_band), color="0.6", alpha=0.3,
+               label=band)  # fmt: skip
+    ax.set(xlim=(0.0, min(0.5, float(t[-1]))), ylim=(0.0, 1.35), xlabel="time [s]",
+           ylabel="position [rad]", title="unit-step responses (first 0.5 s)")  # fmt: skip
+    ax.legend(fontsize="x-small", loc="lower right")
+
+
+def plot_feasible_set(result: TuneResult, path: Path, responses: bool = True) -> Path:
+    """Write the figure of ``result`` to ``path`` (PNG) atomically; return ``path``.
+
+    Top row: the three gain planes over the full bounds; bottom row: the Kp-Kd and Ki-Kd
+    planes zoomed on the feasible set, and the feasible step responses with the spec limits.
+    """
+    plt = _pyplot()
+    fig, axes = plt.subplots(2, 3, figsize=(15, 9), layout="constrained")
+    _planes(axes[0], result, ((0, 1), (0, 2), (1, 2)), zoom=False)
+    sc = _planes(axes[1, :2], result, ((0, 2), (1, 2)), zoom=True)
+    axes[0, 0].legend(fontsize="small", loc="upper left", markerscale=1.5, framealpha=0.9)
+    if sc is not None:
+        fig.colorbar(sc, ax=axes[:, :2].ravel().tolist(), shrink=0.5, pad=0.01,
+                     label=f"rule '{result.rule}' score (lower is better)")  # fmt: skip
+    if responses:
+        _responses(axes[1, 2], result)
+    else:
+        axes[1, 2].axis("off")
+    m = result.model
+    law = "no" if m.friction.name == "none" else f"'{m.friction.name}'"
+    fig.suptitle(
+        f"Random search, {m.name} model ({law} friction, {m.velocity} velocity, dt "
+        f"{m.dt * 1e3:g} ms): "
+        f"{result.n_feasible} of {result.n_samples} feasible (seed {result.seed}); "
+        f"chosen by {result.rule}: {RULES[result.rule].split(',')[0]}",
+        fontsize="medium",
+    )
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    fig.savefig(tmp, dpi=100)
+    os.replace(tmp, path)
+    plt.close(fig)
+    return path

@@ -1,0 +1,170 @@
+"""Candidates per second of `frictiongym tune` vs python-control on the same candidates.
+
+python scripts/bench_tune.py --continuous 2000
+
+The reference is what a python-control user would run per candidate: build the tuner's
+closed loop (frictiongym.tuning.reference.sampled_data_loop: c2d ZOH plant + the PID as our
+PID computes it) and call step_info (which calls step_response) on the same 2 ms grid. It
+runs on a subsample of the tuner's candidates (it is slow); the tuner runs on all of them,
+in chunks as `tune` does, on the nominal model (the reference's model) and, for itself only,
+on the friction model and without early stopping. Rounds interleave the variants; each
+ratio is the median of the per-round ratios to python-control timed in the same round.
+
+With --continuous N, python-control also judges N candidates of the same seed on the two
+continuous-time loops (derivative on the velocity, derivative on the error as MATLAB's pid)
+to show how much the loop structure moves the feasible fraction (not timed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import _bench  # the scripts' folder is first on sys.path (python scripts/bench_tune.py)
+import numpy as np
+
+from frictiongym.tuning import GainBounds, StepSpecs, TuningModel, simulate
+from frictiongym.tuning import reference as ref
+from frictiongym.tuning.evaluate import horizon_steps
+from frictiongym.tuning.search import DEFAULT_CHUNK, DEFAULT_HORIZON
+
+
+@dataclass
+class Variant:
+    name: str
+    batch: int
+    run: object
+    rates: list[float] = field(default_factory=list)
+
+
+def tuner(gains: np.ndarray, model: TuningModel, specs: StepSpecs, early_stop: bool):
+    def run() -> None:
+        for lo in range(0, gains.shape[0], DEFAULT_CHUNK):
+            simulate(gains[lo : lo + DEFAULT_CHUNK], model, specs, DEFAULT_HORIZON,
+                     early_stop=early_stop)  # fmt: skip
+
+    return run
+
+
+def python_control(gains: np.ndarray, model: TuningModel, specs: StepSpecs):
+    t = np.arange(horizon_steps(DEFAULT_HORIZON, model.dt) + 1) * model.dt
+
+    def run() -> None:
+        systems = [ref.sampled_data_loop(tuple(g), model.plant, model.dt) for g in gains]
+        ref.step_info_metrics(systems, t, specs)
+
+    return run
+
+
+def agreement(gains: np.ndarray, specs: StepSpecs) -> str:
+    """Feasibility of the tuner (nominal, ±10 V) vs python-control (linear) on ``gains``."""
+    model = TuningModel()
+    ours = simulate(gains, model, specs, DEFAULT_HORIZON, early_stop=False)
+    systems = [ref.sampled_data_loop(tuple(g), model.plant, model.dt) for g in gains]
+    theirs = specs.feasible(ref.step_info_metrics(systems, ours.t, specs))
+    saturated = int(np.sum(ours.peak_command >= model.plant.command_limit))
+    return (
+        f"{int(np.sum(ours.feasible == theirs))} of {len(gains)} verdicts agree "
+        f"(feasible: tuner {int(ours.feasible.sum())}, python-control {int(theirs.sum())}; "
+        f"{saturated} candidates reach the ±10 V limit, which the linear reference lacks)"
+    )
+
+
+def continuous(n: int, seed: int, specs: StepSpecs) -> list[str]:
+    gains = GainBounds().sample(np.random.default_rng(seed), n)
+    model = TuningModel()
+    t = np.arange(horizon_steps(DEFAULT_HORIZON, model.dt) + 1) * model.dt
+    ours = simulate(gains, model, specs, DEFAULT_HORIZON).feasible
+    lines = [f"Feasible fraction of {n} candidates (seed {seed}) by loop structure:", ""]
+    lines += ["| loop | feasible | fraction |", "|---|---:|---:|"]
+    lines.append(f"| sampled-data, D on velocity (the tuner) | {int(ours.sum())} | "
+                 f"{ours.mean():.2%} |")  # fmt: skip
+    for label, build in (("continuous, D on velocity", ref.continuous_loop),
+                         ("continuous, D on error (MATLAB pid)",
+                          ref.continuous_error_derivative_loop)):  # fmt: skip
+        ok = specs.feasible(ref.step_info_metrics([build(tuple(g), model.plant) for g in gains],
+                                                  t, specs))  # fmt: skip
+        lines.append(f"| {label} | {int(ok.sum())} | {ok.mean():.2%} |")
+    return lines
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--samples", type=int, default=100_000,
+                        help="candidates for the tuner (default: 100000, as tune)")  # fmt: skip
+    parser.add_argument("--reference-samples", type=int, default=200,
+                        help="of them, candidates for python-control (default: 200)")  # fmt: skip
+    parser.add_argument("--repeats", type=int, default=5, help="rounds (default: 5)")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the candidates (default: 0)")
+    parser.add_argument("--continuous", type=int, default=0, metavar="N",
+                        help="also judge N candidates on the continuous loops (slow: ~5 ms "
+                        "each)")  # fmt: skip
+    parser.add_argument("--json", type=Path, metavar="PATH", help="also write the rates here")
+    args = parser.parse_args()
+    if min(args.samples, args.reference_samples, args.repeats) < 1:
+        parser.error("--samples, --reference-samples and --repeats must be at least 1")
+
+    specs = StepSpecs()
+    gains = GainBounds().sample(np.random.default_rng(args.seed), args.samples)
+    pick = np.random.default_rng(args.seed + 1).choice(
+        args.samples, min(args.reference_samples, args.samples), replace=False
+    )
+    sub = gains[np.sort(pick)]
+    nominal, friction = TuningModel(), TuningModel.paper(with_friction=True)
+    full = gains[: max(1, args.samples // 10)]
+    variants = [
+        Variant("python-control step_info (sampled-data loop)", len(sub),
+                python_control(sub, nominal, specs)),
+        Variant("tune, nominal", len(gains), tuner(gains, nominal, specs, True)),
+        Variant("tune, friction", len(gains), tuner(gains, friction, specs, True)),
+        Variant("tune, nominal, no early stop", len(full), tuner(full, nominal, specs, False)),
+    ]  # fmt: skip
+    start = time.perf_counter()
+    for v in variants:  # warm-up: numba's cache, thread pool, python-control imports
+        v.run()  # type: ignore[operator]
+    for r in range(args.repeats):
+        order = variants[r % len(variants) :] + variants[: r % len(variants)]
+        for v in order:
+            tic = time.perf_counter()
+            v.run()  # type: ignore[operator]
+            v.rates.append(v.batch / (time.perf_counter() - tic))
+    reference = variants[0]
+
+    print(f"- **Command:** python scripts/bench_tune.py {' '.join(sys.argv[1:])}".rstrip())
+    print(f"- **Date:** {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    print(f"- **Machine:** {_bench.machine_line()}")
+    print(f"- **Source:** frictiongym {_bench.source_revision()}")
+    print(f"- **Candidates:** {args.samples} (seed {args.seed}), python-control on "
+          f"{len(sub)} of them; horizon {DEFAULT_HORIZON:g} s, dt 2 ms, chunks of "
+          f"{DEFAULT_CHUNK}")  # fmt: skip
+    print(f"- **Agreement on the python-control subsample:** {agreement(sub, specs)}")
+    print("")
+    print(f"| variant | candidates | candidates/s, median [min, max] of {args.repeats} | "
+          "ratio to python-control, median [min, max] |")  # fmt: skip
+    print("|---|---:|---|---|")
+    out = {}
+    for v in variants:
+        ratios = _bench.paired_ratios(v, reference)
+        rr = "1 (reference)" if v is reference else _bench.ratio_stats(ratios)
+        print(f"| {v.name} | {_bench.thousands(v.batch)} | {_bench.stats(v.rates)} | {rr} |")
+        out[v.name] = {"candidates": v.batch, "rates": v.rates, "ratios": ratios,
+                       "median_ratio": statistics.median(ratios)}  # fmt: skip
+    if args.continuous:
+        print("")
+        print("\n".join(continuous(args.continuous, args.seed, specs)))
+    print(f"\n(total {time.perf_counter() - start:.0f} s)")
+    if args.json:
+        args.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
+    headline = statistics.median(_bench.paired_ratios(variants[1], reference))
+    print(f"\ntune / python-control, nominal: {headline:.3g}x (goal >= 100x: "
+          f"{'meets' if headline >= 100 else 'misses'})")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
