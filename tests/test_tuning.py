@@ -144,7 +144,7 @@ def _near_boundary(metrics, index: int) -> bool:
 def test_feasibility_agrees_with_python_control_on_the_same_sampled_data_loop():
     control = pytest.importorskip("control")
     del control
-    gains = _mixed(3, 100, 140)
+    gains = _mixed(3, 60, 120)
     ours = simulate(gains, LINEAR, SPECS, 3.0, early_stop=False)
     systems = [reference.sampled_data_loop(tuple(g), LINEAR.plant, DT) for g in gains]
     theirs = reference.step_info_metrics(systems, ours.t, SPECS)
@@ -164,7 +164,7 @@ def test_feasibility_agrees_with_python_control_on_the_same_sampled_data_loop():
     # With the real ±10 V limit, candidates that never reach it give the same verdicts.
     real = simulate(gains, TuningModel(), SPECS, 3.0, early_stop=False)
     linear = real.peak_command < ROTARY_PLANT.command_limit
-    assert linear.sum() > 200
+    assert linear.sum() > 150
     np.testing.assert_array_equal(real.feasible[linear], ours.feasible[linear])
 
 
