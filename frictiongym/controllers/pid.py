@@ -121,6 +121,8 @@ class PID(Controller):
     spec : LoopSpec
         The loop (``PID.for_env(env, gains)`` reads it from an env).
     gains : PIDGains
+        Numbers, or arrays of one gain set per env of the batch (random-search tuning runs N
+        candidates as N envs); :meth:`take` keeps a subset of the batch.
     derivative : {"velocity", "difference"}, default "velocity"
         Where the D term's rate comes from; ``velocity`` needs a velocity entry in the spec.
     derivative_tau : float, default 0.0

@@ -142,7 +142,7 @@ def summary(result: TuneResult) -> str:
         f"model {rec['model']['name']} ({law} friction, {rec['model']['velocity']} velocity), "
         f"seed "
         f"{rec['seed']}, horizon {rec['horizon']:g} s, dt {rec['dt'] * 1e3:g} ms",
-        f"{'':<18}{'Kp':>7}{'Ki':>7}{'Kd':>7}{'rise s':>8}{'peak s':>8}{'settle s':>9}"
+        f"{'':<18}{'Kp':>9}{'Ki':>9}{'Kd':>9}{'rise s':>8}{'peak s':>8}{'settle s':>9}"
         f"{'OS %':>7}{'feasible':>10}",
     ]
     rows = []
@@ -153,7 +153,7 @@ def summary(result: TuneResult) -> str:
     rows.append(("paper", {**p, **p["metrics"]}, verdict))
     for label, c, ok in rows:
         lines.append(
-            f"{label:<18}{c['kp']:>7.3f}{c['ki']:>7.3f}{c['kd']:>7.3f}"
+            f"{label:<18}{c['kp']:>9.4g}{c['ki']:>9.4g}{c['kd']:>9.4g}"
             f"{_fmt(c['rise_time']):>8}{_fmt(c['peak_time']):>8}{_fmt(c['settling_time']):>9}"
             f"{c['overshoot_pct']:>7.2f}  {ok}"
         )
