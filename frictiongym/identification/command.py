@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import shlex
 import sys
@@ -13,7 +12,7 @@ from typing import Any
 
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.fit import LAWS
-from frictiongym.identification.identify import PLANS, Identification, identify, make_env
+from frictiongym.identification.identify import Identification, identify, make_env, plan_for
 
 DESCRIPTION = """\
 Identify the friction and the linear part of a device through its env, as the paper does
@@ -124,8 +123,6 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     if out.exists() and not out.is_dir():
         print(f"error: --out {out} is a file; give a directory", file=sys.stderr)
         return 2
-    name = args.env.split("/")[-1].split("-")[0]
-    plan = PLANS.get(name)
     sim = args.backend in ("sim", "sim://")
     kwargs: dict[str, Any] = {"backend": args.backend}
     if sim:
@@ -134,6 +131,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         print("error: --noise and --friction apply to the simulator only", file=sys.stderr)
         return 2
     try:
+        plan = plan_for(args.env)
         env = make_env(args.env, plan, **kwargs)
     except (ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -142,11 +140,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     if not args.quiet:
         from tqdm import tqdm
 
-        total = (
-            2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats) + plan.refine
-            if plan
-            else None
-        )
+        total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats) + plan.refine
         bar = tqdm(total=total, unit="run", desc="identify", leave=False)
 
     def progress(label: str) -> None:
@@ -202,4 +196,4 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "json", "main", "run", "summary"]
+__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "main", "run", "summary"]

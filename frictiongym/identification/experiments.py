@@ -15,7 +15,7 @@ sent after that is zero.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -261,8 +261,3 @@ def smallest_step(position: FloatArray) -> float:
     steps = np.abs(np.diff(position))
     steps = steps[steps > 0.0]
     return float(steps.min()) if steps.size else 0.0
-
-
-def signed_levels(magnitudes: Sequence[float], signs: Sequence[float] = (1.0, -1.0)) -> list[float]:
-    """Levels of ``magnitudes`` in each direction, positive direction first."""
-    return [s * m for s in signs for m in magnitudes]

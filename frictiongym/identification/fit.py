@@ -210,7 +210,7 @@ def inertia_from_map(
             continue
         v = p.sign * p.velocity
         h = 1e-4 * max(abs(v), 1e-9)
-        slope = float(p.sign * (fit.predict(v + h) - fit.predict(v - h)) / (2 * h) * p.sign)
+        slope = float((fit.predict(v + h) - fit.predict(v - h)) / (2 * h))  # du/dv
         if slope > 0.0:
             estimates.append(p.tau * slope)
     if not estimates:

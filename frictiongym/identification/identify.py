@@ -115,6 +115,10 @@ PLANS: dict[str, Plan] = {
 }
 
 
+#: Episode length of an identification env: longer than any run the plans hold.
+_NO_EPISODE_LIMIT = 1_000_000
+
+
 @dataclass(frozen=True)
 class Identification:
     """Everything an identification measured and fitted."""
@@ -144,15 +148,14 @@ class Identification:
         if name not in self.fits:
             raise ValueError(f"no fit of law {law!r}; choose one of best, {', '.join(self.fits)}")
         fit = self.fits[name]
-        uncertainty = {k: v for k, v in fit.stderr.items() if math.isfinite(v)}
-        uncertainty["J"], uncertainty["B"] = self.inertia[1], self.damping[1]
+        errors = {**fit.stderr, "J": self.inertia[1], "B": self.damping[1]}
         return DeviceParams.from_model(
             fit.model,
             inertia=self.inertia[0],
             damping=self.damping[0],
             device=self.device,
             env_id=self.env_id,
-            uncertainty={k: v for k, v in uncertainty.items() if math.isfinite(v)},
+            uncertainty={k: v for k, v in errors.items() if math.isfinite(v)},
             metadata=self.record(name),
         )
 
@@ -291,11 +294,12 @@ def identify(
             "no experiment determined the inertia J: add velocity steps to the plan "
             "(Plan.step_repeats) or constant runs that show their approach to steady speed"
         )
-    breakaway = {}
-    for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
-        slope = rest_slope(points, sign)
-        levels = [est.breakaway_level(r, inertia[0], slope).level for r in ramps if r.sign == sign]
-        breakaway[key] = _mean_se(levels)
+    slopes = {sign: rest_slope(points, sign) for sign in (1.0, -1.0)}
+    breakaways = [est.breakaway_level(r, inertia[0], slopes[r.sign]) for r in ramps]
+    breakaway = {
+        key: _mean_se([b.level for b in breakaways if b.sign == sign])
+        for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg"))
+    }
     if not steps:
         fit = fit_law(points, breakaway, "paper")
         inertia = inertia_from_map(points, fit, min_transient=0.0)
@@ -308,7 +312,6 @@ def identify(
         inertia = (refinement.values["J"], refinement.stderr["J"])
         damping = (refinement.values["B"], refinement.stderr["B"])
         breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
-    breakaways = [est.breakaway_level(r, inertia[0], rest_slope(points, r.sign)) for r in ramps]
     return Identification(
         device=device,
         env_id=getattr(getattr(env, "spec", None), "id", None),
@@ -351,18 +354,27 @@ def _refined(
     return refined, result
 
 
-def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:
-    """``gym.make(env_id, ...)`` with what the device's plan needs (episode length, guards)."""
-    import gymnasium as gym
-
-    import frictiongym  # noqa: F401  (registers the ids)
+def plan_for(env_id: str) -> Plan:
+    """Return the plan of the device behind a registered env id (``Plan()`` if it has none)."""
     from frictiongym.envs import ENV_IDS
 
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
-    name = env_id.split("/")[-1].split("-")[0]
-    plan = plan or PLANS.get(name, Plan())
-    env_kwargs = {**plan.env_kwargs, **kwargs}
-    dt = float(env_kwargs.get("dt", 0.0) or 0.0) or None
-    steps = None if dt is None else math.ceil(plan.longest_run / dt) + 10
-    return gym.make(env_id, max_episode_steps=steps or 1_000_000, **env_kwargs)
+    module, single, _, _ = ENV_IDS[env_id]
+    import importlib
+
+    device = getattr(importlib.import_module(module), single).device
+    return PLANS.get(device.name, Plan())
+
+
+def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:
+    """``gym.make(env_id, ...)`` with what the device's plan needs (episode length, guards).
+
+    Each run ends by its own duration, so the episode limit only has to stay out of the way.
+    """
+    import gymnasium as gym
+
+    import frictiongym  # noqa: F401  (registers the ids)
+
+    plan = plan or plan_for(env_id)
+    return gym.make(env_id, max_episode_steps=_NO_EPISODE_LIMIT, **{**plan.env_kwargs, **kwargs})

@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -110,23 +111,23 @@ def refine(
     x0 = np.array([start[n] for n in NAMES], dtype=np.float64)
     x0[4] = min(start["uc_pos"] / start["us_pos"], 0.99)
     x0[5] = min(start["uc_neg"] / start["us_neg"], 0.99)
-    costs = []
-    for delay in range(max_delay_steps + 1):
-        r = sim.residual(x0, delay)
-        costs.append(float(r @ r))
     lower = np.full(x0.size, 1e-9) * np.abs(x0)
     upper = np.full(x0.size, np.inf)
     upper[4:6] = 1.0
-    best = None
-    for delay in range(max_delay_steps + 1):  # a local fit per dead time; keep the best
-        result = least_squares(
-            lambda x, d=delay: sim.residual(x, d), x0, bounds=(lower, upper), x_scale="jac",
+
+    def fitted(delay: int) -> Any:
+        return least_squares(
+            lambda x: sim.residual(x, delay), x0, bounds=(lower, upper), x_scale="jac",
             diff_step=1e-4,
         )  # fmt: skip
-        if best is None or result.cost < best[1].cost:
-            best = (delay, result)
-    assert best is not None
-    delay, result = best
+
+    # A local fit per dead time; the smallest final residual chooses it.
+    delay, result = 0, fitted(0)
+    for other in range(1, max_delay_steps + 1):
+        candidate = fitted(other)
+        if candidate.cost < result.cost:
+            delay, result = other, candidate
+    start_residual = sim.residual(x0, delay)
     resid = result.fun
     n, k = resid.size, x0.size
     ssr = float(resid @ resid)
@@ -149,5 +150,5 @@ def refine(
         stderr=se,
         dead_time=delay * dt,
         rms=math.sqrt(ssr / n),
-        rms_start=math.sqrt(costs[delay] / n),
+        rms_start=math.sqrt(float(start_residual @ start_residual) / n),
     )
