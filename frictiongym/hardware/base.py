@@ -1,0 +1,207 @@
+"""What every device backend provides: the simulated plant's step, on a device, safely.
+
+A :class:`Backend` opens a link, arms the device, and then, once per control period, holds a
+command and returns the next :class:`Sample` of the device's own clock. The base class owns
+the safety rules every backend shares, so a subclass cannot forget one:
+
+* a NaN or infinite command never reaches the device: the motor is zeroed and ``ValueError``
+  raised; a command beyond the device's limit is saturated, as the simulator saturates it;
+* the motor is zeroed (and the amplifier disabled where there is one) on :meth:`~Backend.stop`,
+  :meth:`~Backend.close`, any exception or ``KeyboardInterrupt`` inside a step, and at
+  interpreter exit for a backend left open;
+* device-side, the firmware's watchdog zeroes the motor when commands stop (a host that dies
+  cannot send a stop).
+
+Subclasses implement ``_open``, ``_start``, ``_exchange``, ``_stop`` and ``_close``.
+"""
+
+from __future__ import annotations
+
+import atexit
+import math
+import time
+import weakref
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+from typing import Any
+
+from frictiongym.hardware.errors import HardwareError
+
+#: Device kinds, as the env ids name them.
+KINDS = ("rotary", "altino")
+
+
+@dataclass(frozen=True)
+class DeviceInfo:
+    """What the host knows about an opened device."""
+
+    kind: str  #: ``"rotary"`` or ``"altino"``
+    rate_hz: float  #: the device's sample rate (it paces the loop)
+    command_limit: float  #: largest |command| it applies, physical units (V or motor units)
+    command_step: float  #: command resolution, physical units (0: continuous)
+    counts_per_rev: int  #: encoder counts per revolution (0 without an encoder)
+    watchdog_s: float | None  #: device watchdog time, s (None: the device has none)
+    can_place: bool = False  #: honours :meth:`Backend.place` (the emulator)
+    distance_limit: bool = False  #: the device itself refuses to drive into the wall
+    firmware: str = ""
+    link: str = ""  #: the protocol and port, for logs
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One tick of the device: the sensor, and the command it held over the period before."""
+
+    measured: float  #: servo: encoder angle, rad; Altino: IR readout 0..800
+    applied: float  #: command held over the period ending at this tick, physical units
+    tick_us: int  #: device clock at the sample, µs (wraps at 2**32)
+    host_ns: int  #: host ``perf_counter_ns`` when the sample arrived
+    seq: int = 0  #: the device's frame counter
+    seq_applied: int = 0  #: sequence number of the host command held
+    status: int = 0  #: device status bits (:class:`frictiongym.hardware.protocol.Status`)
+    late: bool = False  #: the command of this step arrived too late and an older one was held
+    skipped: int = 0  #: device ticks since the previous sample, minus one
+
+
+_OPEN: weakref.WeakSet[Backend] = weakref.WeakSet()
+
+
+@atexit.register
+def _stop_all() -> None:
+    """Zero every device still open when the interpreter exits."""
+    for backend in list(_OPEN):
+        backend.close()
+
+
+class Backend(ABC):
+    """A device behind a link; see the module docstring for the contract.
+
+    Use as a context manager, or call :meth:`close`; both zero the motor.
+    """
+
+    info: DeviceInfo | None = None
+    _armed: bool = False
+
+    @property
+    def is_open(self) -> bool:
+        """Whether the link is open."""
+        return self.info is not None
+
+    def open(self) -> DeviceInfo:
+        """Open the link and check the device (idempotent); return what it is."""
+        if self.info is None:
+            self.info = self._open()
+            _OPEN.add(self)
+        return self.info
+
+    def start(self, *, zero_position: bool = True) -> Sample:
+        """Arm the device with a zero command and return its first sample.
+
+        ``zero_position`` zeroes the encoder (servo; the Altino has none).
+        """
+        self.open()
+        with self._stopping_on_error():
+            sample = self._start(zero_position)
+        self._armed = True
+        return sample
+
+    def step(self, command: float) -> Sample:
+        """Hold ``command`` (physical units) for one device period; return the next sample."""
+        info = self.open()
+        if not self._armed:
+            raise HardwareError("the device is not armed: call start() before step()")
+        try:
+            value = float(command)
+        except (TypeError, ValueError):
+            value = math.nan
+        if not math.isfinite(value):
+            self.stop()
+            raise ValueError(
+                f"command {command!r} is not a finite number; the motor was zeroed and nothing "
+                "was sent (check the controller's output)"
+            )
+        value = min(max(value, -info.command_limit), info.command_limit)
+        with self._stopping_on_error():
+            return self._exchange(value)
+
+    def place(self, position: float) -> None:
+        """Put an emulated plant at rest at ``position`` (rad, or cm from the wall)."""
+        info = self.open()
+        if not info.can_place:
+            raise HardwareError(
+                f"{info.link or type(self).__name__} cannot be placed: only the emulator can; "
+                "put the device at its start by hand"
+            )
+        self._place(position)
+
+    def stop(self) -> None:
+        """Zero the motor and disable it (idempotent; best effort, never raises)."""
+        self._armed = False
+        if self.info is None:
+            return
+        try:
+            self._stop()
+        except Exception:  # a stop must not mask the error that caused it
+            pass
+
+    def close(self) -> None:
+        """Stop the device and close the link (idempotent)."""
+        if self.info is None:
+            return
+        self.stop()
+        try:
+            self._close()
+        finally:
+            self.info = None
+            _OPEN.discard(self)
+
+    def __enter__(self) -> Backend:
+        self.open()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _stopping_on_error(self) -> _StopOnError:
+        return _StopOnError(self)
+
+    def _place(self, position: float) -> None:
+        raise HardwareError(f"{type(self).__name__} cannot place the plant")
+
+    @abstractmethod
+    def _open(self) -> DeviceInfo:
+        """Open the link, handshake, leave the motor off; return the device's description."""
+
+    @abstractmethod
+    def _start(self, zero_position: bool) -> Sample:
+        """Clear latched faults, enable with a zero command, return the first sample."""
+
+    @abstractmethod
+    def _exchange(self, command: float) -> Sample:
+        """Send the (finite, saturated) ``command``; block until the next sample."""
+
+    @abstractmethod
+    def _stop(self) -> None:
+        """Send a zero command and disable the motor."""
+
+    @abstractmethod
+    def _close(self) -> None:
+        """Close the link (after :meth:`_stop`)."""
+
+
+class _StopOnError:
+    """Zero the motor if the block raises anything, ``KeyboardInterrupt`` included."""
+
+    def __init__(self, backend: Backend) -> None:
+        self._backend = backend
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, kind: type[BaseException] | None, *rest: Any) -> None:
+        if kind is not None:
+            self._backend.stop()
+
+
+def monotonic_ns() -> int:
+    """Host clock of :attr:`Sample.host_ns`."""
+    return time.perf_counter_ns()

@@ -1,0 +1,36 @@
+"""The errors a device backend raises: one small tree under :class:`HardwareError`.
+
+Each error subclasses the matching built-in as well (python-control's ``exception.py`` does the
+same), so ``except TimeoutError`` or ``except ConnectionError`` also catch ours. Messages say
+what to check.
+"""
+
+from __future__ import annotations
+
+
+class HardwareError(RuntimeError):
+    """Anything that went wrong between the host and a device; the motor has been zeroed."""
+
+
+class DeviceNotFoundError(HardwareError, FileNotFoundError):
+    """The port or device could not be opened (wrong path, unplugged, no permission)."""
+
+
+class DeviceTimeoutError(HardwareError, TimeoutError):
+    """The device did not answer in time (a frame, a handshake or a write)."""
+
+
+class DeviceDisconnectedError(HardwareError, ConnectionError):
+    """The link went away mid-run (cable pulled, emulator stopped, port closed)."""
+
+
+class ProtocolError(HardwareError):
+    """The device speaks another protocol version or kind, or its frames make no sense."""
+
+
+class DeviceFaultError(HardwareError):
+    """The device reported a fault: amplifier fault, stall error, watchdog trip or limit."""
+
+
+class SDKNotAvailableError(HardwareError, ImportError):
+    """A vendor SDK (Quanser's ``quanser.hardware``) is not installed."""
