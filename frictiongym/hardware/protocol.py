@@ -268,7 +268,7 @@ def unpack(payload: bytes) -> Message:
     if cls is State:
         status, *rest = values
         return State(Status(status), *rest)
-    return cls(*values)  # type: ignore[arg-type]
+    return cls(*values)
 
 
 def encode(message: Message) -> bytes:
