@@ -87,8 +87,9 @@ class Status(enum.IntFlag):
     DISABLED = 0x80  #: the motor is off (not armed, e-stop, watchdog or limit)
 
 
-#: Status bits after which a run cannot go on.
-FAULT_BITS = Status.AMP_FAULT | Status.STALL_ERROR | Status.WATCHDOG | Status.LIMIT
+#: Status bits after which a run cannot go on (``LIMIT`` only ends the episode: the device
+#: stopped itself short of the wall).
+FAULT_BITS = Status.AMP_FAULT | Status.STALL_ERROR | Status.WATCHDOG
 
 
 class Capability(enum.IntFlag):
