@@ -1,1 +1,101 @@
-"""Placeholder: filled by a later issue."""
+"""Device backends: the simulated plant's step contract, on a QUBE-Servo 2 or an Altino.
+
+Pick one with ``gym.make(id, backend=...)``, by object or URI (:func:`resolve_backend`):
+
+=======================================  ======================================================
+``sim`` / ``sim://``                     the simulator (default)
+``serial:///dev/ttyACM0?baud=1000000``   our firmware over a serial port (``SerialBackend``)
+``socket://127.0.0.1:5000``              our firmware or the emulator over TCP
+``/dev/pts/7``, ``COM3``                 a plain port path is ``serial://``
+``emulator://`` (``?lockstep=1``)        an emulator of the env's device, in this process
+``altino-stock:///dev/rfcomm0``          an Altino on its stock firmware (``AltinoStockBackend``)
+``quanser-hil://qube_servo2_usb/0``      a QUBE-Servo 2 over Quanser's SDK (``QuanserHILBackend``)
+=======================================  ======================================================
+
+Errors are :class:`HardwareError` subclasses (:mod:`frictiongym.hardware.errors`).
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+from urllib.parse import parse_qsl, urlsplit
+
+from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
+from frictiongym.hardware.errors import (
+    DeviceDisconnectedError,
+    DeviceFaultError,
+    DeviceNotFoundError,
+    DeviceTimeoutError,
+    HardwareError,
+    ProtocolError,
+    SDKNotAvailableError,
+)
+
+__all__ = [
+    "KINDS",
+    "Backend",
+    "DeviceDisconnectedError",
+    "DeviceFaultError",
+    "DeviceInfo",
+    "DeviceNotFoundError",
+    "DeviceTimeoutError",
+    "HardwareError",
+    "ProtocolError",
+    "SDKNotAvailableError",
+    "Sample",
+    "resolve_backend",
+]
+
+#: URI scheme -> (module, class); each class has ``from_uri(path, query)``.
+SCHEMES = {
+    "serial": ("frictiongym.hardware.serial_backend", "SerialBackend"),
+    "altino-stock": ("frictiongym.hardware.altino_stock", "AltinoStockBackend"),
+    "quanser-hil": ("frictiongym.hardware.quanser_hil", "QuanserHILBackend"),
+    "emulator": ("frictiongym.hardware.emulated", "EmulatedBackend"),
+}
+#: pyserial's own URL handlers, passed to :class:`SerialBackend` whole.
+PYSERIAL_SCHEMES = ("socket", "rfc2217", "spy", "loop")
+SIM = ("sim", "sim://")
+
+
+def _backend_class(scheme: str) -> Any:
+    module, name = SCHEMES[scheme]
+    return getattr(importlib.import_module(module), name)
+
+
+def resolve_backend(spec: object, kind: str) -> Backend | None:
+    """Return the backend ``spec`` names for a device of ``kind`` (``None``: the simulator).
+
+    Parameters
+    ----------
+    spec : str, Backend or None
+        A :class:`Backend`, a URI (see the module docstring), a port path, or ``"sim"``.
+    kind : str
+        ``"rotary"`` or ``"altino"``: the env's device (``emulator://`` emulates it).
+    """
+    if spec is None or spec in SIM:
+        return None
+    if isinstance(spec, Backend):
+        return spec
+    if not isinstance(spec, str):
+        raise TypeError(f"backend must be a URI string or a Backend, got {spec!r}")
+    parts = urlsplit(spec)
+    scheme = parts.scheme.lower()
+    if scheme in PYSERIAL_SCHEMES:
+        return _backend_class("serial")(spec)
+    if not scheme or (len(scheme) == 1 and spec[1:2] == ":"):  # a path, or a Windows drive
+        return _backend_class("serial")(spec)
+    if scheme not in SCHEMES:
+        raise ValueError(
+            f"unknown backend {spec!r}; use 'sim', a port path, or one of the schemes "
+            f"{sorted([*SCHEMES, *PYSERIAL_SCHEMES])} (e.g. serial:///dev/ttyACM0?baud=1000000)"
+        )
+    query = dict(parse_qsl(parts.query, keep_blank_values=True))
+    path = parts.netloc + parts.path
+    if scheme == "emulator":
+        path = path or kind
+    elif not path and scheme != "quanser-hil":
+        raise ValueError(f"{spec!r} names no port; e.g. {scheme}:///dev/ttyACM0")
+    backend: Backend = _backend_class(scheme).from_uri(path, query)
+    return backend

@@ -1,0 +1,314 @@
+"""A device running our firmware (or the emulator), over pyserial: ``serial://`` and ``socket://``.
+
+The device's clock paces the loop: it sends one ``State`` per tick, and :meth:`step` writes the
+command and blocks until the ``State`` that echoes it (``seq_applied``), so host jitter adds
+latency but never changes the sampling period (research/hardware.md §0). A command that misses
+its tick is held one period late and reported (``Sample.late``); a device that stays silent for
+``timeout`` raises :class:`~frictiongym.hardware.errors.DeviceTimeoutError`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+from frictiongym.hardware import protocol as p
+from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
+from frictiongym.hardware.errors import (
+    DeviceDisconnectedError,
+    DeviceFaultError,
+    DeviceNotFoundError,
+    DeviceTimeoutError,
+    HardwareError,
+    ProtocolError,
+)
+
+#: Default line rate: the QUBE bridge's (research/hardware.md §3.4: exact on 16 MHz AVRs, room
+#: for 500 Hz frames both ways). Ignored by USB CDC boards, ptys and sockets.
+DEFAULT_BAUD = 1_000_000
+#: Time for the device to answer the handshake: an Arduino resets when its port opens and
+#: spends 1-2 s in its bootloader (research/hardware.md §3.5).
+HANDSHAKE_TIMEOUT = 3.0
+#: A command with no echo after this many periods counts as late (it missed its tick).
+LATE_AFTER_PERIODS = 2.5
+
+_FAULTS = {
+    p.Status.WATCHDOG: "its watchdog tripped (no command reached it in time: the host loop "
+    "stalled or the link lost frames)",
+    p.Status.AMP_FAULT: "the amplifier reports a fault (check the supply and the motor cable)",
+    p.Status.STALL_ERROR: "the motor stalled under voltage for too long (free the load, then "
+    "re-arm)",
+}
+
+
+def _pyserial() -> Any:
+    try:
+        import serial
+    except ImportError:
+        raise HardwareError(
+            "serial backends need pyserial: pip install 'frictiongym[hardware]' (or pyserial)"
+        ) from None
+    return serial
+
+
+class SerialBackend(Backend):
+    """A device speaking :mod:`frictiongym.hardware.protocol` over a serial port or socket.
+
+    Parameters
+    ----------
+    port : str
+        A device path (``/dev/ttyACM0``, ``COM3``) or a pyserial URL (``socket://host:port``).
+    baud : int, default 1_000_000
+        Line rate (ignored by USB CDC boards, ptys and sockets).
+    timeout : float, optional
+        Longest wait for a state frame, s (default: five device periods, at least 0.1 s).
+    handshake_timeout : float, default 3.0
+        Longest wait for the device's ``Hello`` after opening.
+    """
+
+    def __init__(
+        self,
+        port: str,
+        *,
+        baud: int = DEFAULT_BAUD,
+        timeout: float | None = None,
+        handshake_timeout: float = HANDSHAKE_TIMEOUT,
+    ) -> None:
+        for name, value in (("timeout", timeout), ("handshake_timeout", handshake_timeout)):
+            if value is not None and not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+        if not (isinstance(baud, int) and baud > 0):
+            raise ValueError(f"baud must be a positive integer, got {baud!r}")
+        self.port = port
+        self.baud = baud
+        self.timeout = timeout
+        self.handshake_timeout = handshake_timeout
+        self.hello: p.Hello | None = None
+        self.decoder = p.FrameDecoder()
+        self._serial: Any = None
+        self._seq = 0
+        self._last: p.State | None = None
+
+    @classmethod
+    def from_uri(cls, path: str, query: dict[str, str]) -> SerialBackend:
+        """Build from ``serial://PATH?baud=N&timeout=S`` (or a pyserial URL and its query)."""
+        accepted = {"baud": int, "timeout": float}
+        unknown = set(query) - set(accepted)
+        if unknown:
+            raise ValueError(
+                f"unknown option(s) {sorted(unknown)} in the serial backend URI; accepted: "
+                f"{sorted(accepted)} (e.g. serial:///dev/ttyACM0?baud=1000000)"
+            )
+        kwargs: dict[str, Any] = {}
+        for key, kind in accepted.items():
+            if key in query:
+                try:
+                    kwargs[key] = kind(query[key])
+                except ValueError:
+                    raise ValueError(f"{key}={query[key]!r} in the URI is not a number") from None
+        return cls(path, **kwargs)
+
+    # -- link -------------------------------------------------------------------------------------
+
+    def _open(self) -> DeviceInfo:
+        serial = _pyserial()
+        try:
+            self._serial = serial.serial_for_url(
+                self.port, baudrate=self.baud, timeout=0.05, write_timeout=0.5
+            )
+        except (serial.SerialException, OSError, ValueError) as exc:
+            raise DeviceNotFoundError(
+                f"could not open {self.port!r}: {exc}. Check the path (ls /dev/ttyACM* "
+                "/dev/ttyUSB*), that the device is plugged in and that you may use it (the "
+                "dialout group); for the emulator, the URL it printed on its first line"
+            ) from None
+        try:
+            if hasattr(self._serial, "set_low_latency_mode"):
+                self._serial.set_low_latency_mode(True)  # not on ptys and sockets: fine
+        except (OSError, ValueError, AttributeError):
+            pass
+        try:
+            hello = self._handshake()
+        except BaseException:
+            self._serial.close()
+            raise
+        self.hello = hello
+        period = 1.0 / hello.rate_hz
+        if self.timeout is None:
+            self.timeout = max(0.1, 5.0 * period)
+        self._serial.timeout = min(self.timeout, 0.05)
+        return DeviceInfo(
+            kind=KINDS[hello.kind - 1],
+            rate_hz=float(hello.rate_hz),
+            command_limit=hello.command_limit / hello.command_scale,
+            command_step=1.0 / hello.command_scale,
+            counts_per_rev=hello.counts_per_rev,
+            watchdog_s=hello.watchdog_ms / 1000.0 if hello.watchdog_ms else None,
+            can_place=bool(hello.capabilities & p.Capability.PLACE),
+            distance_limit=bool(hello.capabilities & p.Capability.DISTANCE_LIMIT),
+            firmware=f"build {hello.firmware}",
+            link=f"frictiongym protocol {hello.version} on {self.port}",
+        )
+
+    def _handshake(self) -> p.Hello:
+        """Ask for a ``Hello`` until one comes (a booting Arduino misses the first requests)."""
+        self._serial.reset_input_buffer()
+        deadline = time.monotonic() + self.handshake_timeout
+        next_request = 0.0
+        while time.monotonic() < deadline:
+            if time.monotonic() >= next_request:
+                self._write(p.HelloRequest())
+                next_request = time.monotonic() + 0.25
+            for message in self.decoder.feed(self._read_available()):
+                if isinstance(message, p.Hello):
+                    return self._check_hello(message)
+        raise DeviceTimeoutError(
+            f"no answer from {self.port!r} within {self.handshake_timeout} s. Check that the "
+            "device runs the frictiongym firmware (firmware/README.md) at this baud rate "
+            f"({self.baud}), or that the emulator is running"
+        )
+
+    def _check_hello(self, hello: p.Hello) -> p.Hello:
+        if hello.version != p.PROTOCOL_VERSION:
+            raise ProtocolError(
+                f"the device at {self.port!r} speaks protocol version {hello.version}, this "
+                f"frictiongym speaks {p.PROTOCOL_VERSION}: update the firmware or frictiongym"
+            )
+        if hello.rate_hz <= 0 or hello.command_scale <= 0 or hello.command_limit <= 0:
+            raise ProtocolError(f"the device's Hello makes no sense: {hello}")
+        return hello
+
+    def _read_available(self) -> bytes:
+        """Read what arrived, waiting at most the port's timeout for a first byte."""
+        serial = _pyserial()
+        try:
+            waiting = self._serial.in_waiting
+            data: bytes = self._serial.read(max(1, waiting))
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnectedError(
+                f"the link to {self.port!r} went away ({exc}); check the cable and the device's "
+                "power, or whether the emulator stopped"
+            ) from None
+        return data
+
+    def _write(self, message: p.Message) -> None:
+        serial = _pyserial()
+        try:
+            self._serial.write(p.encode(message))
+        except serial.SerialTimeoutException:
+            raise DeviceTimeoutError(
+                f"writing to {self.port!r} timed out: the device stopped reading (check that it "
+                "is powered and not stuck)"
+            ) from None
+        except (serial.SerialException, OSError) as exc:
+            raise DeviceDisconnectedError(
+                f"could not write to {self.port!r} ({exc}); check the cable and the device"
+            ) from None
+
+    def _opened(self) -> p.Hello:
+        if self.hello is None or self._serial is None:
+            raise HardwareError(f"{self.port!r} is not open: call open() or start() first")
+        return self.hello
+
+    # -- states -----------------------------------------------------------------------------------
+
+    def _states(self, wait: bool) -> list[p.State]:
+        """Decode the states that arrived (waiting up to the port timeout if ``wait``)."""
+        data = self._read_available() if wait or self._serial.in_waiting else b""
+        states = []
+        for message in self.decoder.feed(data):
+            if isinstance(message, p.State):
+                states.append(message)
+            elif isinstance(message, p.Hello):
+                raise DeviceFaultError(
+                    f"the device at {self.port!r} restarted mid-run (it sent a Hello); check its "
+                    "power supply, then start a new episode"
+                )
+        return states
+
+    def _await(self, seq: int) -> Sample:
+        """Block until the state that echoes command ``seq`` (or report the command late)."""
+        period = 1.0 / self._opened().rate_hz
+        sent = time.monotonic()
+        newest: p.State | None = None
+        while True:
+            for state in self._states(wait=True):
+                newest = state
+                if state.seq_applied == seq:
+                    return self._sample(state, late=False)
+            waited = time.monotonic() - sent
+            if newest is not None and waited > LATE_AFTER_PERIODS * period:
+                return self._sample(newest, late=True)
+            if waited > (self.timeout or 0.0):
+                raise DeviceTimeoutError(
+                    f"no state frame from {self.port!r} for {waited:.3f} s (the device ticks "
+                    f"every {period * 1000:.1f} ms): the device stopped or the link is down"
+                )
+
+    def _sample(self, state: p.State, late: bool) -> Sample:
+        hello = self._opened()
+        if state.status & p.FAULT_BITS:
+            reasons = "; ".join(text for bit, text in _FAULTS.items() if state.status & bit)
+            raise DeviceFaultError(f"the device at {self.port!r} stopped its motor: {reasons}")
+        skipped = 0
+        if self._last is not None:
+            skipped = max(0, ((state.seq - self._last.seq) & 0xFFFF) - 1)
+        self._last = state
+        if hello.counts_per_rev:  # the same float product as the simulated encoder
+            measured = state.sensor * (2.0 * math.pi / hello.counts_per_rev)
+        else:
+            measured = float(state.sensor)
+        return Sample(
+            measured=measured,
+            applied=state.applied / hello.command_scale,
+            tick_us=state.tick_us,
+            host_ns=time.perf_counter_ns(),
+            seq=state.seq,
+            seq_applied=state.seq_applied,
+            status=int(state.status),
+            late=late,
+            skipped=skipped,
+        )
+
+    def _send(self, command: float, flags: p.Flag) -> int:
+        hello = self.hello
+        assert hello is not None
+        counts = max(
+            -hello.command_limit, min(hello.command_limit, round(command * hello.command_scale))
+        )
+        self._seq = (self._seq + 1) & 0xFFFF
+        self._write(p.Command(seq=self._seq, command=counts, flags=flags))
+        return self._seq
+
+    # -- Backend ----------------------------------------------------------------------------------
+
+    def _start(self, zero_position: bool) -> Sample:
+        flags = p.Flag.ENABLE | p.Flag.REARM
+        if zero_position and self.info is not None and self.info.counts_per_rev:
+            flags |= p.Flag.ZERO_POSITION
+        self._states(wait=False)  # drop states of before the start
+        self._last = None
+        return self._await(self._send(0.0, flags))
+
+    def _exchange(self, command: float) -> Sample:
+        return self._await(self._send(command, p.Flag.ENABLE))
+
+    def _place(self, position: float) -> None:
+        self._write(p.Place(float(position)))
+
+    def _stop(self) -> None:
+        if self._serial is None or not self._serial.is_open:
+            return
+        for _ in range(2):  # a second copy in case the first is corrupted on the line
+            self._send(0.0, p.Flag.ESTOP)
+        try:
+            self._serial.flush()
+        except Exception:  # the link may be gone; the device's watchdog covers that
+            pass
+
+    def _close(self) -> None:
+        if self._serial is not None:
+            self._serial.close()
+            self._serial = None
+            self.hello = None
