@@ -220,13 +220,20 @@ def test_every_named_law_runs(env_id, friction):
         ({"sensor_noise": -1.0}, "sensor_noise must be >= 0"),
         ({"dt": 0.0}, "dt must be > 0"),
         ({"delay": 0.003}, "whole number of control"),
-        ({"backend": "serial:///dev/ttyACM0"}, "simulator only"),
+        ({"backend": "ftp://device"}, "unknown backend"),
+        ({"backend": "serial:///dev/ttyACM0", "randomize": {"friction": (0.9, 1.1)}}, "not with"),
+        ({"log": False}, "settings of device runs"),
         ({"render_mode": "ascii"}, "render_mode must be one of"),
     ],
 )
 def test_bad_arguments_say_what_is_wrong(kwargs, match):
     with pytest.raises((ValueError, TypeError), match=match):
         gym.make(SERVO, **kwargs)
+
+
+def test_a_missing_port_says_what_to_check():
+    with pytest.raises(FileNotFoundError, match="could not open '/dev/frictiongym-none'.*plugged in"):
+        gym.make(SERVO, backend="/dev/frictiongym-none")
 
 
 def test_reset_options_set_the_start_and_one_episodes_reference():

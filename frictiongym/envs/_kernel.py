@@ -131,43 +131,79 @@ def _env_element(
         pk.step_plant(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row,
                       False, delayed)  # fmt: skip
         state[i, E_STEPS] += 1.0
-    t = state[i, E_STEPS] * dt
     x = state[i, pk.S_X]
     noise = 0.0
     if config[C_NOISE] > 0.0:
         noise = config[C_NOISE] * _normal(rng, i)
-    quantize = config[C_QUANTIZE] != 0.0
     if config[C_SENSOR] == SENSOR_ENCODER:
         position, velocity = x, state[i, pk.S_V]
         measured = rows[i, T_GAIN] * x + noise
-        if quantize:
+        if config[C_QUANTIZE] != 0.0:
             measured = encoder_angle(measured, config[C_ENCODER_STEP])
-        estimate = measured
-        terminated = abs(x) > config[C_LIMIT]
     else:  # IR: the plant moves toward the wall, so the distance is -x
         position, velocity = -x, -state[i, pk.S_V]
         if position <= 0.0:  # touching the wall: the nearest reading
             measured = float(IR_MAX_READOUT)
         else:
-            measured = ir_count(position, rows[i, T_GAIN], rows[i, T_OFFSET], noise, quantize)
+            measured = ir_count(
+                position, rows[i, T_GAIN], rows[i, T_OFFSET], noise, config[C_QUANTIZE] != 0.0
+            )
+    umax = plant_rows[0 if one_row else i, pk.I_UMAX]
+    _observe(i, measured, position, velocity, state[i, pk.S_COMMAND], umax, dt, state, rows,
+             config, fresh, obs, out, flags, False)  # fmt: skip
+    flags[F_STUCK, i] = state[i, pk.S_STUCK] != 0.0
+
+
+@njit(cache=True, inline="always")
+def _observe(
+    i: int,
+    measured: float,
+    position: float,
+    velocity: float,
+    applied: float,
+    umax: float,
+    dt: float,
+    state: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+    measured_only: bool,
+) -> None:
+    """Turn env ``i``'s sensor reading into its observation, reward and episode end.
+
+    The simulator and a device share this: ``measured`` is the encoder angle (rad) or the IR
+    readout. A device knows no true ``position`` and ``velocity``; with ``measured_only`` the
+    estimates stand for them in the reward, the limit and the outputs.
+    """
+    t = state[i, E_STEPS] * dt
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        estimate = measured
+    else:
         estimate = ir_estimate(measured)
-        terminated = position <= config[C_LIMIT]
     if fresh[i]:
         estimated_velocity = 0.0
     else:
         estimated_velocity = derivative_update(
             state[i, E_VELOCITY], estimate, state[i, E_ESTIMATE], config[C_POLE], dt
         )
+    if measured_only:
+        position, velocity = estimate, estimated_velocity
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        terminated = abs(position) > config[C_LIMIT]
+    else:
+        terminated = position <= config[C_LIMIT]
     reference = reference_at(t, rows, i, T_REF)
     state[i, E_ESTIMATE] = estimate
     state[i, E_VELOCITY] = estimated_velocity
     state[i, E_REFERENCE] = reference
 
-    applied = state[i, pk.S_COMMAND]
     if fresh[i]:
         reward, terminated, truncated = 0.0, False, False
     else:
-        effort = applied / plant_rows[0 if one_row else i, pk.I_UMAX]
+        effort = applied / umax
         reward = -(
             abs(reference - position) / config[C_ERROR_SCALE]
             + config[C_EFFORT_WEIGHT] * effort * effort
@@ -190,7 +226,31 @@ def _env_element(
     out[O_TIME, i] = t
     flags[F_TERMINATED, i] = terminated
     flags[F_TRUNCATED, i] = truncated
-    flags[F_STUCK, i] = state[i, pk.S_STUCK] != 0.0
+
+
+@njit(cache=True)
+def observe_device(
+    state: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    config: npt.NDArray[np.float64],
+    measured: float,
+    applied: float,
+    umax: float,
+    dt: float,
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Observe a device's sample as env 0 (a step, or the first sample if ``fresh[0]``).
+
+    The same :func:`_observe` as the simulator's: identical readings give identical observations.
+    """
+    if not fresh[0]:
+        state[0, E_STEPS] += 1.0
+    _observe(0, measured, measured, 0.0, applied, umax, dt, state, rows, config, fresh, obs,
+             out, flags, True)  # fmt: skip
+    flags[F_STUCK, 0] = False
 
 
 @njit(cache=True)

@@ -9,18 +9,21 @@ trajectories for the same actions.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
+from gymnasium.envs.registration import EnvSpec
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.core import Device, Simulation
+from frictiongym.hardware import SIM
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import IR_MAX_READOUT, ir_estimate
 
@@ -52,14 +55,28 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         "render_fps": _RENDER_FPS,
     }
 
-    def __init__(self, *, render_mode: str | None = None, **kwargs: Any) -> None:
+    def __init__(
+        self, *, render_mode: str | None = None, backend: object = "sim", **kwargs: Any
+    ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
         self.render_mode = render_mode
-        self.sim = Simulation(self.device, 1, **kwargs)
+        self._spec: EnvSpec | None = None
+        self.sim: Simulation
+        if backend is None or backend in SIM:
+            device_only = sorted({"log", "run_metadata"} & set(kwargs))
+            if device_only:
+                raise ValueError(f"{device_only} are settings of device runs (backend=...)")
+            self.sim = Simulation(self.device, 1, **kwargs)
+        else:
+            from frictiongym.envs.device import DeviceSession
+
+            self.sim = DeviceSession(self.device, backend, **kwargs)
+        #: Whether a device backend runs the env (then it is nondeterministic).
+        self.on_device = type(self.sim) is not Simulation
         self.dt = self.sim.dt
         self.action_space, self.observation_space = _spaces(self.device, self.sim)
         self._command = np.zeros(1)
@@ -69,6 +86,17 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
         self._window: Any = None
         self._render_every = max(1, round(1.0 / (_RENDER_FPS * self.dt)))
+
+    @property
+    def spec(self) -> EnvSpec | None:
+        """The env's spec; on a device, marked nondeterministic whatever the id registered."""
+        return self._spec
+
+    @spec.setter
+    def spec(self, value: EnvSpec | None) -> None:
+        if value is not None and getattr(self, "on_device", False) and not value.nondeterministic:
+            value = replace(value, nondeterministic=True)
+        self._spec = value
 
     def _info(self) -> dict[str, Any]:
         out = self._out[:, 0].tolist()
@@ -86,6 +114,8 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
     ) -> tuple[ObsArray, dict[str, Any]]:
         """Start an episode at rest (or as ``options`` say); see the class docstring."""
         super().reset(seed=seed)
+        if self.on_device and self.spec is not None:  # zero the motor at the registered limit
+            self.sim.episode_steps = self.spec.max_episode_steps  # type: ignore[attr-defined]
         self._fresh[0] = True
         self.sim.prepare_reset(self._fresh, lambda _: self.np_random, options)
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
@@ -131,10 +161,11 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         return None
 
     def close(self) -> None:
-        """Close the window, if one is open."""
+        """Close the window, if one is open, and a device's link (its motor zeroed first)."""
         if self._window is not None:
             self._window.close()
             self._window = None
+        self.sim.close()
 
     def __getstate__(self) -> dict[str, Any]:
         """Pickle without the window (it is reopened on the next render)."""
@@ -147,6 +178,9 @@ def _frame(sim: Simulation, i: int) -> npt.NDArray[np.uint8]:
     from frictiongym.envs import rendering
 
     x = float(sim.state[i, pk.S_X])
+    if type(sim) is not Simulation:  # a device: draw what it measured
+        estimate = float(sim.state[i, ek.E_ESTIMATE])
+        x = estimate if sim.device.sensor == ek.SENSOR_ENCODER else -estimate
     reference = float(sim.state[i, ek.E_REFERENCE])
     stuck = bool(sim.state[i, pk.S_STUCK] != 0.0)
     if sim.device.sensor == ek.SENSOR_ENCODER:
@@ -175,6 +209,12 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
     ) -> None:
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"the vector env renders 'rgb_array' only, got {render_mode!r}")
+        backend = kwargs.pop("backend", "sim")
+        if backend is not None and backend not in SIM:
+            raise ValueError(
+                f"backend={backend!r}: a device is one env; make it with gym.make (the vector "
+                "env simulates only)"
+            )
         self.render_mode = render_mode
         self.sim = Simulation(
             self.device, num_envs, max_episode_steps=max_episode_steps, parallel=parallel, **kwargs

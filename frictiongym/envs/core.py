@@ -32,8 +32,6 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: Keys accepted in ``reset(options=...)``.
 RESET_OPTIONS = ("position", "velocity", "reference")
-#: Backends this version provides.
-SIM_BACKENDS = ("sim", "sim://")
 
 
 @dataclass(frozen=True)
@@ -139,8 +137,6 @@ class Simulation:
         the registered ``TimeLimit``).
     parallel : bool, optional
         Use numba's threads (default: for batches of ``PARALLEL_MIN_PLANTS`` or more).
-    backend : str, default "sim"
-        Only the simulator exists in this version.
     """
 
     device: Device
@@ -184,13 +180,7 @@ class Simulation:
         limit_penalty: float | None = None,
         max_episode_steps: int | None = None,
         parallel: bool | None = None,
-        backend: str = "sim",
     ) -> None:
-        if backend not in SIM_BACKENDS:
-            raise ValueError(
-                f"unknown backend {backend!r}: this version runs the simulator only "
-                f"(backend='sim'); device backends are not implemented yet"
-            )
         if not isinstance(num_envs, numbers.Integral) or num_envs < 1:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.device = device
@@ -278,6 +268,9 @@ class Simulation:
             parallel = n >= PARALLEL_MIN_PLANTS and numba.config.NUMBA_NUM_THREADS > 1
         self.parallel = bool(parallel)
         self._kernel = ek.step_envs_parallel if self.parallel else ek.step_envs
+
+    def close(self) -> None:
+        """Release what the simulation holds (nothing; a device session closes its link)."""
 
     @property
     def observation_size(self) -> int:

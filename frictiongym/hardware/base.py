@@ -86,6 +86,11 @@ class Backend(ABC):
         """Whether the link is open."""
         return self.info is not None
 
+    @property
+    def armed(self) -> bool:
+        """Whether the device is armed (between :meth:`start` and :meth:`stop`)."""
+        return self._armed
+
     def open(self) -> DeviceInfo:
         """Open the link and check the device (idempotent); return what it is."""
         if self.info is None:

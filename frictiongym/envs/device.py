@@ -1,0 +1,233 @@
+"""One env on a device: the simulated env's task around a hardware backend's samples.
+
+:class:`DeviceSession` is a :class:`~frictiongym.envs.core.Simulation` of one whose plant step
+is replaced by the device's: the reference, the observation, the reward and the limits come
+from the same compiled code (:func:`frictiongym.envs._kernel.observe_device`), so a device
+whose readings equal the simulator's gives the same observations bit for bit. The device
+knows no true state: ``info["position"]`` and ``info["velocity"]`` are the estimates.
+
+Every run is logged as it goes (:mod:`frictiongym.hardware.runlog`), and the motor is zeroed
+when an episode ends (termination, the registered step limit), on close and on any error.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.core import BoolArray, Device, FloatArray, Simulation
+from frictiongym.hardware import resolve_backend
+from frictiongym.hardware.base import Backend, DeviceInfo, Sample
+from frictiongym.hardware.errors import HardwareError, ProtocolError
+from frictiongym.hardware.protocol import Status
+from frictiongym.hardware.runlog import RunLog, Timing, default_directory, read_steps
+
+#: Simulator-only settings, refused with a device (what each would need to mean there).
+SIM_ONLY = {
+    "friction": "the device has its own friction; use params= for the compensators' model",
+    "plant": "the device is the plant; use params= for the compensators' model",
+    "randomize": "domain randomisation is for training in simulation",
+    "sensor_noise": "the device's sensor has its own noise",
+    "delay": "the device's dead time is what it is",
+    "parallel": "a device is one env",
+}
+#: Env kinds of the device names.
+KIND_OF = {"RotaryServo": "rotary", "AltinoDistance": "altino"}
+
+
+class DeviceSession(Simulation):
+    """The env core of one env on a device (see the module docstring).
+
+    Parameters
+    ----------
+    device : Device
+        The env's device description.
+    backend : str or Backend
+        The device (:func:`frictiongym.hardware.resolve_backend`); opened here.
+    log : bool, str or PathLike, default True
+        Log the run: True writes to a new directory under ``$FRICTIONGYM_RUNS`` (default
+        ``./frictiongym-runs``), a path to that directory, False to nothing.
+    run_metadata : mapping, optional
+        Added to the log's ``meta.json`` (e.g. the controller and its gains).
+    **kwargs
+        The task's settings, as :class:`Simulation` takes them (``reference``, ``params``,
+        ``effort_weight``, ``safety_limit``, ``limit_penalty``, ``dt`` if it is the
+        device's period, ``quantize=True``).
+    """
+
+    backend: Backend
+    info: DeviceInfo
+    log: RunLog | None
+    last_sample: Sample | None
+    last_sample_ns: int
+    episode: int
+    #: Zero the motor after this many steps (the registered limit; set by the env at reset).
+    episode_steps: int | None
+
+    def __init__(
+        self,
+        device: Device,
+        backend: object,
+        *,
+        log: bool | str | os.PathLike[str] = True,
+        run_metadata: Mapping[str, Any] | None = None,
+        **kwargs: Any,
+    ) -> None:
+        refused = [k for k, v in kwargs.items() if k in SIM_ONLY and v not in (None, False)]
+        if kwargs.get("friction") == "paper":
+            refused.remove("friction")
+        if refused:
+            raise ValueError(
+                "not with a device backend: " + "; ".join(f"{k} ({SIM_ONLY[k]})" for k in refused)
+            )
+        if kwargs.get("quantize", True) is not True:
+            raise ValueError("quantize=False is not possible on a device: its sensor quantises")
+        kind = KIND_OF[device.name]
+        resolved = resolve_backend(backend, kind)
+        if resolved is None:
+            raise ValueError("DeviceSession needs a device backend, not the simulator")
+        self.backend = resolved
+        self.info = resolved.open()
+        try:
+            if self.info.kind != kind:
+                raise ProtocolError(
+                    f"the device at {self.info.link} is a {self.info.kind}, but this env drives "
+                    f"a {kind}: pick the env of that device or the other port"
+                )
+            dt = 1.0 / self.info.rate_hz
+            given = kwargs.pop("dt", None)
+            if given is not None and abs(given - dt) > 1e-9 * dt:
+                raise ValueError(
+                    f"dt={given!r} s, but the device ticks every {dt!r} s and its clock paces "
+                    "the loop; omit dt (or change the firmware's rate)"
+                )
+            kwargs = {k: v for k, v in kwargs.items() if k not in SIM_ONLY}
+            super().__init__(device, 1, dt=dt, **kwargs)
+            self.log = None
+            if log is not False:
+                directory = default_directory(device.name) if log is True else Path(log)
+                self.log = RunLog(directory, device.observation_names, self._metadata(run_metadata))
+        except BaseException:
+            self.backend.close()
+            raise
+        self.last_sample = None
+        self.last_sample_ns = 0
+        self.episode = -1
+        self.episode_steps = None
+        self._first: Sample | None = None
+        self._periods: list[float] = []
+        self._late = 0
+        self._skipped = 0
+
+    def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
+        return {
+            "device": self.device.name,
+            "backend": self.info,
+            "dt": self.dt,
+            "reference": repr(self.reference),
+            "params": None if self.params is None else self.params.to_dict(),
+            "model_friction": self.model_friction,
+            "safety_limit": self.limit,
+            **(extra or {}),
+        }
+
+    def prepare_reset(
+        self,
+        mask: BoolArray,
+        rng_of: Callable[[int], np.random.Generator],
+        options: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Stop the motor, put the device at its start if it can be placed, and arm it."""
+        options = dict(options or {})
+        position = options.pop("position", None)
+        if options.pop("velocity", 0.0) != 0.0:
+            raise ValueError("a device starts at rest: reset option 'velocity' must be 0")
+        self.backend.stop()
+        if self.info.can_place:
+            start = self.device.start if position is None else position
+            self._start_state({"position": start}, 1)  # the simulator's checks of the option
+            self.backend.place(float(start))
+        elif position is not None:
+            raise ValueError(
+                "this device cannot be moved to a position; omit reset option 'position' (the "
+                "servo's encoder is zeroed where the disk is; put the Altino at its start by hand)"
+            )
+        super().prepare_reset(mask, rng_of, options)
+        self._first = self.backend.start(zero_position=True)
+        self.episode += 1
+
+    def run(
+        self,
+        command: npt.NDArray[np.floating[Any]],
+        fresh: BoolArray,
+        obs: npt.NDArray[np.float32],
+        out: FloatArray,
+        flags: BoolArray,
+    ) -> None:
+        """Hold ``command[0]`` on the device for one period (or observe its first sample)."""
+        requested = float(command[0])
+        if fresh[0]:
+            if self._first is None:
+                raise HardwareError("reset() the env before stepping it")
+            sample = self._first
+            self._first = None
+        else:
+            if not self.backend.armed:
+                raise HardwareError(
+                    "the episode ended and the device was stopped; call reset() to start another"
+                )
+            sample = self.backend.step(requested)
+        ek.observe_device(self.state, self.rows, self.config, sample.measured, sample.applied,
+                          self.plant.command_limit, self.dt, fresh, obs, out, flags)  # fmt: skip
+        if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
+            if not flags[ek.F_TERMINATED, 0]:
+                out[ek.O_REWARD, 0] -= self.config[ek.C_PENALTY]
+            flags[ek.F_TERMINATED, 0] = True
+        self.last_sample = sample
+        self._account(sample, not fresh[0], requested if not fresh[0] else 0.0, obs, out, flags)
+        steps = self.state[0, ek.E_STEPS]
+        if flags[ek.F_TERMINATED, 0] or (self.episode_steps and steps >= self.episode_steps):
+            self.backend.stop()
+
+    def _account(
+        self,
+        sample: Sample,
+        requested_step: bool,
+        requested: float,
+        obs: npt.NDArray[np.float32],
+        out: FloatArray,
+        flags: BoolArray,
+    ) -> None:
+        previous = self.last_sample_ns
+        self.last_sample_ns = sample.host_ns
+        if requested_step:
+            self._periods.append((sample.host_ns - previous) * 1e-9)
+            self._late += sample.late
+            self._skipped += sample.skipped
+        if self.log is None:
+            return
+        self.log.record((
+            self.episode, int(self.state[0, ek.E_STEPS]), out[ek.O_TIME, 0], sample.host_ns,
+            sample.tick_us, sample.seq, sample.seq_applied, int(sample.late), sample.skipped,
+            sample.status, requested, sample.applied, sample.measured, *obs[0].tolist(),
+            out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
+        ))  # fmt: skip
+
+    def timing(self) -> Timing:
+        """Return the timing statistics of every step so far (all episodes)."""
+        return Timing.from_periods(self._periods, self.dt, self._late, self._skipped)
+
+    def close(self) -> None:
+        """Zero the motor, close the link and finish the log (idempotent)."""
+        self.backend.close()
+        if self.log is not None and not self.log.closed:
+            self.log.close(timing=self.timing() if self._periods else None)
+
+
+__all__ = ["SIM_ONLY", "DeviceSession", "read_steps"]

@@ -1,0 +1,97 @@
+"""``emulator://``: an emulated device in this process, driven through the real serial path.
+
+:class:`EmulatedBackend` starts an :class:`~frictiongym.hardware.emulator.Emulator` on a
+pseudo-terminal when it opens and talks to it with :class:`SerialBackend`, so everything
+between the env and the bytes on the wire is what a device run uses. ``gym.make(ID,
+backend="emulator://")`` is the quickest way to try the hardware path without hardware.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+from frictiongym.hardware.base import KINDS, DeviceInfo
+from frictiongym.hardware.serial_backend import SerialBackend
+
+_TRUE = ("1", "true", "yes", "on")
+_FALSE = ("0", "false", "no", "off", "")
+
+
+def _flag(key: str, text: str) -> bool:
+    if text.lower() in _TRUE:
+        return True
+    if text.lower() in _FALSE:
+        return False
+    raise ValueError(f"{key}={text!r} in the emulator URI must be 1 or 0")
+
+
+class EmulatedBackend(SerialBackend):
+    """A :class:`SerialBackend` on its own in-process emulator of ``kind``.
+
+    Parameters
+    ----------
+    kind : str
+        ``"rotary"`` or ``"altino"``.
+    lockstep : bool, default False
+        Tick the emulated device once per command instead of in real time (exact and
+        independent of the host's speed; for tests and reproducible comparisons).
+    **emulator
+        More :class:`~frictiongym.hardware.emulator.Emulator` settings: ``params``,
+        ``friction``, ``sensor_noise``, ``watchdog_ms``, ``seed``, ``faults``.
+    """
+
+    def __init__(self, kind: str = "rotary", *, lockstep: bool = False, **emulator: Any) -> None:
+        if kind not in KINDS:
+            raise ValueError(f"unknown device kind {kind!r}; emulate one of {list(KINDS)}")
+        super().__init__("(emulator not started)")
+        self.kind = kind
+        self.lockstep = lockstep
+        self.emulator_settings = emulator
+        self.emulator: Any = None
+
+    @classmethod
+    def from_uri(cls, path: str, query: dict[str, str]) -> EmulatedBackend:
+        """Build from ``emulator://KIND?lockstep=1&params=PATH&friction=LAW&noise=1&seed=N``."""
+        accepted = ("lockstep", "params", "friction", "noise", "seed", "watchdog_ms")
+        unknown = sorted(set(query) - set(accepted))
+        if unknown:
+            raise ValueError(
+                f"unknown option(s) {unknown} in the emulator URI; accepted: {list(accepted)} "
+                "(e.g. emulator://rotary?lockstep=1)"
+            )
+        settings: dict[str, Any] = {}
+        if "params" in query:
+            settings["params"] = os.fspath(query["params"])
+        if "friction" in query:
+            settings["friction"] = query["friction"]
+        if "noise" in query:
+            settings["sensor_noise"] = _flag("noise", query["noise"])
+        for key in ("seed", "watchdog_ms"):
+            if key in query:
+                try:
+                    settings[key] = int(query[key])
+                except ValueError:
+                    raise ValueError(f"{key}={query[key]!r} in the URI must be an integer") from None
+        lockstep = _flag("lockstep", query.get("lockstep", "0"))
+        return cls(path.strip("/") or "rotary", lockstep=lockstep, **settings)
+
+    def _open(self) -> DeviceInfo:
+        from frictiongym.hardware.emulator import Emulator
+
+        self.emulator = Emulator(self.kind, lockstep=self.lockstep, **self.emulator_settings)
+        try:
+            self.port = self.emulator.serve_pty()
+            return super()._open()
+        except BaseException:
+            self.emulator.close()
+            self.emulator = None
+            raise
+
+    def _close(self) -> None:
+        try:
+            super()._close()
+        finally:
+            if self.emulator is not None:
+                self.emulator.close()
+                self.emulator = None

@@ -1,0 +1,197 @@
+"""Run logs of device runs: one CSV row per step as it happens, plus JSON metadata.
+
+A run directory holds ``steps.csv`` (a row written and flushed per step, so an interrupted run
+loses nothing already recorded) and ``meta.json`` (parameters, controller, software version,
+device, and, from :meth:`RunLog.close`, the timing statistics), rewritten atomically whenever it
+changes. :func:`read_steps` reads a log back as numpy columns.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import platform
+import sys
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+#: Columns of ``steps.csv`` before the observation's (which are named by the env).
+STEP_COLUMNS = (
+    "episode", "step", "time", "host_ns", "tick_us", "seq", "seq_applied", "late", "skipped",
+    "status", "requested", "applied", "measured",
+)  # fmt: skip
+#: Columns after the observation's.
+RESULT_COLUMNS = ("reward", "terminated")
+#: Where runs go when the env is not told: ``$FRICTIONGYM_RUNS`` or ``./frictiongym-runs``.
+DEFAULT_ROOT = "frictiongym-runs"
+
+
+def default_directory(device: str) -> Path:
+    """Return a new run directory under ``$FRICTIONGYM_RUNS`` (default ./frictiongym-runs)."""
+    root = Path(os.environ.get("FRICTIONGYM_RUNS", DEFAULT_ROOT))
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    return root / f"{stamp}-{device}-{os.getpid()}"
+
+
+def write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
+    """Write ``data`` as JSON to ``path`` through a temporary file: never half-written."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w") as handle:
+            json.dump(data, handle, indent=2, default=_jsonable)
+            handle.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if hasattr(value, "__dataclass_fields__"):
+        return asdict(value)
+    return repr(value)
+
+
+def software() -> dict[str, str]:
+    """Versions that produced a run."""
+    from frictiongym import __version__
+
+    return {
+        "frictiongym": __version__,
+        "python": sys.version.split()[0],
+        "numpy": np.__version__,
+        "platform": platform.platform(),
+    }
+
+
+@dataclass(frozen=True)
+class Timing:
+    """How well a run kept its period (from the host's arrival times and device ticks)."""
+
+    steps: int  #: steps timed (each after a previous step of its episode)
+    duration: float  #: s, host clock, summed over the timed steps
+    rate_hz: float  #: achieved steps per second
+    period_p50: float  #: median |host period - dt|, s
+    period_p99: float
+    period_max: float
+    late: int  #: commands that missed their tick and were held one period late
+    skipped: int  #: device ticks without a host step (missed deadlines)
+
+    @classmethod
+    def from_periods(
+        cls, periods: npt.ArrayLike, dt: float, late: int = 0, skipped: int = 0
+    ) -> Timing:
+        """Statistics of the host periods (s) between consecutive steps, for a period ``dt``."""
+        p = np.asarray(periods, dtype=np.float64)
+        error = np.abs(p - dt) if p.size else np.zeros(1)
+        duration = float(p.sum())
+        return cls(
+            steps=int(p.size),
+            duration=duration,
+            rate_hz=p.size / duration if duration > 0 else math.nan,
+            period_p50=float(np.percentile(error, 50)),
+            period_p99=float(np.percentile(error, 99)),
+            period_max=float(error.max()),
+            late=int(late),
+            skipped=int(skipped),
+        )
+
+
+class RunLog:
+    """The log of one device run (any number of episodes).
+
+    Parameters
+    ----------
+    directory : path
+        Created if missing; must not already hold a log.
+    observation_names : sequence of str
+        Names of the observation's entries (CSV columns ``obs_<name>``).
+    metadata : mapping
+        Written to ``meta.json`` at once (parameters, device, controller...).
+    """
+
+    def __init__(
+        self,
+        directory: str | os.PathLike[str],
+        observation_names: Sequence[str],
+        metadata: Mapping[str, Any],
+    ) -> None:
+        self.directory = Path(directory)
+        if self.directory.exists() and not self.directory.is_dir():
+            raise FileExistsError(f"the run log directory {self.directory} is a file; pick another")
+        self.directory.mkdir(parents=True, exist_ok=True)
+        self.steps_path = self.directory / "steps.csv"
+        self.meta_path = self.directory / "meta.json"
+        if self.steps_path.exists():
+            raise FileExistsError(
+                f"{self.steps_path} already exists; give each run its own directory (or omit "
+                "the log directory for a new time-stamped one)"
+            )
+        self.columns = (*STEP_COLUMNS, *(f"obs_{n}" for n in observation_names), *RESULT_COLUMNS)
+        self.metadata: dict[str, Any] = {
+            "format": "frictiongym.runlog/1",
+            "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            "software": software(),
+            "columns": list(self.columns),
+            **metadata,
+        }
+        write_json_atomic(self.meta_path, self.metadata)
+        self._file = self.steps_path.open("w", newline="", buffering=1)
+        self._writer = csv.writer(self._file)
+        self._writer.writerow(self.columns)
+        self._file.flush()
+        self.rows = 0
+        self._opened = time.monotonic()
+
+    @property
+    def closed(self) -> bool:
+        """Whether :meth:`close` ran."""
+        return self._file.closed
+
+    def record(self, row: Sequence[object]) -> None:
+        """Append one step (values in :attr:`columns` order) and flush it to the file."""
+        self._writer.writerow(row)
+        self._file.flush()
+        self.rows += 1
+
+    def update(self, **metadata: Any) -> None:
+        """Add to ``meta.json`` (rewritten atomically)."""
+        self.metadata.update(metadata)
+        write_json_atomic(self.meta_path, self.metadata)
+
+    def close(self, **metadata: Any) -> None:
+        """Close ``steps.csv`` and write the final metadata (idempotent)."""
+        if self.closed:
+            return
+        self._file.close()
+        self.update(
+            ended=datetime.now(timezone.utc).isoformat(timespec="seconds"),
+            rows=self.rows,
+            **metadata,
+        )
+
+
+def read_steps(directory: str | os.PathLike[str]) -> dict[str, npt.NDArray[np.float64]]:
+    """Read a run's ``steps.csv`` as float columns by name (a partial last line is dropped)."""
+    path = Path(directory) / "steps.csv"
+    with path.open(newline="") as handle:
+        rows = list(csv.reader(handle))
+    if not rows:
+        raise ValueError(f"{path} is empty: not a frictiongym run log")
+    header, body = rows[0], [r for r in rows[1:] if len(r) == len(rows[0])]
+    data = np.array(body, dtype=np.float64).reshape(len(body), len(header))
+    return {name: data[:, j] for j, name in enumerate(header)}
