@@ -72,7 +72,7 @@ class EmulatedBackend(SerialBackend):
                 try:
                     settings[key] = int(query[key])
                 except ValueError:
-                    raise ValueError(f"{key}={query[key]!r} in the URI must be an integer") from None
+                    raise ValueError(f"{key}={query[key]!r} must be an integer") from None
         lockstep = _flag("lockstep", query.get("lockstep", "0"))
         return cls(path.strip("/") or "rotary", lockstep=lockstep, **settings)
 
