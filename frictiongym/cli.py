@@ -120,6 +120,14 @@ TOOLS = {
         "frictiongym.tuning.command",
         "the paper's random-search PID tuning against rise/peak/settling/overshoot specs",
     ),
+    "sim2real": (
+        "frictiongym.sim2real.command",
+        "run a controller on a device and in simulation; report the gap and the loop timing",
+    ),
+    "emulate": (
+        "frictiongym.hardware.command",
+        "emulate a QUBE-Servo 2 or an Altino behind the device protocol (pty or TCP)",
+    ),
 }
 
 
@@ -180,10 +188,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help()
         return 0
-    if hasattr(args, "duration") and not (math.isfinite(args.duration) and args.duration > 0):
-        parser.error(f"--duration must be a positive number of seconds, got {args.duration}")
-    if hasattr(args, "reference") and not (math.isfinite(args.reference) and args.reference):
-        parser.error(f"--reference must be a nonzero finite angle in rad, got {args.reference}")
+    if args.command == "demo":
+        if not (math.isfinite(args.duration) and args.duration > 0):
+            parser.error(f"--duration must be a positive number of seconds, got {args.duration}")
+        if not (math.isfinite(args.reference) and args.reference):
+            parser.error(f"--reference must be a nonzero finite angle in rad, got {args.reference}")
     try:
         status: int = args.func(args)
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error

@@ -114,8 +114,6 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
     ) -> tuple[ObsArray, dict[str, Any]]:
         """Start an episode at rest (or as ``options`` say); see the class docstring."""
         super().reset(seed=seed)
-        if self.on_device and self.spec is not None:  # zero the motor at the registered limit
-            self.sim.episode_steps = self.spec.max_episode_steps  # type: ignore[attr-defined]
         self._fresh[0] = True
         self.sim.prepare_reset(self._fresh, lambda _: self.np_random, options)
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)

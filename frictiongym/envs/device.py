@@ -7,7 +7,10 @@ whose readings equal the simulator's gives the same observations bit for bit. Th
 knows no true state: ``info["position"]`` and ``info["velocity"]`` are the estimates.
 
 Every run is logged as it goes (:mod:`frictiongym.hardware.runlog`), and the motor is zeroed
-when an episode ends (termination, the registered step limit), on close and on any error.
+when an episode terminates, at the next ``reset()``, on close and on any error. A time limit
+(Gymnasium's ``TimeLimit`` wrapper) ends an episode outside the env, which cannot see it: the
+motor then holds its last command until the next ``reset()`` or ``close()``, or until the
+device's watchdog stops it (20 ms on the servo) if the host sends nothing more.
 """
 
 from __future__ import annotations
@@ -67,8 +70,6 @@ class DeviceSession(Simulation):
     last_sample: Sample | None
     last_sample_ns: int
     episode: int
-    #: Zero the motor after this many steps (the registered limit; set by the env at reset).
-    episode_steps: int | None
 
     def __init__(
         self,
@@ -116,14 +117,21 @@ class DeviceSession(Simulation):
         except BaseException:
             self.backend.close()
             raise
+        self._compile()
         self.last_sample = None
         self.last_sample_ns = 0
         self.episode = -1
-        self.episode_steps = None
         self._first: Sample | None = None
         self._periods: list[float] = []
         self._late = 0
         self._skipped = 0
+
+    def _compile(self) -> None:
+        """Compile the observation code now: a first step must not stall while the motor runs."""
+        state, flags = self.state.copy(), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        obs = np.zeros((1, self.observation_size), dtype=np.float32)
+        ek.observe_device(state, self.rows, self.config, 0.0, 0.0, 1.0, self.dt,
+                          np.ones(1, dtype=bool), obs, np.zeros((ek.OUT_SIZE, 1)), flags)  # fmt: skip
 
     def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
         return {
@@ -178,10 +186,6 @@ class DeviceSession(Simulation):
             sample = self._first
             self._first = None
         else:
-            if not self.backend.armed:
-                raise HardwareError(
-                    "the episode ended and the device was stopped; call reset() to start another"
-                )
             sample = self.backend.step(requested)
         ek.observe_device(self.state, self.rows, self.config, sample.measured, sample.applied,
                           self.plant.command_limit, self.dt, fresh, obs, out, flags)  # fmt: skip
@@ -191,8 +195,7 @@ class DeviceSession(Simulation):
             flags[ek.F_TERMINATED, 0] = True
         self.last_sample = sample
         self._account(sample, not fresh[0], requested if not fresh[0] else 0.0, obs, out, flags)
-        steps = self.state[0, ek.E_STEPS]
-        if flags[ek.F_TERMINATED, 0] or (self.episode_steps and steps >= self.episode_steps):
+        if flags[ek.F_TERMINATED, 0]:
             self.backend.stop()
 
     def _account(
@@ -218,6 +221,11 @@ class DeviceSession(Simulation):
             sample.status, requested, sample.applied, sample.measured, *obs[0].tolist(),
             out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
         ))  # fmt: skip
+
+    @property
+    def periods(self) -> list[float]:
+        """Host time between consecutive steps of an episode, s, every step so far."""
+        return list(self._periods)
 
     def timing(self) -> Timing:
         """Return the timing statistics of every step so far (all episodes)."""

@@ -112,8 +112,6 @@ class Backend(ABC):
     def step(self, command: float) -> Sample:
         """Hold ``command`` (physical units) for one device period; return the next sample."""
         info = self.open()
-        if not self._armed:
-            raise HardwareError("the device is not armed: call start() before step()")
         try:
             value = float(command)
         except (TypeError, ValueError):
@@ -123,6 +121,11 @@ class Backend(ABC):
             raise ValueError(
                 f"command {command!r} is not a finite number; the motor was zeroed and nothing "
                 "was sent (check the controller's output)"
+            )
+        if not self._armed:
+            raise HardwareError(
+                "the device is stopped (an episode ended, or an error or a stop() stopped it): "
+                "start() it again (an env: reset())"
             )
         value = min(max(value, -info.command_limit), info.command_limit)
         with self._stopping_on_error():

@@ -14,6 +14,9 @@ from typing import Any
 from frictiongym.hardware.base import KINDS, DeviceInfo
 from frictiongym.hardware.serial_backend import SerialBackend
 
+#: Watchdog of a lock-step emulator, ms of wall time: its clock only moves when the host sends,
+#: so a pause of the host (a compile, a garbage collection) is not a fault; a vanished host is.
+LOCKSTEP_WATCHDOG_MS = 1000
 _TRUE = ("1", "true", "yes", "on")
 _FALSE = ("0", "false", "no", "off", "")
 
@@ -36,15 +39,24 @@ class EmulatedBackend(SerialBackend):
     lockstep : bool, default False
         Tick the emulated device once per command instead of in real time (exact and
         independent of the host's speed; for tests and reproducible comparisons).
+    timeout : float, optional
+        The serial side's wait for a state frame (see :class:`SerialBackend`).
     **emulator
         More :class:`~frictiongym.hardware.emulator.Emulator` settings: ``params``,
         ``friction``, ``sensor_noise``, ``watchdog_ms``, ``seed``, ``faults``.
     """
 
-    def __init__(self, kind: str = "rotary", *, lockstep: bool = False, **emulator: Any) -> None:
+    def __init__(
+        self,
+        kind: str = "rotary",
+        *,
+        lockstep: bool = False,
+        timeout: float | None = None,
+        **emulator: Any,
+    ) -> None:
         if kind not in KINDS:
             raise ValueError(f"unknown device kind {kind!r}; emulate one of {list(KINDS)}")
-        super().__init__("(emulator not started)")
+        super().__init__("(emulator not started)", timeout=timeout)
         self.kind = kind
         self.lockstep = lockstep
         self.emulator_settings = emulator
@@ -79,7 +91,10 @@ class EmulatedBackend(SerialBackend):
     def _open(self) -> DeviceInfo:
         from frictiongym.hardware.emulator import Emulator
 
-        self.emulator = Emulator(self.kind, lockstep=self.lockstep, **self.emulator_settings)
+        settings = dict(self.emulator_settings)
+        if self.lockstep:  # device time waits for the host: only a long silence is a fault
+            settings.setdefault("watchdog_ms", LOCKSTEP_WATCHDOG_MS)
+        self.emulator = Emulator(self.kind, lockstep=self.lockstep, **settings)
         try:
             self.port = self.emulator.serve_pty()
             return super()._open()

@@ -1,0 +1,19 @@
+"""Sim-to-real evaluation: the same controller on a device and on simulated models of it.
+
+:func:`run_sim2real` runs it; :func:`write_report` writes ``report.md``, ``sim2real.json``
+and the figures; ``frictiongym sim2real`` does both from the command line.
+"""
+
+from frictiongym.sim2real.report import summary, write_report
+from frictiongym.sim2real.run import Sim2RealResult, Trace, fit_percent, record, rmse, run_sim2real
+
+__all__ = [
+    "Sim2RealResult",
+    "Trace",
+    "fit_percent",
+    "record",
+    "rmse",
+    "run_sim2real",
+    "summary",
+    "write_report",
+]

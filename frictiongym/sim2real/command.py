@@ -1,0 +1,151 @@
+"""``frictiongym sim2real``: one controller on a device and in simulation, and the gap."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from frictiongym.controllers import PIDGains
+from frictiongym.hardware.errors import HardwareError
+from frictiongym.params import ParamsFileError
+from frictiongym.sim2real.report import summary, write_report
+from frictiongym.sim2real.run import CONTROLLERS, run_sim2real
+
+DESCRIPTION = """\
+Run the same controller and reference on a device (repeated, to measure the device's own
+spread) and on two simulated models of it: the nominal plant without friction, and the
+nominal plant with the paper's friction (or, with --params, an identified friction.json).
+Then compare what the controller saw (measured output, estimated velocity, applied command):
+RMSE and NRMSE fit per signal, differences of rise time, settling time, overshoot and
+steady-state error, and the timing of the device loop. The paper's claim is that friction
+modelling closes most of the gap; the report says how much.
+
+Writes to --out: report.md, sim2real.json, overlay.png, timing.png; the device run's log
+(steps.csv + meta.json) goes to --out/device-log.
+
+Try it without hardware:  frictiongym sim2real --env frictiongym/RotaryServo-v0 \\
+    --backend emulator://rotary --out sim2real-results
+(the emulator's plant has the paper's friction, so the friction model should close almost
+all of the gap; give the emulator other parameters with emulator://rotary?params=FILE).
+"""
+
+
+def _gains(text: str) -> PIDGains:
+    try:
+        kp, ki, kd = (float(x) for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--gains takes KP,KI,KD (three numbers), got {text!r}"
+        ) from None
+    return PIDGains(kp, ki, kd)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
+    parser.add_argument(
+        "--env",
+        required=True,
+        metavar="ID",
+        help="frictiongym/RotaryServo-v0 or frictiongym/AltinoDistance-v0",
+    )
+    parser.add_argument(
+        "--backend",
+        required=True,
+        metavar="URI",
+        help="the device: serial:///dev/ttyACM0?baud=1000000, socket://HOST:PORT, "
+        "altino-stock:///dev/rfcomm0, quanser-hil://qube_servo2_usb/0, or "
+        "emulator://rotary|altino (an emulator in this process)",
+    )
+    parser.add_argument(
+        "--controller",
+        choices=CONTROLLERS,
+        default="pid",
+        help="the paper's PID (default) or PID + friction compensator",
+    )
+    parser.add_argument(
+        "--gains",
+        type=_gains,
+        metavar="KP,KI,KD",
+        help="PID gains (default: the paper's for this device and controller)",
+    )
+    parser.add_argument(
+        "--params",
+        metavar="FILE",
+        help="an identified friction.json: the compensator's model and the "
+        "'identified' simulated model",
+    )
+    parser.add_argument(
+        "--repeats",
+        type=int,
+        default=5,
+        metavar="N",
+        help="device runs (default 5; their spread is the noise floor)",
+    )
+    parser.add_argument(
+        "--steps", type=int, metavar="N", help="steps per run (default: the env's episode length)"
+    )
+    parser.add_argument(
+        "--reference",
+        type=float,
+        metavar="VALUE",
+        help="step target, rad or cm (default: the env's step)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path("sim2real-results"),
+        metavar="DIR",
+        help="directory for the report (default: ./sim2real-results)",
+    )
+    parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    parser.add_argument("--quiet", action="store_true", help="print only errors")  # fmt: skip
+
+
+def run(args: argparse.Namespace, command_line: str) -> int:
+    """Run the comparison; return the exit status."""
+    if args.repeats < 1 or (args.steps is not None and args.steps < 1):
+        print("error: --repeats and --steps must be positive", file=sys.stderr)
+        return 2
+    if args.out.exists() and not args.out.is_dir():
+        print(f"error: --out {args.out} is a file; give a directory", file=sys.stderr)
+        return 2
+    say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
+    try:
+        result = run_sim2real(
+            args.env, args.backend, controller=args.controller, gains=args.gains,
+            params=args.params, repeats=args.repeats, steps=args.steps,
+            reference=args.reference, log=args.out / "device-log", progress=say,
+        )  # fmt: skip
+    except (HardwareError, ParamsFileError, ValueError, FileExistsError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    path = write_report(result, args.out, command_line, figures=not args.no_figures)
+    if not args.quiet:
+        data = summary(result)
+        for name in result.models:
+            gap = data["gap"][name]["output"]
+            print(f"{name:>12}: output RMSE {gap['rmse']:.4g}, fit {gap['fit_pct']:.3g} %")
+        print(f"{'device':>12}: spread {data['device_spread']['output']:.4g}")
+        print(f"report: {path}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the parser of ``scripts/sim2real.py``."""
+    parser = argparse.ArgumentParser(
+        prog="sim2real.py", description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    add_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run ``scripts/sim2real.py``."""
+    args = build_parser().parse_args(argv)
+    return run(
+        args, shlex.join(["frictiongym", "sim2real", *(sys.argv[1:] if argv is None else argv)])
+    )
