@@ -130,8 +130,9 @@ class DeviceSession(Simulation):
         """Compile the observation code now: a first step must not stall while the motor runs."""
         state, flags = self.state.copy(), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
         obs = np.zeros((1, self.observation_size), dtype=np.float32)
-        ek.observe_device(state, self.rows, self.config, 0.0, 0.0, 1.0, self.dt,
-                          np.ones(1, dtype=bool), obs, np.zeros((ek.OUT_SIZE, 1)), flags)  # fmt: skip
+        out, fresh = np.zeros((ek.OUT_SIZE, 1)), np.ones(1, dtype=bool)
+        ek.observe_device(state, self.rows, self.config, 0.0, 0.0, 1.0, self.dt, fresh, obs, out,
+                          flags)  # fmt: skip
 
     def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
         return {
