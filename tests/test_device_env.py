@@ -258,7 +258,7 @@ def test_device_runs_refuse_simulator_only_settings_and_the_wrong_device():
         gym.make(SERVO, backend=LOCKSTEP[SERVO], randomize={"friction": (0.9, 1.1)})
     with pytest.raises(ValueError, match="device is one env"):
         gym.make_vec(SERVO, 2, vectorization_mode="vector_entry_point", backend="emulator://")
-    with pytest.raises(ProtocolError, match="is a altino, but this env drives a rotary"):
+    with pytest.raises(ProtocolError, match="is an Altino car, but this env drives a QUBE-Servo 2"):
         gym.make(SERVO, backend="emulator://altino?lockstep=1", log=False)
     with pytest.raises(ValueError, match="dt="):
         gym.make(SERVO, backend=LOCKSTEP[SERVO], dt=0.001, log=False)

@@ -42,6 +42,7 @@ SIM_ONLY = {
 }
 #: Env kinds of the device names.
 KIND_OF = {"RotaryServo": "rotary", "AltinoDistance": "altino"}
+DEVICE_NAMES = {"rotary": "a QUBE-Servo 2", "altino": "an Altino car"}
 
 
 class DeviceSession(Simulation):
@@ -98,8 +99,9 @@ class DeviceSession(Simulation):
         try:
             if self.info.kind != kind:
                 raise ProtocolError(
-                    f"the device at {self.info.link} is a {self.info.kind}, but this env drives "
-                    f"a {kind}: pick the env of that device or the other port"
+                    f"the device at {self.info.link} is {DEVICE_NAMES[self.info.kind]}, but "
+                    f"this env drives {DEVICE_NAMES[kind]}: pick the env of that device or the "
+                    "other port"
                 )
             dt = 1.0 / self.info.rate_hz
             given = kwargs.pop("dt", None)

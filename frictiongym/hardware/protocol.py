@@ -239,7 +239,7 @@ def pack(message: Message) -> bytes:
     """Return the payload of ``message`` (type byte first, no CRC)."""
     try:
         return struct.pack(message.FORMAT, int(message.TYPE), *message.fields())
-    except struct.error as exc:
+    except (struct.error, OverflowError) as exc:  # OverflowError: a float beyond binary32
         raise ValueError(f"{message!r} does not fit its wire format: {exc}") from None
 
 

@@ -140,7 +140,8 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     if not args.quiet:
         from tqdm import tqdm
 
-        total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats) + plan.refine
+        total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
+        total += len(plan.relay_levels) + plan.refine
         bar = tqdm(total=total, unit="run", desc="identify", leave=False)
 
     def progress(label: str) -> None:

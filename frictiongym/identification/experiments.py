@@ -1,7 +1,8 @@
 """Identification experiments run through the env interface, so they run unchanged on a device.
 
 An experiment is a command profile held from rest (``env.reset``): a constant level, a slow
-ramp, or a velocity step between two levels. Each returns a :class:`Trace` of what a controller
+ramp, a velocity step between two levels, or a relay that drives back and forth inside a band
+of the output (closed loop on the measured output, so it stays where the sensor resolves it). Each returns a :class:`Trace` of what a controller
 would see: the time, the command sent and the measured output, read from the observation the
 env's :class:`~frictiongym.controllers.LoopSpec` points at and turned into the plant's own
 direction (a positive command moves the output positively). Nothing here reads the simulator's
@@ -25,7 +26,7 @@ import numpy.typing as npt
 from frictiongym.controllers.base import LoopSpec
 
 FloatArray = npt.NDArray[np.float64]
-Kind = Literal["constant", "ramp", "step"]
+Kind = Literal["constant", "ramp", "step", "relay"]
 
 #: Samples at the start of a ramp taken as the rest position (the ramp starts below break-away).
 REST_SAMPLES = 20
@@ -39,9 +40,9 @@ class Trace:
 
     Attributes
     ----------
-    kind : {"constant", "ramp", "step"}
+    kind : {"constant", "ramp", "step", "relay"}
     sign : float
-        Direction of the command profile, +1 or -1.
+        Direction of the command profile, +1 or -1 (a relay's first direction).
     t : ndarray
         Sample times, s from the first command.
     command : ndarray
@@ -145,6 +146,7 @@ class Runner:
         settings: dict[str, float] | None = None,
         stop: Callable[[FloatArray, int], bool] | None = None,
         start_at: float | None = None,
+        feedback: Callable[[FloatArray, int], float] | None = None,
     ) -> Trace:
         """Reset the env at rest, apply ``profile(t)`` for ``duration`` s and record it.
 
@@ -160,10 +162,14 @@ class Runner:
             ``stop(positions_so_far, k)`` ends the run early when true (after sample ``k``).
         start_at : float, optional
             Start position, env units (default: the span's start for this direction).
+        feedback : callable, optional
+            ``feedback(positions_so_far, k)`` gives the command of sample ``k`` from the
+            measured output (a closed-loop experiment); it replaces ``profile``'s value.
         """
         n = max(1, round(duration / self.dt))
         t = np.arange(n, dtype=np.float64) * self.dt
-        command = np.clip(profile(t), -self.spec.limit, self.spec.limit)
+        limit = self.spec.limit
+        command = np.clip(profile(t), -limit, limit)
         if not np.all(np.isfinite(command)):
             raise ValueError(f"the {kind} profile produced non-finite commands")
         options: dict[str, float] = {}
@@ -184,6 +190,8 @@ class Runner:
             if k > 0 and (outside >= _OUTSIDE_SAMPLES or (stop and stop(position[: k + 1], k))):
                 count = k + 1
                 break
+            if feedback is not None:
+                command[k] = np.clip(feedback(position[: k + 1], k), -limit, limit)
             action[0] = command[k]
             obs, _, terminated, truncated, _ = self.env.step(action)
             self.steps += 1
@@ -244,6 +252,46 @@ class Runner:
             stop,
             start_at,
         )
+
+    def relay(
+        self,
+        level_up: float,
+        level_down: float,
+        band: tuple[float, float],
+        duration: float,
+        start_at: float | None = None,
+        lead: float = 3.0,
+    ) -> Trace:
+        """Drive back and forth across ``band`` (env units) for ``duration`` s, from rest.
+
+        The command is ``+level_up`` (plant direction: the output grows) until the measured
+        output passes the band's upper end in that direction, then ``-level_down`` until it
+        passes the lower end, and so on. Both levels are magnitudes above break-away. The
+        output is extrapolated ``lead`` periods ahead from its last two samples, so a fast
+        body reverses early enough to stop near the band's end despite the dead time and its
+        deceleration. The run starts at ``start_at`` (default: the band's middle), moving up.
+        """
+        ends = sorted(self.spec.direction * b for b in band)
+        state = {"command": abs(level_up)}
+
+        def feedback(y: FloatArray, k: int) -> float:
+            ahead = y[-1] + lead * (y[-1] - y[-2]) if k > 0 else y[-1]
+            if ahead > ends[1]:
+                state["command"] = -abs(level_down)
+            elif ahead < ends[0]:
+                state["command"] = abs(level_up)
+            return state["command"]
+
+        return self.run(
+            lambda t: np.zeros(t.shape),
+            duration,
+            "relay",
+            1.0,
+            {"level_up": float(level_up), "level_down": float(level_down),
+             "low": float(min(band)), "high": float(max(band)), "lead": float(lead)},
+            start_at=0.5 * (band[0] + band[1]) if start_at is None else start_at,
+            feedback=feedback,
+        )  # fmt: skip
 
     def step(self, first: float, second: float, step_time: float, duration: float) -> Trace:
         """Hold ``first`` until ``step_time``, then ``second`` (signed levels, same sign)."""

@@ -6,9 +6,12 @@
 3. **Constant levels** above break-away in each direction give the steady map ``u(v)``
    (the paper's Fig. 8(a)/10(a)).
 4. **Velocity steps** between two fast levels give ``J`` and ``B`` (first-order fits, the
-   paper's identification of Eq. (2)).
+   paper's identification of Eq. (2)). Where the sensor's range is too short for them,
+   **relay runs** drive back and forth inside it instead.
 5. The ramps' onsets are corrected with ``J`` and the map's slope at rest, and the laws are
-   fitted to the map (:mod:`~frictiongym.identification.fit`).
+   fitted to the map (:mod:`~frictiongym.identification.fit`). Optionally an output-error
+   fit of every sample refines the paper's law, ``J`` and ``B``
+   (:mod:`~frictiongym.identification.refine`).
 """
 
 from __future__ import annotations
@@ -25,8 +28,9 @@ from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.experiments import Runner, Span, Trace
 from frictiongym.identification.fit import LAWS, LawFit, fit_law, inertia_from_map, rest_slope
-from frictiongym.identification.refine import Refinement, refine
+from frictiongym.identification.refine import Reading, ReciprocalReading, Refinement, refine
 from frictiongym.params import DeviceParams
+from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET
 
 
 @dataclass(frozen=True)
@@ -53,10 +57,20 @@ class Plan:
         Velocity steps per direction.
     probe_to, probe_duration : float
         The probe ramp's end (fraction of the command limit) and duration, s.
+    relay_levels : tuple of float
+        Relay runs (:meth:`~frictiongym.identification.experiments.Runner.relay`), one per
+        level, a multiple of the break-away level in each direction; none by default.
+    relay_band : tuple of float, optional
+        Output range (env units) a relay run drives back and forth across.
+    relay_duration : float
+        Length of one relay run, s.
     refine : bool
         Refine ``J``, ``B`` and the paper's law against every sample by an output-error fit
         (:mod:`~frictiongym.identification.refine`), for sensors whose range is too short for
         the runs to reach a steady speed.
+    reading : Reading, optional
+        What the sensor reads at an output, where its noise is uniform: the refinement's
+        residuals are taken there (default: the output itself).
     span : Span, optional
         Usable range of the measured output; runs start inside it and stop at its ends.
     ramp_positions : tuple of float, optional
@@ -80,7 +94,11 @@ class Plan:
     step_repeats: int = 2
     probe_to: float = 0.3
     probe_duration: float = 3.0
+    relay_levels: tuple[float, ...] = ()
+    relay_band: tuple[float, float] | None = None
+    relay_duration: float = 20.0
     refine: bool = False
+    reading: Reading | None = None
     span: Span | None = None
     ramp_positions: tuple[float, float] | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
@@ -88,19 +106,25 @@ class Plan:
     @property
     def longest_run(self) -> float:
         """The longest experiment, s (the env's episode must allow it)."""
-        return max(self.constant_duration, self.ramp_duration, self.step_duration)
+        return max(
+            self.constant_duration, self.ramp_duration, self.step_duration, self.relay_duration
+        )
 
 
 #: Plans by device name. The QUBE-Servo 2's disk has no end stops, so its run-away guard is
 #: widened (a 4.5 s run at 26 rad/s turns 120 rad). The Altino's IR sensor reads only the last
-#: 21.47 cm before the wall (paper Eq. (1)): its runs start at the far end of that range and
-#: stop 3 cm from the wall, and its fastest levels cannot reach a steady speed inside it.
+#: 21.47 cm before the wall (paper Eq. (1)), and its readout resolves 0.026 cm at 5 cm but only
+#: 0.41 cm at 20 cm. Its runs use 3 to 19.5 cm (beyond 19.5 cm, 2 counts of noise would push
+#: the readout to 0, out of range); the fastest levels cannot reach a steady speed there.
+#: Ten relay runs of 20 s each between 3.5 and 15 cm, at levels spread geometrically from
+#: 1.03 to 2.5 times break-away, cover the map where the sensor resolves it; the output-error
+#: refinement fits them in readout counts.
 PLANS: dict[str, Plan] = {
     "RotaryServo": Plan(env_kwargs={"safety_limit": 1.0e5}),
     "AltinoDistance": Plan(
         levels=(1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5),
         constant_duration=20.0,
-        ramp_from=0.8,
+        ramp_from=0.6,
         ramp_to=1.1,
         ramp_duration=15.0,
         step_levels=(1.5, 2.5),
@@ -108,8 +132,12 @@ PLANS: dict[str, Plan] = {
         step_duration=2.0,
         probe_to=0.4,
         step_repeats=0,
+        relay_levels=(1.03, 1.14, 1.25, 1.38, 1.53, 1.69, 1.86, 2.05, 2.27, 2.5),
+        relay_band=(4.0, 15.0),
+        relay_duration=20.0,
         refine=True,
-        span=Span(low=3.0, high=21.4, margin=0.4),
+        reading=ReciprocalReading(IR_NUMERATOR, IR_OFFSET, IR_MAX_READOUT),
+        span=Span(low=3.0, high=19.5, margin=0.5),
         ramp_positions=(10.0, 4.0),
     ),
 }
@@ -184,6 +212,9 @@ class Identification:
                 "dead_time": self.refinement.dead_time,
                 "rms": self.refinement.rms,
                 "rms_start": self.refinement.rms_start,
+                "rms_split": self.refinement.rms_split,
+                "starts": self.refinement.starts,
+                "evaluations": self.refinement.evaluations,
             },
             "experiments": len(self.traces),
             "env_steps": self.env_steps,
@@ -276,6 +307,12 @@ def identify(
             note(f"velocity step {'+' if sign > 0 else '-'} {i + 1}/{plan.step_repeats}")
             trace = keep(runner.step(sign * a, sign * b, plan.step_time, plan.step_duration))
             steps.append(est.velocity_step(trace))
+    # 4b. Relay runs inside the sensor's range (for the output-error refinement).
+    if plan.relay_levels and plan.relay_band is not None:
+        for i, m in enumerate(plan.relay_levels):
+            note(f"relay {i + 1}/{len(plan.relay_levels)}")
+            up, down = (min(m * first_pass[s], 0.95 * limit) for s in (1.0, -1.0))
+            keep(runner.relay(up, down, plan.relay_band, plan.relay_duration))
     # 5. Break-away with the onset correction, then the fits. Without velocity steps (a sensor
     #    range too short for them), J comes from the constant runs' approach and B from the
     #    map's slope, refined once the break-away levels are corrected.
@@ -308,7 +345,9 @@ def identify(
     refinement = None
     if plan.refine and "paper" in fits:
         note("output-error refinement")
-        fits["paper"], refinement = _refined(fits["paper"], traces, inertia, damping, runner)
+        fits["paper"], refinement = _refined(
+            fits["paper"], traces, inertia, damping, runner, plan.reading
+        )
         inertia = (refinement.values["J"], refinement.stderr["J"])
         damping = (refinement.values["B"], refinement.stderr["B"])
         breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
@@ -336,12 +375,16 @@ def _refined(
     inertia: tuple[float, float],
     damping: tuple[float, float],
     runner: Runner,
+    reading: Reading | None,
 ) -> tuple[LawFit, Refinement]:
     """Return the paper's law after the output-error fit, and the refinement itself."""
     shape = fit.model.shape if isinstance(fit.model, StictionCoulomb) else "linear"
     start = {"J": inertia[0], "B": damping[0], **fit.values}
-    runs = [t for t in traces if t.kind in ("constant", "ramp")]
-    result = refine(runs, start, runner.dt, runner.spec.limit, shape)
+    runs = [t for t in traces if t.kind in ("constant", "ramp", "relay")]
+    result = refine(
+        runs, start, runner.dt, runner.spec.limit, shape,
+        reading=reading, direction=runner.spec.direction,
+    )  # fmt: skip
     v = result.values
     model = StictionCoulomb(
         v["us_pos"], v["us_neg"], v["uc_pos"], v["uc_neg"], v["v0_pos"], v["v0_neg"],
