@@ -7,7 +7,7 @@ appended little-endian, and COBS (Cheshire & Baker, 1999) removes every zero byt
 delimits frames. A decoder resynchronises at the next 0x00 after any corruption. The C
 implementation in ``firmware/common/`` is checked against this module on shared test vectors.
 
-Messages (sizes without CRC; ``docs/hardware.md`` has the full table):
+Messages (sizes without CRC; ``docs/protocol.md`` has the full table and the device behaviour):
 
 =========================  =====  ==================================================================
 message                    bytes  fields
@@ -84,7 +84,9 @@ class Status(enum.IntFlag):
     COMMAND_LATE = 0x10  #: no new command arrived for this period; the last one was held
     CRC_ERROR = 0x20  #: a bad frame was received since the last state
     LIMIT = 0x40  #: a position or distance limit stopped the motor; latched until ``REARM``
-    DISABLED = 0x80  #: the motor is off (not armed, e-stop, watchdog or limit)
+    #: the motor is off whatever the command: not armed (boot, e-stop, watchdog, fault) or not
+    #: enabled
+    DISABLED = 0x80
 
 
 #: Status bits after which a run cannot go on (``LIMIT`` only ends the episode: the device

@@ -1,0 +1,218 @@
+/*
+ * fg_device.c - see fg_device.h; the rules are specified in docs/protocol.md.
+ */
+#include "fg_device.h"
+
+fg_device_config fg_config_rotary(void)
+{
+    fg_device_config cfg;
+    cfg.kind = FG_KIND_ROTARY;
+    cfg.capabilities = FG_CAP_WATCHDOG;
+    /* 500 Hz: Quanser's usual QUBE-Servo 2 rate (QUARC models use Ts = 2 ms; research §1.2). */
+    cfg.rate_hz = 500u;
+    /* 512-line encoder in quadrature (Quanser datasheet; plants/sensors.py). */
+    cfg.counts_per_rev = 2048u;
+    /* Commands in mV: 1000 counts per V (protocol.py, Hello.command_scale). */
+    cfg.command_scale = 1000u;
+    /* +-10 V: the safe envelope of the QUBE's amplifier (research §1.1; presets.py). */
+    cfg.command_limit = 10000;
+    cfg.watchdog_ms = 0u; /* default: max(3 periods, 20 ms) = 20 ms */
+    cfg.limit_sensor = 0; /* unused: no FG_CAP_DISTANCE_LIMIT */
+    cfg.firmware = 1u;
+    return cfg;
+}
+
+fg_device_config fg_config_altino(void)
+{
+    fg_device_config cfg;
+    cfg.kind = FG_KIND_ALTINO;
+    cfg.capabilities = FG_CAP_WATCHDOG | FG_CAP_DISTANCE_LIMIT;
+    /* 20 Hz: one drive frame and one sensor poll per period (presets.ALTINO_DT, research §2.2). */
+    cfg.rate_hz = 20u;
+    cfg.counts_per_rev = 0u;   /* no encoder: the sensor is the front IR readout */
+    cfg.command_scale = 1u;    /* motor units, as Go() takes them */
+    cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library, research §2.1) */
+    cfg.watchdog_ms = 0u;      /* default: max(3 periods, 20 ms) = 150 ms */
+    cfg.limit_sensor = FG_ALTINO_LIMIT_READOUT;
+    cfg.firmware = 1u;
+    return cfg;
+}
+
+uint16_t fg_watchdog_ms(const fg_device_config *cfg)
+{
+    uint32_t periods;
+    if (cfg->watchdog_ms != 0u) {
+        return cfg->watchdog_ms;
+    }
+    /* ceil(3000 / rate) ms, at least 20 ms */
+    periods = (FG_WATCHDOG_PERIODS * 1000UL + cfg->rate_hz - 1u) / cfg->rate_hz;
+    return (uint16_t)(periods > FG_WATCHDOG_MIN_MS ? periods : FG_WATCHDOG_MIN_MS);
+}
+
+void fg_device_init(fg_device *dev, const fg_device_config *cfg)
+{
+    dev->cfg = *cfg;
+    fg_decoder_init(&dev->decoder);
+    dev->watchdog_us = (uint32_t)fg_watchdog_ms(cfg) * 1000UL;
+    dev->last_command_us = 0;
+    dev->errors_reported = 0;
+    dev->seq = 0;
+    dev->seq_applied = 0;
+    dev->requested = 0;
+    dev->motor = 0;
+    dev->sensor = 0;
+    dev->armed = 0;
+    dev->enabled = 0;
+    dev->fresh = 0;
+    dev->latched = 0;
+}
+
+/* The limit latches whenever the latest sample is at or beyond it. */
+static void check_limit(fg_device *dev)
+{
+    if ((dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) && dev->sensor >= dev->cfg.limit_sensor) {
+        dev->latched |= FG_STATUS_LIMIT;
+    }
+}
+
+/* What the motor holds: nothing unless armed and enabled; never forward past the limit. */
+static void update_motor(fg_device *dev)
+{
+    if (!dev->armed || !dev->enabled) {
+        dev->motor = 0;
+    } else if ((dev->latched & FG_STATUS_LIMIT) && dev->requested > 0) {
+        dev->motor = 0;
+    } else {
+        dev->motor = dev->requested;
+    }
+}
+
+static int16_t clip(int16_t value, int16_t limit)
+{
+    if (value > limit) {
+        return limit;
+    }
+    if (value < -limit) {
+        return (int16_t)-limit;
+    }
+    return value;
+}
+
+uint8_t fg_device_receive(fg_device *dev, const fg_message *msg, uint32_t now_us)
+{
+    uint8_t act = 0;
+    const fg_command *cmd = &msg->u.command;
+    if (msg->type == FG_HELLO_REQUEST) {
+        return FG_ACT_HELLO; /* any version: the host decides what to do with the answer */
+    }
+    if (msg->type != FG_COMMAND) {
+        return 0; /* Place (emulator only) and device-to-host messages: ignored */
+    }
+    dev->last_command_us = now_us;
+    dev->fresh = 1;
+    dev->seq_applied = cmd->seq;
+    if (cmd->flags & FG_FLAG_REARM) {
+        dev->latched = 0;
+        dev->armed = 1;
+        check_limit(dev); /* still at the wall: LIMIT comes straight back */
+    }
+    if (cmd->flags & FG_FLAG_ESTOP) {
+        dev->armed = 0; /* after REARM: an e-stop always wins */
+    }
+    if (cmd->flags & FG_FLAG_ZERO_POSITION) {
+        act |= FG_ACT_ZERO;
+    }
+    dev->enabled = (cmd->flags & FG_FLAG_ENABLE) ? 1u : 0u;
+    dev->requested = clip(cmd->command, dev->cfg.command_limit);
+    update_motor(dev);
+    return (uint8_t)(act | FG_ACT_MOTOR);
+}
+
+uint8_t fg_device_rx(fg_device *dev, uint8_t byte, uint32_t now_us)
+{
+    fg_message msg;
+    if (fg_decoder_push(&dev->decoder, byte, &msg)) {
+        return fg_device_receive(dev, &msg, now_us);
+    }
+    return 0;
+}
+
+size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t aux,
+                      uint8_t hw_status, uint8_t *frame, fg_state *state)
+{
+    fg_message msg;
+    fg_state *s = &msg.u.state;
+    uint8_t status = (uint8_t)(hw_status & (FG_STATUS_AMP_FAULT | FG_STATUS_STALL |
+                                            FG_STATUS_STALL_ERROR));
+    /* 1. faults: an amplifier fault or stall error disarms (re-arm after it clears) */
+    if (status & (FG_STATUS_AMP_FAULT | FG_STATUS_STALL_ERROR)) {
+        dev->armed = 0;
+    }
+    /* 2. watchdog: armed, and no Command for watchdog_us */
+    if (dev->armed && (uint32_t)(now_us - dev->last_command_us) >= dev->watchdog_us) {
+        dev->latched |= FG_STATUS_WATCHDOG;
+        dev->armed = 0;
+    }
+    /* 3. the command held over the period ending now */
+    if (dev->armed && dev->enabled && !dev->fresh) {
+        status |= FG_STATUS_COMMAND_LATE;
+    }
+    update_motor(dev);
+    s->applied = dev->motor;
+    /* 4. the new sample, and the limit for the next period */
+    dev->sensor = sensor;
+    check_limit(dev);
+    update_motor(dev);
+    /* 5. the State */
+    if (dev->decoder.errors != dev->errors_reported) {
+        status |= FG_STATUS_CRC_ERROR;
+        dev->errors_reported = dev->decoder.errors;
+    }
+    if (!dev->armed || !dev->enabled) {
+        status |= FG_STATUS_DISABLED;
+    }
+    msg.type = FG_STATE;
+    s->status = (uint8_t)(status | dev->latched);
+    s->seq = ++dev->seq; /* the first State is 1 */
+    s->tick_us = now_us;
+    s->seq_applied = dev->seq_applied;
+    s->sensor = sensor;
+    s->aux = aux;
+    dev->fresh = 0;
+    if (state != 0) {
+        *state = *s;
+    }
+    return fg_encode(&msg, frame);
+}
+
+size_t fg_device_hello(const fg_device *dev, uint8_t *frame)
+{
+    fg_message msg;
+    msg.type = FG_HELLO;
+    msg.u.hello.version = FG_PROTOCOL_VERSION;
+    msg.u.hello.kind = dev->cfg.kind;
+    msg.u.hello.capabilities = dev->cfg.capabilities;
+    msg.u.hello.rate_hz = dev->cfg.rate_hz;
+    msg.u.hello.counts_per_rev = dev->cfg.counts_per_rev;
+    msg.u.hello.command_scale = dev->cfg.command_scale;
+    msg.u.hello.command_limit = dev->cfg.command_limit;
+    msg.u.hello.watchdog_ms = (uint16_t)(dev->watchdog_us / 1000UL);
+    msg.u.hello.firmware = dev->cfg.firmware;
+    return fg_encode(&msg, frame);
+}
+
+int16_t fg_device_motor(const fg_device *dev)
+{
+    return dev->motor;
+}
+
+uint8_t fg_device_amp_enabled(const fg_device *dev)
+{
+    return (uint8_t)(dev->armed && dev->enabled);
+}
+
+void fg_device_estop(fg_device *dev)
+{
+    dev->armed = 0;
+    update_motor(dev);
+}

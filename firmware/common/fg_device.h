@@ -1,0 +1,120 @@
+/*
+ * fg_device.h - the device state machine both reference firmwares share (no hardware here).
+ *
+ * The firmware owns the clock, the motor driver and the sensor; this module owns the rules:
+ * arming, ENABLE, the e-stop latch, the watchdog, COMMAND_LATE, CRC_ERROR, the distance limit,
+ * command clipping, Hello and one State frame per tick. docs/protocol.md ("Device behaviour")
+ * is the specification; frictiongym/hardware/emulator.py implements the same rules in Python,
+ * and tests/test_firmware.py runs the scenario table of tests/data/protocol_vectors.json here.
+ *
+ * Use (see firmware/altino/altino.ino and firmware/qube_bridge/qube_bridge.ino):
+ *
+ *     fg_device dev;
+ *     fg_device_config cfg = fg_config_rotary();
+ *     fg_device_init(&dev, &cfg);
+ *     loop:
+ *       while (a byte b arrived) {
+ *         uint8_t act = fg_device_rx(&dev, b, micros());
+ *         if (act & FG_ACT_ZERO)  zero the encoder;
+ *         if (act & FG_ACT_MOTOR) write fg_device_motor(&dev), fg_device_amp_enabled(&dev);
+ *         if (act & FG_ACT_HELLO) send fg_device_hello(&dev, frame) bytes;
+ *       }
+ *       at every tick (absolute deadlines, next += period):
+ *         sample the sensor; n = fg_device_tick(&dev, now, sensor, aux, hw_status, frame);
+ *         write fg_device_motor(&dev) (a watchdog trip or the limit may have zeroed it);
+ *         send the n bytes of frame.
+ *
+ * Times are device microseconds (micros()); differences are taken modulo 2^32, so the
+ * 71-minute wrap of a 32-bit microsecond clock is harmless.
+ */
+#ifndef FG_DEVICE_H
+#define FG_DEVICE_H
+
+#include "fg_protocol.h"
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* Actions fg_device_rx / fg_device_receive ask the firmware to take at once. */
+enum fg_action {
+    FG_ACT_MOTOR = 0x01, /* a Command arrived: write the motor output (and amplifier enable) */
+    FG_ACT_ZERO = 0x02,  /* ZERO_POSITION: zero the encoder count now */
+    FG_ACT_HELLO = 0x04  /* HelloRequest: send fg_device_hello() now */
+};
+
+/* Watchdog floor: the watchdog is max(3 periods, 20 ms) (shared/research/hardware.md §3.3). */
+#define FG_WATCHDOG_MIN_MS 20u
+#define FG_WATCHDOG_PERIODS 3u
+
+/* Altino distance limit: IR readout of 2.0 cm by the paper's calibration d = 966 / (x + 45)
+ * cm (frictiongym/plants/sensors.py): x = 966 / 2.0 - 45 = 438. Readouts grow toward the
+ * wall, so positive (forward) commands are refused at or above this value. */
+#define FG_ALTINO_LIMIT_READOUT 438
+
+typedef struct {
+    uint8_t kind;            /* enum fg_kind */
+    uint8_t capabilities;    /* enum fg_capability; FG_CAP_DISTANCE_LIMIT turns the limit on */
+    uint16_t rate_hz;        /* ticks per second */
+    uint16_t counts_per_rev; /* encoder counts per revolution (0: none) */
+    uint16_t command_scale;  /* command counts per physical unit */
+    int16_t command_limit;   /* commands are clipped to +-this, counts */
+    uint16_t watchdog_ms;    /* 0: the default, max(3 periods, 20 ms) */
+    int32_t limit_sensor;    /* sensor value at or beyond which forward commands stop */
+    uint32_t firmware;       /* build number reported in Hello */
+} fg_device_config;
+
+typedef struct {
+    fg_device_config cfg;
+    fg_decoder decoder;
+    uint32_t watchdog_us;
+    uint32_t last_command_us; /* arrival time of the newest Command */
+    uint32_t errors_reported; /* decoder.errors when the last State was built */
+    uint16_t seq;             /* State frames sent (the first State has seq 1) */
+    uint16_t seq_applied;     /* seq of the newest Command (0 before any) */
+    int16_t requested;        /* newest command, clipped */
+    int16_t motor;            /* the output the motor holds now */
+    int32_t sensor;           /* last sample */
+    uint8_t armed;            /* REARM received and no e-stop, watchdog or fault since */
+    uint8_t enabled;          /* ENABLE bit of the newest Command */
+    uint8_t fresh;            /* a Command arrived since the last tick */
+    uint8_t latched;          /* FG_STATUS_WATCHDOG | FG_STATUS_LIMIT */
+} fg_device;
+
+/* Defaults of the two reference devices (each value cites its source in fg_device.c). */
+fg_device_config fg_config_rotary(void);
+fg_device_config fg_config_altino(void);
+
+/* The watchdog time of cfg in ms: cfg->watchdog_ms, or max(3 periods, 20 ms) when 0. */
+uint16_t fg_watchdog_ms(const fg_device_config *cfg);
+
+/* Boot state: not armed, motor 0 (Status.DISABLED). */
+void fg_device_init(fg_device *dev, const fg_device_config *cfg);
+
+/* Feed one received byte at time now_us; returns enum fg_action bits. */
+uint8_t fg_device_rx(fg_device *dev, uint8_t byte, uint32_t now_us);
+
+/* Act on one decoded message at time now_us; returns enum fg_action bits. */
+uint8_t fg_device_receive(fg_device *dev, const fg_message *msg, uint32_t now_us);
+
+/* The tick at now_us with a fresh sample: run the watchdog and the limit, write the State
+ * frame (with its 0x00) into frame (FG_FRAME_BUFFER bytes); returns its length. If state is
+ * not NULL it receives the State as well. */
+size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t aux,
+                      uint8_t hw_status, uint8_t *frame, fg_state *state);
+
+/* The Hello frame (with its 0x00) into frame; returns its length. */
+size_t fg_device_hello(const fg_device *dev, uint8_t *frame);
+
+/* Motor output now, counts (0 unless armed and enabled), and whether to enable the amplifier. */
+int16_t fg_device_motor(const fg_device *dev);
+uint8_t fg_device_amp_enabled(const fg_device *dev);
+
+/* Zero the motor and disarm (firmware-side e-stop: a button, a fault the MCU detects). */
+void fg_device_estop(fg_device *dev);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* FG_DEVICE_H */
