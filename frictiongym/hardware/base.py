@@ -23,9 +23,12 @@ import time
 import weakref
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from frictiongym.hardware.errors import HardwareError
+
+if TYPE_CHECKING:
+    from typing_extensions import Self
 
 #: Device kinds, as the env ids name them.
 KINDS = ("rotary", "altino")
@@ -162,7 +165,7 @@ class Backend(ABC):
             self.info = None
             _OPEN.discard(self)
 
-    def __enter__(self) -> Backend:
+    def __enter__(self) -> Self:
         self.open()
         return self
 
