@@ -1,0 +1,190 @@
+"""``frictiongym emulate``: run a device emulator on a pseudo-terminal or a TCP port."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import shlex
+import signal
+import sys
+import threading
+import time
+from collections.abc import Sequence
+from types import FrameType
+from typing import Any
+
+from frictiongym.hardware.base import KINDS
+
+DESCRIPTION = """\
+Emulate a device: run the simulated plant (with its own "true" parameters, which may differ
+from the nominal model the envs use) behind our firmware's wire protocol, at the device's
+rate (rotary: QUBE-Servo 2, 500 Hz; altino: Altino car, 20 Hz), on a pseudo-terminal or, with
+--tcp, on a TCP port for another process or machine. It behaves as the firmware does: boots
+with the motor disabled, answers Hello, holds each command over its period, streams one state
+frame per tick, zeroes the motor when commands stop for --watchdog ms (latched until re-armed)
+and, on the Altino, refuses forward commands once the IR sensor reads 2 cm or less (latched
+until re-armed; backing away still works).
+
+The first line of output is the port to connect to. Connect an env to it:
+  gym.make("frictiongym/RotaryServo-v0", backend="serial:///dev/pts/7")
+  gym.make("frictiongym/AltinoDistance-v0", backend="socket://127.0.0.1:5000")
+(backend URIs: serial://PATH?baud=N, socket://HOST:PORT; a pty ignores the baud rate).
+Unless --quiet, one status line per second goes to stderr. Stop with Ctrl-C, SIGTERM or
+--duration.
+
+Fault injection, on what the device sends: --drop P drops each byte with probability P,
+--corrupt P flips one bit of a frame with probability P, --delay S and --jitter S hold each
+frame S s (plus uniform 0..S) before writing it, --unplug-after S closes the link and
+--freeze-after S stops sending after S s of device time (the device keeps running and its
+watchdog zeroes the motor). --lockstep ticks once per command received instead of in real
+time (exact, for tests).
+"""
+
+
+def _endpoint(text: str) -> tuple[str, int]:
+    """Parse ``[HOST:]PORT`` (host defaults to 127.0.0.1)."""
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--tcp takes [HOST:]PORT, e.g. 5000 or 0.0.0.0:5000; got {text!r}"
+        ) from None
+    if not 0 <= number <= 65535:
+        raise argparse.ArgumentTypeError(f"port {number} is not in 0..65535 (0: any free port)")
+    return host or "127.0.0.1", number
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's options to ``parser``."""
+    parser.add_argument("--device", required=True, choices=KINDS, help="the device to emulate")
+    parser.add_argument(
+        "--tcp", type=_endpoint, metavar="[HOST:]PORT",
+        help="serve on TCP (host default 127.0.0.1; port 0: any free one) instead of a pty",
+    )  # fmt: skip
+    parser.add_argument(
+        "--params", metavar="FILE",
+        help="the plant's true parameters: a friction.json (frictiongym identify) of this device",
+    )  # fmt: skip
+    parser.add_argument(
+        "--friction", default="paper", metavar="LAW",
+        help="true friction law: paper (default), none, coulomb, stribeck or lugre",
+    )  # fmt: skip
+    parser.add_argument("--noise", action="store_true", help="add the env's default sensor noise")
+    parser.add_argument(
+        "--lockstep", action="store_true", help="one tick per command received (exact timing)"
+    )
+    parser.add_argument(
+        "--watchdog", type=int, metavar="MS",
+        help="watchdog time in ms (default: max(3 periods, 20 ms); 0 turns it off)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--drop", type=float, default=0.0, metavar="P", help="byte drop probability"
+    )
+    parser.add_argument(
+        "--corrupt", type=float, default=0.0, metavar="P", help="frame bit-flip probability"
+    )
+    parser.add_argument("--delay", type=float, default=0.0, metavar="S", help="frame latency, s")
+    parser.add_argument(
+        "--jitter", type=float, default=0.0, metavar="S", help="extra random latency, 0..S s"
+    )
+    parser.add_argument(
+        "--unplug-after", type=float, metavar="S", help="close the link after S s of device time"
+    )
+    parser.add_argument(
+        "--freeze-after", type=float, metavar="S", help="stop sending after S s of device time"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults (default 0)")
+    parser.add_argument(
+        "--duration", dest="run_for", type=float, metavar="S",
+        help="stop after S s of wall time (default: run until Ctrl-C or SIGTERM)",
+    )  # fmt: skip
+    parser.add_argument("--quiet", action="store_true", help="no status lines on stderr")
+
+
+def _status_line(emu: Any) -> str:
+    from frictiongym.hardware import protocol as p
+
+    s = emu.stats()
+    bits = "|".join(bit.name or "" for bit in p.Status if emu.status & bit) or "OK"
+    return (
+        f"ticks {s.ticks} (missed {s.missed})  commands {s.commands}  crc errors "
+        f"{s.crc_errors}  late {s.late}  motor {emu.motor:+.3f}  status {bits}  "
+        f"tick {s.tick_time_mean * 1e6:.0f} us"
+    )
+
+
+def run(args: argparse.Namespace, command_line: str) -> int:
+    """Run the command; return the exit status."""
+    from frictiongym.hardware.emulator import Emulator, Faults
+
+    if args.run_for is not None and not (math.isfinite(args.run_for) and args.run_for > 0):
+        print(f"error: --duration must be a positive number of seconds, got {args.run_for}",
+              file=sys.stderr)  # fmt: skip
+        return 2
+    try:
+        faults = Faults(
+            drop=args.drop, corrupt=args.corrupt, delay=args.delay, jitter=args.jitter,
+            unplug_after=args.unplug_after, freeze_after=args.freeze_after,
+        )  # fmt: skip
+        emu = Emulator(
+            args.device, params=args.params, friction=args.friction,
+            sensor_noise=bool(args.noise), lockstep=args.lockstep, faults=faults,
+            watchdog_ms=args.watchdog, seed=args.seed,
+        )  # fmt: skip
+    except (ValueError, TypeError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    stop = threading.Event()
+
+    def on_signal(signum: int, frame: FrameType | None) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        try:
+            url = emu.serve_tcp(*args.tcp) if args.tcp else emu.serve_pty()
+        except OSError as exc:
+            print(f"error: could not open the link: {exc}", file=sys.stderr)
+            return 2
+        print(url, flush=True)
+        if not args.quiet:
+            print(f"# {command_line}", file=sys.stderr, flush=True)
+        end = math.inf if args.run_for is None else time.monotonic() + args.run_for
+        while not stop.is_set() and emu.running:
+            stop.wait(max(0.0, min(1.0, end - time.monotonic())))
+            if time.monotonic() >= end:
+                break
+            if not args.quiet:
+                print(_status_line(emu), file=sys.stderr, flush=True)
+        if emu.error is not None:
+            print(f"error: the emulator stopped: {emu.error!r}", file=sys.stderr)
+            return 1
+        return 0
+    finally:
+        emu.close()
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the parser of ``scripts/emulate.py`` (the options of ``frictiongym emulate``)."""
+    parser = argparse.ArgumentParser(
+        prog="emulate.py", description=DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )  # fmt: skip
+    add_arguments(parser)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Parse ``argv`` and run."""
+    args = build_parser().parse_args(argv)
+    return run(args, shlex.join(["emulate.py", *(sys.argv[1:] if argv is None else argv)]))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "main", "run"]

@@ -1,0 +1,354 @@
+"""Our device firmware's state machine around the simulated plant, without I/O or clocks.
+
+:class:`Firmware` is what ``firmware/common/`` does on the microcontroller, in Python: it
+answers ``HelloRequest`` at once, queues ``Command`` and ``Place`` frames, and at every tick of
+the device clock applies them (the newest command wins), runs the watchdog and the Altino's
+distance limit, holds the motor command over the period, samples the sensor and builds one
+``State``. The plant is the env's own :class:`~frictiongym.envs.core.Simulation` of one env, so
+the physics exists once and the sensor numbers are the env's own measurements (bit-identical
+to the simulated env fed the same applied commands). The emulator
+(:class:`frictiongym.hardware.emulator.Emulator`) drives it from a real-time or lock-step clock
+behind a pty or a TCP socket; ``tests/test_firmware.py`` checks it against the C firmware's
+scenario table.
+
+Timing idealisation: a command is held over the *whole* period in which it arrived, and the
+``State`` that ends that period echoes it; the emulator has no transport or computation delay
+of its own (the plant's ``dead_time`` is part of the plant). Use ``Faults(delay=...)`` of the
+emulator for link latency.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections import deque
+from collections.abc import Mapping
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.core import Device, Simulation
+from frictiongym.friction import FrictionModel
+from frictiongym.hardware import protocol as p
+from frictiongym.hardware.base import KINDS
+from frictiongym.params import DeviceParams
+from frictiongym.plants import _kernel as pk
+from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET, QUBE_COUNTS_PER_REV
+
+#: Build number the emulated firmware reports in its ``Hello`` (issue E: the first build).
+FIRMWARE_BUILD = 1
+#: Command counts per physical unit: mV for the servo (protocol.DeviceKind), the Altino's own
+#: motor units.
+COMMAND_SCALE = {"rotary": 1000, "altino": 1}
+#: Default watchdog: three periods, at least 20 ms (research/hardware.md §0 item 3).
+WATCHDOG_PERIODS = 3
+WATCHDOG_MIN_MS = 20
+#: The Altino never drives closer to the wall than this, cm (issue E: "a distance limit so the
+#: Altino never drives into the wall"; 2 cm leaves room for one 50 ms period at speed).
+ALTINO_LIMIT_CM = 2.0
+#: IR readout at that distance (paper Eq. (1) inverted: 966 / 2 - 45 = 438); at or above it the
+#: firmware refuses positive (toward the wall) commands.
+ALTINO_LIMIT_READOUT = math.ceil(IR_NUMERATOR / ALTINO_LIMIT_CM - IR_OFFSET)
+#: Safety limit of the emulated servo, rad: large enough never to end anything (the firmware
+#: does not stop on the env's termination; the disk has no end stops).
+ROTARY_NO_LIMIT = 1e9
+#: Per-tick records kept in :attr:`Firmware.history` (200 s at 500 Hz; older ones are dropped).
+HISTORY_TICKS = 100_000
+
+_ENCODER_STEP = 2.0 * math.pi / QUBE_COUNTS_PER_REV
+
+
+class Tick(NamedTuple):
+    """One tick of the emulated device, as its ``State`` reported it, plus the truth."""
+
+    tick: int  #: device tick number (1 is the first)
+    seq_applied: int  #: ``seq`` of the command held over the period
+    applied: int  #: motor command held over the period, counts
+    status: p.Status  #: status bits sent
+    sensor: int  #: encoder counts or IR readout sent
+    position: float  #: true position at the tick: rad, or cm from the wall
+    velocity: float  #: its true rate
+
+
+def devices() -> dict[str, Device]:
+    """Return the simulated device of each kind (imported late: the envs import the hardware)."""
+    from frictiongym.envs.altino import ALTINO_DEVICE
+    from frictiongym.envs.rotary import ROTARY_DEVICE
+
+    return {"rotary": ROTARY_DEVICE, "altino": ALTINO_DEVICE}
+
+
+def default_watchdog_ms(dt: float) -> int:
+    """Return the default watchdog time of a device of period ``dt``: max(3 periods, 20 ms)."""
+    return max(math.ceil(WATCHDOG_PERIODS * dt * 1000.0 - 1e-9), WATCHDOG_MIN_MS)
+
+
+def _wrap_i32(value: int) -> int:
+    """Wrap an integer into int32, as a 32-bit encoder counter does."""
+    return ((value + 2**31) % 2**32) - 2**31
+
+
+class Firmware:
+    """The device firmware's state machine around one simulated plant (see the module).
+
+    Parameters
+    ----------
+    kind : {"rotary", "altino"}
+        The device to emulate.
+    params : str, PathLike or DeviceParams, optional
+        The plant's "true" identified parameters (a ``friction.json``); default: the nominal
+        model with ``friction``.
+    friction : str or FrictionModel, default "paper"
+        The true friction law (ignored with ``params``, whose law it is).
+    sensor_noise : bool or float, default False
+        Sensor noise, as the env's ``sensor_noise``.
+    randomize : mapping or DomainRandomization, optional
+        Factors drawn at boot and at every ``Place`` (a device unlike the nominal model).
+    watchdog_ms : int, optional
+        Watchdog time, ms (default: max(3 periods, 20 ms)); 0 turns it off.
+    start : float, optional
+        Position at boot: rad, or cm from the wall (default: the env's start).
+    seed : int, default 0
+        Seed of the plant's draws (noise, randomisation): ``numpy.random.default_rng(seed)``,
+        as ``env.reset(seed=seed)`` seeds the env.
+    """
+
+    def __init__(
+        self,
+        kind: str,
+        *,
+        params: str | os.PathLike[str] | DeviceParams | None = None,
+        friction: str | FrictionModel = "paper",
+        sensor_noise: bool | float = False,
+        randomize: Mapping[str, Any] | None = None,
+        watchdog_ms: int | None = None,
+        start: float | None = None,
+        seed: int = 0,
+    ) -> None:
+        if kind not in KINDS:
+            raise ValueError(f"unknown device {kind!r}; emulate one of {list(KINDS)}")
+        self.kind = kind
+        self.device = devices()[kind]
+        self.dt = self.device.dt
+        self.scale = COMMAND_SCALE[kind]
+        altino = kind == "altino"
+        self.sim = Simulation(
+            self.device, 1, params=params, friction=friction, sensor_noise=sensor_noise,
+            quantize=True, reference=0.0, randomize=randomize,
+            safety_limit=0.0 if altino else ROTARY_NO_LIMIT,
+        )  # fmt: skip
+        if watchdog_ms is None:
+            watchdog_ms = default_watchdog_ms(self.dt)
+        if not (isinstance(watchdog_ms, int) and 0 <= watchdog_ms <= 0xFFFF):
+            raise ValueError(
+                "watchdog_ms must be a whole number of ms in 0..65535 (0: off), "
+                f"got {watchdog_ms!r}"
+            )
+        self.watchdog_s = watchdog_ms / 1000.0
+        caps = p.Capability.PLACE | (p.Capability.WATCHDOG if watchdog_ms else 0)
+        if altino:
+            caps |= p.Capability.DISTANCE_LIMIT
+        self.hello = p.Hello(
+            version=p.PROTOCOL_VERSION,
+            kind=p.DeviceKind.ALTINO if altino else p.DeviceKind.ROTARY,
+            capabilities=p.Capability(caps),
+            rate_hz=round(1.0 / self.dt),
+            counts_per_rev=0 if altino else QUBE_COUNTS_PER_REV,
+            command_scale=self.scale,
+            command_limit=round(self.sim.plant.command_limit * self.scale),
+            watchdog_ms=watchdog_ms,
+            firmware=FIRMWARE_BUILD,
+        )
+        self._period_us = round(self.dt * 1e6)
+        self._rng = np.random.default_rng(seed)
+        self._command = np.zeros(1)
+        self._fresh = np.zeros(1, dtype=bool)
+        self._obs = np.zeros((1, self.sim.observation_size), dtype=np.float32)
+        self._out = np.zeros((ek.OUT_SIZE, 1))
+        self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        self.decoder = p.FrameDecoder()
+        self._pending: list[p.Command | p.Place] = []
+        self.ticks = 0  #: device ticks so far
+        self.commands = 0  #: valid ``Command`` frames received
+        self.late = 0  #: ticks that held an old command while armed and enabled
+        self.rejected = 0  #: ``Place`` frames refused (position out of range) and host frames
+        self.armed = False
+        self.enabled = False
+        self.held = 0  #: counts of the newest command (clipped to the limit)
+        self.motor_counts = 0  #: counts the motor holds now
+        self.seq_applied = 0
+        self.latched = p.Status(0)  #: latched WATCHDOG / LIMIT bits
+        self.status = p.Status.DISABLED  #: status bits of the last state
+        self.last_command = -math.inf  #: arrival time of the newest command, s
+        self.history: deque[Tick] = deque(maxlen=HISTORY_TICKS)
+        self._errors_seen = 0
+        self._place(self.device.start if start is None else float(start))
+        self.sensor = self._sensor()
+
+    # -- plant ------------------------------------------------------------------------------
+
+    @property
+    def position(self) -> float:
+        """True plant position: rad, or cm from the wall."""
+        x = float(self.sim.state[0, pk.S_X])
+        return -x if self.kind == "altino" else x
+
+    @property
+    def velocity(self) -> float:
+        """True plant velocity: rad/s, or cm/s away from the wall."""
+        v = float(self.sim.state[0, pk.S_V])
+        return -v if self.kind == "altino" else v
+
+    @property
+    def motor(self) -> float:
+        """The command the motor holds now, physical units (0.0 when disabled)."""
+        return self.motor_counts / self.scale
+
+    def _place(self, position: float) -> None:
+        """Reset the plant at rest at ``position`` and observe it (the env's own reset)."""
+        self._fresh[0] = True
+        self.sim.prepare_reset(self._fresh, lambda _: self._rng, {"position": position})
+        self._command[0] = 0.0
+        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+        self._fresh[0] = False
+
+    def _zero_position(self) -> None:
+        """Reset the encoder count: the plant's position is 0, the rest of its state kept.
+
+        The disk's dynamics do not depend on its angle, so this is the encoder reset; at rest
+        the state equals that of a freshly reset simulation (apart from its step count).
+        """
+        self.sim.state[0, pk.S_X] = 0.0
+        self.sim.state[0, ek.E_ESTIMATE] = 0.0
+
+    def _sensor(self) -> int:
+        """Return what the sensor reports: encoder counts or IR readout, from the env's own."""
+        if self.kind == "rotary":
+            return _wrap_i32(round(float(self.sim.state[0, ek.E_ESTIMATE]) / _ENCODER_STEP))
+        return int(self._obs[0, 0])
+
+    # -- messages ---------------------------------------------------------------------------
+
+    def feed(self, data: bytes) -> list[p.Message]:
+        """Decode the bytes the host sent (bad frames are counted for ``CRC_ERROR``)."""
+        return self.decoder.feed(data)
+
+    def receive(self, message: p.Message, now: float) -> p.Hello | None:
+        """Take one message that arrived at ``now`` (s); return the reply to send at once.
+
+        ``HelloRequest`` (of any version: the host decides) is answered with the ``Hello``;
+        ``Command`` and ``Place`` wait for the next tick; a device's own messages are ignored.
+        """
+        if isinstance(message, p.HelloRequest):
+            return self.hello
+        if isinstance(message, p.Command):
+            self.commands += 1
+            self.last_command = now
+            self._pending.append(message)
+        elif isinstance(message, p.Place):
+            self._pending.append(message)
+        else:
+            self.rejected += 1
+        return None
+
+    def apply_pending(self) -> bool:
+        """Apply the queued messages in order; return whether a command was among them."""
+        got = False
+        for message in self._pending:
+            if isinstance(message, p.Place):
+                try:
+                    self._place(float(message.position))
+                except ValueError:  # out of range or not finite: a device ignores it
+                    self.rejected += 1
+                else:
+                    self.sensor = self._sensor()
+                continue
+            got = True
+            flags = message.flags
+            if flags & p.Flag.REARM:
+                self.latched = p.Status(0)
+                self.armed = True
+            if flags & p.Flag.ESTOP:
+                self.armed = False
+            if flags & p.Flag.ZERO_POSITION and self.kind == "rotary":
+                self._zero_position()
+                self.sensor = 0
+            self.enabled = bool(flags & p.Flag.ENABLE)
+            limit = self.hello.command_limit
+            self.held = min(max(int(message.command), -limit), limit)
+            self.seq_applied = message.seq
+        self._pending.clear()
+        return got
+
+    def watchdog_deadline(self) -> float | None:
+        """When the watchdog trips if no command comes (s, the clock of ``now``); None: never."""
+        if not (self.armed and self.watchdog_s):
+            return None
+        return self.last_command + self.watchdog_s
+
+    # -- tick -------------------------------------------------------------------------------
+
+    def _limit_check(self) -> None:
+        if self.kind == "altino" and self.sensor >= ALTINO_LIMIT_READOUT:
+            self.latched |= p.Status.LIMIT
+
+    def tick(self, now: float) -> p.State:
+        """Run one device period ending at ``now`` (s); return its ``State``.
+
+        Applies the queued messages, trips the watchdog if it is due, holds the motor command
+        over the period, integrates the plant, samples the sensor.
+        """
+        got = self.apply_pending()
+        deadline = self.watchdog_deadline()
+        if deadline is not None and now >= deadline:
+            self.armed = False
+            self.latched |= p.Status.WATCHDOG
+        self._limit_check()
+        counts = self.held if self.armed and self.enabled else 0
+        if counts > 0 and self.latched & p.Status.LIMIT:
+            counts = 0  # backing away (negative) still passes
+        self.motor_counts = counts
+        self._command[0] = counts / self.scale
+        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+        if self.kind == "altino" and self.sim.state[0, pk.S_X] >= 0.0:
+            # An inelastic wall at 0 cm (the env has none: it ends the episode there).
+            self.sim.state[0, pk.S_X] = 0.0
+            self.sim.state[0, pk.S_V] = 0.0
+            self.sim.state[0, pk.S_STUCK] = 1.0
+        self.sensor = self._sensor()
+        self._limit_check()
+        self.ticks += 1
+        driving = self.armed and self.enabled
+        status = self.latched
+        if not driving:
+            status |= p.Status.DISABLED
+        elif not got:
+            status |= p.Status.COMMAND_LATE
+            self.late += 1
+        if self.decoder.errors > self._errors_seen:
+            status |= p.Status.CRC_ERROR
+            self._errors_seen = self.decoder.errors
+        self.status = status
+        self.history.append(
+            Tick(self.ticks, self.seq_applied, counts, status, self.sensor, self.position,
+                 self.velocity)
+        )  # fmt: skip
+        return p.State(
+            status=status,
+            seq=self.ticks & 0xFFFF,
+            tick_us=(self.ticks * self._period_us) & 0xFFFFFFFF,
+            seq_applied=self.seq_applied,
+            applied=counts,
+            sensor=self.sensor,
+        )
+
+
+__all__ = [
+    "ALTINO_LIMIT_READOUT",
+    "COMMAND_SCALE",
+    "FIRMWARE_BUILD",
+    "Firmware",
+    "Tick",
+    "default_watchdog_ms",
+]

@@ -1,0 +1,493 @@
+"""The device emulator, driven with raw protocol frames over pyserial (pty and TCP).
+
+Real-time tests are loose (CI is a noisy VM); every wait has a deadline, so none can hang.
+"""
+
+import math
+import select
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import frictiongym  # noqa: F401  (registers the envs)
+from frictiongym.envs import _kernel as ek
+from frictiongym.envs.core import Simulation
+from frictiongym.hardware import protocol as p
+from frictiongym.hardware.emulator import Emulator, Faults
+from frictiongym.hardware.firmware import ALTINO_LIMIT_READOUT, Firmware, devices
+from frictiongym.plants import _kernel as pk
+from frictiongym.plants.sensors import ir_readout
+
+serial = pytest.importorskip("serial")
+
+STEP = 2.0 * math.pi / 2048
+SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "emulate.py"
+ARM = p.Flag.REARM | p.Flag.ENABLE
+
+
+class Host:
+    """A minimal host speaking raw frames (independent of SerialBackend)."""
+
+    def __init__(self, url: str) -> None:
+        self.port = serial.serial_for_url(url, timeout=0.02)
+        self.decoder = p.FrameDecoder()
+        self.seq = 0
+
+    def send(self, message: p.Message) -> None:
+        self.port.write(p.encode(message))
+
+    def command(self, counts: int, flags: p.Flag = p.Flag.ENABLE) -> int:
+        self.seq = (self.seq + 1) & 0xFFFF
+        self.send(p.Command(self.seq, counts, flags))
+        return self.seq
+
+    def read(self) -> list[p.Message]:
+        return self.decoder.feed(self.port.read(max(1, self.port.in_waiting)))
+
+    def collect(self, seconds: float) -> list[p.Message]:
+        end, out = time.monotonic() + seconds, []
+        while time.monotonic() < end:
+            out += self.read()
+        return out
+
+    def wait(self, kind: type, test=lambda m: True, timeout: float = 2.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            for message in self.read():
+                if isinstance(message, kind) and test(message):
+                    return message
+        raise AssertionError(f"no {kind.__name__} within {timeout} s")
+
+    def hello(self) -> p.Hello:
+        self.send(p.HelloRequest())
+        return self.wait(p.Hello)
+
+    def step(self, counts: int, flags: p.Flag = p.Flag.ENABLE) -> p.State:
+        seq = self.command(counts, flags)
+        return self.wait(p.State, lambda s: s.seq_applied == seq)
+
+    def close(self) -> None:
+        self.port.close()
+
+
+@pytest.fixture
+def serve(request):
+    """``serve(kind, **kwargs) -> (emulator, host)`` on a pty (or TCP), closed after the test."""
+    made = []
+
+    def make(kind="rotary", tcp=False, **kwargs):
+        emu = Emulator(kind, **kwargs)
+        made.append(emu)
+        url = emu.serve_tcp() if tcp else emu.serve_pty()
+        host = Host(url)
+        made.append(host)
+        return emu, host
+
+    yield make
+    for thing in reversed(made):
+        thing.close()
+
+
+@pytest.mark.parametrize(("kind", "rate", "cpr", "scale", "limit", "wd", "caps"), [
+    ("rotary", 500, 2048, 1000, 10000, 20, p.Capability.WATCHDOG | p.Capability.PLACE),
+    ("altino", 20, 0, 1, 1000, 150,
+     p.Capability.WATCHDOG | p.Capability.PLACE | p.Capability.DISTANCE_LIMIT),
+])  # fmt: skip
+def test_hello_describes_the_device(serve, kind, rate, cpr, scale, limit, wd, caps):
+    emu, host = serve(kind)
+    hello = host.hello()
+    assert hello == p.Hello(p.PROTOCOL_VERSION, p.DeviceKind[kind.upper()], caps, rate, cpr,
+                            scale, limit, wd, 1)  # fmt: skip
+    host.send(p.HelloRequest(version=7))  # another version still gets a Hello: the host decides
+    assert host.wait(p.Hello) == hello
+    assert emu.dt == pytest.approx(1.0 / rate)
+
+
+def test_boots_disabled_and_streams_states_at_its_rate(serve):
+    emu, host = serve("rotary")
+    states = [m for m in host.collect(0.3) if isinstance(m, p.State)]
+    assert len(states) > 30
+    assert all(s.status & p.Status.DISABLED and s.applied == 0 for s in states)
+    assert emu.motor == 0.0
+    seqs, ticks = np.array([s.seq for s in states]), np.array([s.tick_us for s in states])
+    assert np.all(np.diff(seqs) >= 1)
+    assert np.all(np.diff(ticks) == np.diff(seqs) * 2000)  # the device's clock, 2 ms per tick
+    host.step(3000)  # ENABLE without REARM: still off
+    assert emu.motor == 0.0
+
+
+@pytest.mark.parametrize(("kind", "env_id", "commands"), [
+    ("rotary", "frictiongym/RotaryServo-v0",
+     [1500] * 150 + [-800] * 100 + [300] * 50 + list(range(-3000, 3000, 60))),
+    ("altino", "frictiongym/AltinoDistance-v0", [400] * 15 + [-200] * 10 + [300] * 15 + [0] * 5),
+])  # fmt: skip
+def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands):
+    emu, host = serve(kind, lockstep=True)
+    hello = host.hello()
+    first = host.step(0, ARM | p.Flag.ZERO_POSITION)
+    env = gym.make(env_id).unwrapped
+    obs, _ = env.reset(seed=0)
+    assert first.status == p.Status(0)
+    assert first.sensor == (0 if kind == "rotary" else int(obs[0]))
+    for counts in commands:
+        state = host.step(counts)
+        assert state.status == p.Status(0)
+        assert state.applied == counts
+        obs, *_ = env.step(np.array([state.applied / hello.command_scale], np.float32))
+        if kind == "rotary":  # the env's own float product: bit-identical
+            assert state.sensor * STEP == env.sim.state[0, ek.E_ESTIMATE]
+            assert np.float32(state.sensor * STEP) == obs[0]
+        else:
+            assert state.sensor == obs[0]
+    assert emu.position == pytest.approx(env.sim.state[0, pk.S_X] * (1 if kind == "rotary" else -1))
+    assert [t.sensor for t in emu.history[-len(commands) :]] != [0] * len(commands)
+    assert emu.stats().ticks == len(commands) + 1
+
+
+@pytest.mark.parametrize("law", ["paper", "coulomb", "stribeck", "lugre", "none"])
+def test_zero_position_at_rest_equals_a_fresh_reset(law):
+    fw = Firmware("rotary", friction=law)
+    fw.receive(p.Command(1, 0, ARM), 0.0)
+    for counts in [2500] * 100 + [0] * 2500:  # turn, then come to rest (or slide forever)
+        fw.receive(p.Command(2, counts, p.Flag.ENABLE), 0.0)
+        fw.tick(0.0)
+    assert fw.position > 1.0
+    velocity = fw.velocity
+    fw.receive(p.Command(3, 0, p.Flag.ENABLE | p.Flag.ZERO_POSITION), 0.0)
+    fw.apply_pending()
+    assert fw.position == 0.0
+    assert fw.velocity == velocity
+    fresh = Simulation(devices()["rotary"], 1, friction=law, reference=0.0)
+    fresh.prepare_reset(np.ones(1, bool), lambda _: np.random.default_rng(0))
+    physics = [*range(pk.STATE_SIZE), ek.E_ESTIMATE]
+    if law in ("paper", "coulomb", "stribeck"):  # laws with stiction come to rest exactly
+        assert velocity == 0.0
+        np.testing.assert_array_equal(fw.sim.state[0, physics], fresh.state[0, physics])
+
+
+_COMMANDS = st.builds(
+    lambda flags, counts, seq: p.encode(p.Command(seq, counts, p.Flag(flags))),
+    st.integers(0, 15), st.integers(-32768, 32767), st.integers(0, 0xFFFF),
+)  # fmt: skip
+_PLACES = st.builds(lambda x: p.encode(p.Place(x)), st.floats(width=32))
+_CHUNKS = st.lists(st.one_of(st.binary(max_size=40), _COMMANDS, _PLACES), max_size=40)
+
+
+@settings(max_examples=40, deadline=None)
+@given(chunks=_CHUNKS, kind=st.sampled_from(["rotary", "altino"]))
+def test_any_input_keeps_the_firmware_safe(chunks, kind):
+    fw = Firmware(kind)
+    for i, chunk in enumerate(chunks):
+        for message in fw.feed(chunk):
+            fw.receive(message, i * fw.dt)
+        state = fw.tick(i * fw.dt)
+        assert abs(state.applied) <= fw.hello.command_limit
+        assert state.applied == 0 or (fw.armed and fw.enabled)
+        assert bool(state.status & p.Status.DISABLED) != (fw.armed and fw.enabled)
+        assert math.isfinite(fw.position)
+
+
+def test_zero_position_while_moving_keeps_the_velocity(serve):
+    emu, host = serve("rotary", lockstep=True)
+    host.step(0, ARM)
+    for _ in range(100):
+        host.step(3000)
+    before = emu.velocity
+    state = host.step(3000, p.Flag.ENABLE | p.Flag.ZERO_POSITION)
+    assert 0 < state.sensor < before * emu.dt / STEP + 2  # one period of travel from zero
+    assert emu.position == pytest.approx(before * emu.dt, rel=0.05)
+
+
+def test_place_puts_the_plant_at_rest_there(serve):
+    emu, host = serve("rotary", lockstep=True)
+    host.send(p.Place(1.0))
+    state = host.step(0, ARM)
+    assert state.sensor == round(1.0 / STEP)
+    assert emu.velocity == 0.0
+    emu2, host2 = serve("altino", lockstep=True)
+    host2.send(p.Place(-3.0))  # behind the wall: ignored
+    host2.send(p.Place(8.0))
+    state = host2.step(0, ARM)
+    assert emu2.position == 8.0
+    assert state.sensor == ir_readout(8.0)
+    assert emu2.firmware.rejected == 1
+
+
+def test_watchdog_zeroes_the_motor_in_time_and_latches(serve):
+    emu, host = serve("rotary")
+    host.hello()
+    host.step(2000, ARM)
+    for _ in range(50):
+        state = host.step(2000)
+    assert emu.motor == 2.0
+    stopped = time.monotonic()
+    while emu.motor != 0.0 and time.monotonic() - stopped < 1.0:
+        time.sleep(0.0005)
+    elapsed = time.monotonic() - stopped
+    watchdog, dt = 0.020, emu.dt
+    assert elapsed < watchdog + dt + 0.05  # loose: a noisy VM may wake us late
+    # Exact on the device clock: zeroed on the first tick at or after watchdog_ms.
+    ticks = emu.history
+    last = max(t.tick for t in ticks if t.seq_applied == host.seq and t.applied == 2000)
+    tripped = min(t.tick for t in ticks if t.status & p.Status.WATCHDOG)
+    assert tripped - last <= round(watchdog / dt) + 1
+    state = host.wait(p.State, lambda s: s.status & p.Status.WATCHDOG)
+    assert state.status & p.Status.DISABLED
+    assert state.applied == 0
+    state = host.step(2000)  # latched: ENABLE alone does not restart it
+    assert state.applied == 0
+    assert state.status & p.Status.WATCHDOG
+    state = host.step(2000, ARM)
+    assert state.applied == 2000
+    assert not state.status & p.Status.WATCHDOG
+    host.step(0, p.Flag(0))
+
+
+def test_lockstep_watchdog_sends_a_state_when_commands_stop(serve):
+    emu, host = serve("altino", lockstep=True, watchdog_ms=60)
+    host.step(300, ARM)
+    sent = time.monotonic()
+    state = host.wait(p.State, lambda s: s.status & p.Status.WATCHDOG, timeout=2.0)
+    assert 0.05 <= time.monotonic() - sent < 1.0
+    assert state.applied == 0
+    assert emu.motor == 0.0
+    assert host.collect(0.15) == []  # disarmed: nothing more until a command
+
+
+def test_estop_disarms_until_rearm(serve):
+    emu, host = serve("rotary", lockstep=True)
+    assert host.step(1000, ARM).applied == 1000
+    state = host.step(1000, p.Flag.ENABLE | p.Flag.ESTOP)
+    assert state.applied == 0
+    assert state.status & p.Status.DISABLED
+    assert emu.motor == 0.0
+    assert host.step(1000).applied == 0
+    assert host.step(-1000, ARM).applied == -1000
+    assert emu.motor == -1.0
+    assert host.step(25000).applied == 10000  # clipped to the limit: 10 V
+
+
+def test_altino_distance_limit(serve):
+    emu, host = serve("altino", lockstep=True)
+    host.send(p.Place(4.0))
+    host.step(0, ARM)
+    states = [host.step(300) for _ in range(40)]
+    limited = [s for s in states if s.status & p.Status.LIMIT]
+    assert limited, "the car reached the wall without the limit"
+    first = states.index(limited[0])  # its sample crossed the limit: from the next period on
+    assert limited[0].sensor >= ALTINO_LIMIT_READOUT > states[first - 1].sensor
+    assert all(s.applied == 0 and s.status & p.Status.LIMIT for s in states[first + 1 :])
+    assert min(t.position for t in emu.history) > 0.0  # slow enough to stop short of the wall
+    assert states[-1].sensor >= ALTINO_LIMIT_READOUT
+    state = host.step(-300)  # backing away still passes, the limit stays latched
+    assert state.applied == -300
+    assert state.status & p.Status.LIMIT
+    for _ in range(20):
+        state = host.step(-300)
+    state = host.step(-300, ARM)
+    assert not state.status & p.Status.LIMIT
+
+
+def test_bad_frames_set_the_crc_error_bit_once(serve):
+    emu, host = serve("rotary", lockstep=True)
+    host.step(0, ARM)
+    frame = bytearray(p.encode(p.Command(5, 100, p.Flag.ENABLE)))
+    frame[3] ^= 0x10
+    host.port.write(b"\x13\x37garbage\x00" + bytes(frame))
+    state = host.step(0)
+    assert state.status & p.Status.CRC_ERROR
+    assert not host.step(0).status & p.Status.CRC_ERROR
+    assert emu.stats().crc_errors == 2
+
+
+@pytest.mark.parametrize("faults", [Faults(drop=0.02), Faults(corrupt=0.3)])
+def test_link_faults_show_as_decoder_errors(serve, faults):
+    _, host = serve("rotary", faults=faults, seed=3)
+    states = [m for m in host.collect(0.4) if isinstance(m, p.State)]
+    assert host.decoder.errors > 0
+    assert len(states) > 20  # the decoder resynchronises; good frames still pass
+
+
+def test_delay_holds_frames(serve):
+    _, host = serve("altino", faults=Faults(delay=0.1, jitter=0.02))
+    host.collect(0.15)
+    sent = time.monotonic()
+    host.send(p.HelloRequest())
+    host.wait(p.Hello)
+    assert time.monotonic() - sent >= 0.1
+
+
+def _link_failure(port, seconds: float) -> OSError | None:
+    """Read and write ``port`` until it fails (pyserial's errors are OSErrors) or time is up."""
+    end = time.monotonic() + seconds
+    try:
+        while time.monotonic() < end:
+            port.read(max(1, port.in_waiting))
+            port.write(b"\x00")
+    except OSError as exc:
+        return exc
+    return None
+
+
+@pytest.mark.parametrize("tcp", [False, True])
+def test_unplug_fails_the_host_and_the_watchdog_stops_the_motor(serve, tcp):
+    emu, host = serve("rotary", tcp=tcp)
+    host.step(1500, ARM)
+    host.step(1500)
+    emu.unplug()
+    unplugged = time.monotonic()
+    assert isinstance(_link_failure(host.port, 0.5), OSError)
+    assert time.monotonic() - unplugged < 0.5
+    end = time.monotonic() + 1.0
+    while emu.motor != 0.0 and time.monotonic() < end:
+        time.sleep(0.005)
+    assert emu.motor == 0.0
+    assert emu.status & p.Status.WATCHDOG
+    assert emu.running  # the device itself keeps going
+
+
+def test_unplug_and_freeze_after_device_time(serve):
+    _, host = serve("altino", faults=Faults(unplug_after=0.2))
+    host.wait(p.State)
+    assert isinstance(_link_failure(host.port, 2.0), OSError)
+    emu2, host2 = serve("rotary", faults=Faults(freeze_after=0.1))
+    host2.wait(p.State)
+    host2.collect(0.2)
+    assert host2.collect(0.2) == []  # the host times out; the link is still open
+    host2.send(p.HelloRequest())
+    assert host2.collect(0.1) == []
+    assert emu2.running
+    assert host2.port.is_open
+
+
+def test_freeze_keeps_the_link_open_and_silent(serve):
+    emu, host = serve("rotary")
+    host.hello()
+    host.step(500, ARM)
+    emu.freeze()
+    host.collect(0.05)
+    assert host.collect(0.2) == []
+    assert emu.motor == 0.0  # the watchdog still runs
+
+
+def test_tcp_serves_one_client_after_another(serve):
+    emu, host = serve("altino", tcp=True)
+    assert emu.url.startswith("socket://127.0.0.1:")
+    assert host.hello().kind == p.DeviceKind.ALTINO
+    host.close()
+    again = Host(emu.url)
+    try:
+        assert again.hello().rate_hz == 20
+    finally:
+        again.close()
+
+
+def test_pty_survives_the_host_closing_the_port(serve):
+    emu, host = serve("rotary")
+    host.hello()
+    host.close()
+    time.sleep(0.1)  # the emulator sees EIO on the master, waits and retries
+    again = Host(emu.url)
+    try:
+        assert again.hello().kind == p.DeviceKind.ROTARY
+    finally:
+        again.close()
+    assert emu.running
+    assert emu.error is None
+
+
+def test_keeps_up_at_500_hz(serve):
+    emu, host = serve("rotary")
+    host.step(0, ARM)
+    for _ in range(250):  # half a second of closed loop
+        host.step(500)
+    stats = emu.stats()
+    assert stats.ticks >= 200
+    assert stats.missed < stats.ticks // 4
+    assert stats.tick_time_mean < emu.dt / 2
+
+
+def test_bad_arguments_raise():
+    with pytest.raises(ValueError, match="probability"):
+        Faults(drop=-0.1)
+    with pytest.raises(ValueError, match="seconds"):
+        Faults(delay=math.inf)
+    with pytest.raises(ValueError, match="unknown device"):
+        Emulator("segway")
+    with pytest.raises(ValueError, match="watchdog_ms"):
+        Emulator("rotary", watchdog_ms=-5)
+    emu = Emulator("rotary")
+    emu.close()
+    emu.close()
+    with pytest.raises(RuntimeError, match="closed"):
+        emu.serve_pty()
+
+
+def _first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
+    ready, _, _ = select.select([proc.stdout], [], [], timeout)
+    assert ready, "the emulator printed nothing"
+    return proc.stdout.readline().strip()
+
+
+def test_cli_prints_a_connectable_port_and_stops_on_sigint():
+    proc = subprocess.Popen([sys.executable, str(SCRIPT), "--device", "rotary", "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    try:
+        url = _first_line(proc)
+        assert url.startswith("/dev/")
+        host = Host(url)
+        try:
+            assert host.hello().kind == p.DeviceKind.ROTARY
+        finally:
+            host.close()
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=10) == 0, proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
+    from frictiongym.hardware.command import main
+
+    assert main(["--device", "altino", "--tcp", "0", "--duration", "1.2"]) == 0
+    out, err = capsys.readouterr()
+    assert out.splitlines()[0].startswith("socket://127.0.0.1:")
+    assert "ticks" in err
+    assert "DISABLED" in err
+    bad = tmp_path / "friction.json"
+    bad.write_text("{not json")
+    other = Path(__file__).resolve().parents[1] / "docs" / "identification" / "altino"
+    for extra in (["--drop", "-0.5"], ["--corrupt", "2"], ["--params", str(bad)],
+                  ["--params", str(tmp_path / "x")], ["--duration", "-1"],
+                  ["--friction", "glue"], ["--watchdog", "-3"], ["--tcp", "1.2.3.4.5:99"],
+                  *([["--params", str(other)]] if other.exists() else [])):  # fmt: skip
+        assert main(["--device", "rotary", *extra]) == 2, extra
+        out, err = capsys.readouterr()
+        assert err.startswith("error:"), (extra, err)
+        assert out == "", extra
+
+
+def test_cli_help_and_unknown_device(capsys):
+    from frictiongym.hardware.command import build_parser, main
+
+    text = build_parser().format_help()
+    for word in ("--device", "--tcp", "--drop", "--unplug-after", "serial://", "socket://"):
+        assert word in text
+    for argv in (["--device", "segway"], ["--device", "rotary", "--tcp", "port"]):
+        with pytest.raises(SystemExit) as exit_:
+            main(argv)
+        assert exit_.value.code == 2
+    with pytest.raises(SystemExit) as exit_:
+        main(["--help"])
+    assert exit_.value.code == 0
+    assert "--lockstep" in capsys.readouterr().out
