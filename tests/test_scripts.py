@@ -30,6 +30,11 @@ def test_plot_friction_writes_a_png(tmp_path):
                           "--no-figures")),
         ("identify.py", ("--env", "--out", "--backend", "--law", "--noise", "--seed")),
         ("tune.py", ("--samples", "--seed", "--out", "--model", "--params", "--rule")),
+        ("emulate.py", ("--device", "--tcp", "--params", "--lockstep", "--drop", "--corrupt",
+                        "--delay", "--unplug-after")),
+        ("sim2real.py", ("--env", "--backend", "--controller", "--gains", "--params",
+                         "--repeats", "--out")),
+        ("bench_hardware.py", ("--seconds", "--frames")),
     ],
 )  # fmt: skip
 def test_script_help_explains_its_options(script, options):

@@ -1,0 +1,84 @@
+"""frictiongym sim2real on the emulator: the report, the gap, what friction modelling closes."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from frictiongym.cli import main
+from frictiongym.controllers import PIDGains
+from frictiongym.sim2real import fit_percent, rmse, run_sim2real, write_report
+
+SERVO = "frictiongym/RotaryServo-v0"
+ALTINO = "frictiongym/AltinoDistance-v0"
+
+
+def test_rmse_and_fit_are_exact_on_known_signals():
+    y = np.array([0.0, 1.0, 2.0, 3.0])
+    assert rmse(y, y + 0.5) == 0.5
+    assert fit_percent(y, y) == 100.0
+    assert fit_percent(np.full(4, y.mean()), y) == 0.0
+
+
+@pytest.mark.parametrize("controller", ["pid", "compensated"])
+def test_the_friction_model_closes_most_of_the_gap_on_the_emulated_servo(tmp_path, controller):
+    result = run_sim2real(
+        SERVO, "emulator://rotary?lockstep=1&noise=1", controller=controller, repeats=3,
+        steps=750, log=tmp_path / "log",
+    )  # fmt: skip
+    assert len(result.device) == 3
+    # The emulated device is the paper's plant: its friction model is far closer than the
+    # frictionless nominal one, down to the device's own spread (its sensor noise).
+    nominal, friction = result.gap("nominal", "output"), result.gap("friction", "output")
+    assert friction < 0.2 * nominal
+    assert result.spread("output") > 0.0
+    assert friction < 5 * result.spread("output") + 1e-3
+    path = write_report(result, tmp_path / "out", "frictiongym sim2real ...", figures=True)
+    text = path.read_text()
+    assert "## Gap to the device" in text
+    assert "closes" in text
+    for name in ("overlay.png", "timing.png", "sim2real.json"):
+        assert (tmp_path / "out" / name).stat().st_size > 1000
+    data = json.loads((tmp_path / "out" / "sim2real.json").read_text())
+    assert data["gap_closed"]["friction"]["output"] > 0.8
+    assert data["timing"]["steps"] == 3 * 750
+
+
+def test_an_identified_model_and_explicit_gains_are_used(tmp_path):
+    from frictiongym.friction.presets import ALTINO_PAPER
+    from frictiongym.params import DeviceParams, save_params
+    from frictiongym.plants.presets import ALTINO_PLANT
+
+    params = tmp_path / "friction.json"
+    total_damping = ALTINO_PLANT.damping + ALTINO_PAPER.viscous  # B of a file is the total
+    save_params(params, DeviceParams.from_model(
+        ALTINO_PAPER, inertia=ALTINO_PLANT.inertia, damping=total_damping, law="paper",
+        device="AltinoDistance",
+    ))  # fmt: skip
+    result = run_sim2real(
+        ALTINO, "emulator://altino?lockstep=1", params=str(params), repeats=1, steps=200,
+        gains=PIDGains(25.0, 10.0, 12.0), log=False,
+    )  # fmt: skip
+    assert set(result.models) == {"nominal", "identified"}
+    assert result.gains == {"kp": 25.0, "ki": 10.0, "kd": 12.0}
+    assert result.gap("identified", "output") < result.gap("nominal", "output")
+
+
+def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
+    out = tmp_path / "report"
+    status = main([
+        "sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+        "--repeats", "2", "--steps", "300", "--out", str(out), "--no-figures",
+    ])  # fmt: skip
+    assert status == 0
+    assert "friction" in capsys.readouterr().out
+    assert (out / "report.md").exists()
+    assert (out / "device-log" / "steps.csv").exists()
+    file = tmp_path / "a-file"
+    file.write_text("x")
+    assert main(["sim2real", "--env", SERVO, "--backend", "emulator://", "--out", str(file)]) == 2
+    assert main(["sim2real", "--env", SERVO, "--backend", "/dev/frictiongym-none",
+                 "--out", str(tmp_path / "x")]) == 2  # fmt: skip
+    assert "could not open" in capsys.readouterr().err
