@@ -19,10 +19,12 @@ from frictiongym.identification.estimates import (
 )
 from frictiongym.identification.experiments import Runner
 from frictiongym.identification.fit import fit_law
-from frictiongym.identification.identify import identify, make_env
+from frictiongym.identification.identify import PLANS, identify, make_env
+from frictiongym.identification.refine import ReciprocalReading, segments
 from frictiongym.params import load_params, save_params
 from frictiongym.plants.plant import PlantParams
 from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_PAPER_GAINS, ROTARY_PLANT
+from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET, ir_estimate
 
 ROTARY = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
@@ -81,6 +83,46 @@ def test_ramp_breakaway_matches_the_static_law_oracle():
     assert level == pytest.approx(0.210, rel=2e-3)
 
 
+def test_reciprocal_reading_inverts_the_ir_calibration():
+    reading = ReciprocalReading(IR_NUMERATOR, IR_OFFSET, IR_MAX_READOUT)
+    readouts = np.array([1.0, 10.0, 100.0, 500.0, 799.0])
+    distances = np.array([ir_estimate(x) for x in readouts])
+    assert np.allclose(reading.value(distances), readouts)
+    h = 1e-6
+    numeric = (reading.value(distances + h) - reading.value(distances - h)) / (2 * h)
+    assert np.allclose(reading.slope(distances), numeric, rtol=1e-5)
+    # Saturated at the sensor's ends: 800 at and below 1.14 cm, 0 beyond 21.47 cm, no slope.
+    assert reading.value(np.array([0.5, 30.0])).tolist() == [IR_MAX_READOUT, 0.0]
+    assert reading.slope(np.array([0.5, 30.0])).tolist() == [0.0, 0.0]
+
+
+def test_segments_split_where_the_command_reverses():
+    command = np.array([0.0, 1.0, 2.0, 0.0, 3.0, -1.0, -2.0, 0.0, 5.0])
+    assert segments(command).tolist() == [0, 0, 0, 0, 0, 1, 1, 1, 2]
+
+
+def test_relay_stays_in_its_band_through_the_observations_only():
+    """The relay switches on the measured distance; hiding ``info`` changes nothing."""
+    plan = PLANS["AltinoDistance"]
+    low, high = plan.relay_band
+
+    def relay(env):
+        runner = Runner(env, plan.span, seed=0)
+        return runner.relay(2.0 * ALTINO_PAPER.us_pos, 2.0 * ALTINO_PAPER.us_neg, (low, high), 20.0)
+
+    trace = relay(make_env(ALTINO, sensor_noise=True))
+    hidden = relay(_NoInfo(make_env(ALTINO, sensor_noise=True)))
+    assert np.array_equal(trace.position, hidden.position)
+    assert np.array_equal(trace.command, hidden.command)
+    distance = -trace.position  # the plant direction is toward the wall
+    assert trace.t.size == 400  # the whole 20 s: never out of the sensor's span
+    reversals = np.count_nonzero(np.diff(np.sign(trace.command)))
+    assert reversals >= 10
+    # The car stops near the band's ends (2 counts of noise are ~0.5 cm at 15 cm).
+    assert low - 1.0 < distance.min() < low + 1.0
+    assert high - 1.5 < distance.max() < high + 2.0
+
+
 # --- the procedure on simulated devices with known parameters --------------------------------
 
 
@@ -126,13 +168,25 @@ def test_servo_identification_recovers_random_parameters_with_noise(seed):
     assert abs(errors["B"]) < 0.02, errors
 
 
-def test_altino_identification_recovers_the_preset_through_the_ir_sensor():
-    """Quantised IR readout, no noise: the output-error refinement over 18 cm of track."""
-    errors = _errors(ALTINO, ALTINO_PAPER, ALTINO_PLANT)
+def _assert_within_the_issue(errors):
     for key in (*FRICTION_KEYS, "viscous"):
         assert abs(errors[key]) < 0.03, (key, errors)
     assert abs(errors["J"]) < 0.02, errors
     assert abs(errors["B"]) < 0.02, errors
+
+
+@pytest.mark.parametrize("noise", [False, True], ids=["quantised", "noise"])
+def test_altino_identification_recovers_the_preset_through_the_ir_sensor(noise):
+    """Quantised IR readout, with and without 2 counts of noise: relays and the refinement."""
+    errors = _errors(ALTINO, ALTINO_PAPER, ALTINO_PLANT, sensor_noise=noise, quantize=True)
+    _assert_within_the_issue(errors)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_altino_identification_recovers_random_parameters_with_noise(seed):
+    friction, plant = _draw(np.random.default_rng(seed), ALTINO_PAPER, ALTINO_PLANT)
+    _assert_within_the_issue(_errors(ALTINO, friction, plant, sensor_noise=True, quantize=True))
 
 
 def test_identified_file_drives_the_env_and_the_compensator(tmp_path):
@@ -188,19 +242,21 @@ def test_command_rejects_a_file_as_out(tmp_path, capsys):
     assert target.read_text() == "keep"
 
 
+class _NoInfo(gym.Wrapper):
+    """Hides ``info``: what a procedure that reads only observations sees."""
+
+    def step(self, action):
+        obs, reward, terminated, truncated, _ = self.env.step(action)
+        return obs, reward, terminated, truncated, {}
+
+    def reset(self, **kwargs):
+        obs, _ = self.env.reset(**kwargs)
+        return obs, {}
+
+
 def test_identification_uses_only_observations():
     """The procedure never reads info: a wrapper that hides it changes nothing."""
-
-    class NoInfo(gym.Wrapper):
-        def step(self, action):
-            obs, reward, terminated, truncated, _ = self.env.step(action)
-            return obs, reward, terminated, truncated, {}
-
-        def reset(self, **kwargs):
-            obs, _ = self.env.reset(**kwargs)
-            return obs, {}
-
     a = identify(make_env(ROTARY), seed=0).params()
-    b = identify(NoInfo(make_env(ROTARY)), seed=0).params()
+    b = identify(_NoInfo(make_env(ROTARY)), seed=0).params()
     assert a.to_dict()["us_pos"] == b.to_dict()["us_pos"]
     assert math.isclose(a.inertia, b.inertia)

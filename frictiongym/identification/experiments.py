@@ -1,10 +1,11 @@
 """Identification experiments run through the env interface, so they run unchanged on a device.
 
 An experiment is a command profile held from rest (``env.reset``): a constant level, a slow
-ramp, a velocity step between two levels, or a relay that drives back and forth inside a band
-of the output (closed loop on the measured output, so it stays where the sensor resolves it). Each returns a :class:`Trace` of what a controller
-would see: the time, the command sent and the measured output, read from the observation the
-env's :class:`~frictiongym.controllers.LoopSpec` points at and turned into the plant's own
+ramp, a velocity step between two levels, or a relay that drives back and forth across a band
+of the output (closed loop on the measured output, so it stays where the sensor resolves
+it). Each returns a :class:`Trace` of what a controller would see: the time, the command sent
+and the measured output, read from the observation the env's
+:class:`~frictiongym.controllers.LoopSpec` points at and turned into the plant's own
 direction (a positive command moves the output positively). Nothing here reads the simulator's
 true state (``info``), so a hardware backend with the same observations gives the same
 analysis.

@@ -17,13 +17,15 @@ output matches the measured one.
   piles up over its reversals, which makes the fit very precise near the optimum but its
   residual rugged far from it. The first stage therefore cuts every run where its command
   reverses and gives each segment its own offset; the second starts from the first's result
-  with one offset per run. The first stage's many offsets bias it by a few per cent (on the
-  Altino with noise, ``v_0-`` by -3 to -8 %); the second removes that.
+  with one offset per run, from each of its best few distinct minima. The first stage's many
+  offsets bias it by a few per cent (on the Altino with noise, ``v_0-`` by -3 to -8 %); the
+  second removes that.
 * **Multi-start.** In the first stage, random parameter sets around the start (broad ranges,
-  a fixed seed) are screened at each dead time of 0 to ``max_delay_steps`` periods in one
+  a fixed seed) are screened at each dead time of 0 to ``max_delay_steps`` periods, in one
   batched simulation per dead time; local fits start from the best few of each, and the
-  lowest final residual wins. The residual of the paper's law has local minima: a kink ``v_0`` pushed beyond the
-  measured speeds turns the low-speed branch into a straight line.
+  lowest final residual wins. The residual of the paper's law has local minima: a kink
+  ``v_0`` pushed beyond the measured speeds turns the low-speed branch into a straight
+  line.
 """
 
 from __future__ import annotations
@@ -50,17 +52,20 @@ NAMES = ("J", "B", "us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
 _RATIOS = (4, 5)
 #: Gauss-Newton iterations of each segment's offset.
 _OFFSET_ITERATIONS = 5
+#: Most runs of ``least_squares`` in one local fit (each from the last one's result).
+_RESTARTS = 4
+_TINY = 1e-300
 
 
 class Reading(Protocol):
     """What a sensor reads at an output ``d`` (env units), with noise uniform in the reading."""
 
     def value(self, d: FloatArray) -> FloatArray:
-        """The reading at ``d``."""
+        """Return the reading at ``d``."""
         ...
 
     def slope(self, d: FloatArray) -> FloatArray:
-        """``d value / d d``."""
+        """Return ``d value / d d``."""
         ...
 
 
@@ -69,11 +74,11 @@ class LinearReading:
     """The output itself is read (an encoder): residuals in output units."""
 
     def value(self, d: FloatArray) -> FloatArray:
-        """The reading at ``d``: ``d``."""
+        """Return ``d`` itself."""
         return d
 
     def slope(self, d: FloatArray) -> FloatArray:
-        """1."""
+        """Return 1."""
         return np.ones_like(d)
 
 
@@ -95,12 +100,12 @@ class ReciprocalReading:
         return np.clip(d, nearest, farthest), (d > nearest) & (d < farthest)
 
     def value(self, d: FloatArray) -> FloatArray:
-        """The readout at ``d`` (``maximum`` at and below the nearest distance it resolves)."""
+        """Return the readout at ``d`` (``maximum`` at and below the nearest distance it reads)."""
         clipped, _ = self._inside(d)
         return self.numerator / clipped - self.offset
 
     def slope(self, d: FloatArray) -> FloatArray:
-        """``-numerator / d²`` inside the range, 0 where the readout saturates."""
+        """Return ``-numerator / d²`` inside the range, 0 where the readout saturates."""
         clipped, inside = self._inside(d)
         return np.where(inside, -self.numerator / clipped**2, 0.0)
 
@@ -114,7 +119,7 @@ class Refinement:
     dead_time: float  #: chosen dead time, s
     rms: float  #: residual RMS, reading units (the sensor's, see :class:`Reading`)
     rms_start: float  #: residual RMS of the starting values at the chosen dead time
-    rms_split: float  #: residual RMS after the first stage (an offset per segment)
+    rms_split: float  #: first-stage residual RMS (an offset per segment) of the chosen minimum
     starts: int  #: local fits run in the first stage (multi-start)
     evaluations: int  #: simulations of all runs, screening and Jacobians included
 
@@ -172,11 +177,14 @@ class _Simulator:
         self.observed = reading.value(direction * self.measured)
         self.group = group[mask]
         self.groups = first
+        # Start of each offset's Gauss-Newton: weights of the sensor's resolution.
+        self.weight = np.maximum(reading.slope(direction * self.measured) ** 2, _TINY)
+        self.weight_sum = np.bincount(self.group, self.weight, first)
         self.samples = int(self.measured.size)
         self.evaluations = 0
 
     def positions(self, xs: FloatArray, delay: int) -> FloatArray:
-        """Simulated positions of every valid sample for each parameter set: ``(P, samples)``."""
+        """Simulate every valid sample for each parameter set: positions ``(P, samples)``."""
         params: list[PlantParams] = []
         frictions: list[StictionCoulomb] = []
         for x in np.atleast_2d(xs):
@@ -200,18 +208,19 @@ class _Simulator:
         return np.stack([p[self.mask] for p in per_set])
 
     def residuals(self, positions: FloatArray) -> FloatArray:
-        """Reading residuals ``(P, samples)`` with each segment's offset fitted (Gauss-Newton)."""
+        """Return reading residuals ``(P, samples)``, each segment's offset by Gauss-Newton."""
         out = np.empty_like(positions)
         g, n = self.group, self.groups
         for i, p in enumerate(positions):
             # Start: the offset in output units, weighted by the sensor's resolution.
-            weight = self.reading.slope(self.direction * self.measured) ** 2 + 1e-300
-            offset = np.bincount(g, weight * (self.measured - p), n) / np.bincount(g, weight, n)
+            offset = np.bincount(g, self.weight * (self.measured - p), n) / self.weight_sum
             for _ in range(_OFFSET_ITERATIONS):
                 d = self.direction * (offset[g] + p)
                 r = self.observed - self.reading.value(d)
                 grad = -self.direction * self.reading.slope(d)
-                offset -= np.bincount(g, grad * r, n) / (np.bincount(g, grad * grad, n) + 1e-300)
+                offset -= np.bincount(g, grad * r, n) / np.maximum(
+                    np.bincount(g, grad * grad, n), _TINY
+                )
             out[i] = self.observed - self.reading.value(self.direction * (offset[g] + p))
         return out
 
@@ -251,12 +260,26 @@ def _candidates(x0: FloatArray, count: int, rng: np.random.Generator) -> FloatAr
 def _local_fit(
     sim: _Simulator, x0: FloatArray, delay: int, lower: FloatArray, upper: FloatArray
 ) -> Any:
-    """``least_squares`` from ``x0`` at one dead time, with the batched Jacobian."""
-    return least_squares(
-        lambda x: sim.residual(x, delay), np.clip(x0, lower, upper),
-        jac=lambda x: sim.jacobian(x, delay), bounds=(lower, upper), x_scale="jac",
-        max_nfev=100,
-    )  # fmt: skip
+    """``least_squares`` from ``x0`` at one dead time, with the batched Jacobian.
+
+    The fit is restarted from its own result until that no longer lowers the residual: the
+    stick/slip residual is only piecewise smooth, and a trust region that has shrunk on one
+    kink can stop the solver (``ftol``) far from the minimum.
+    """
+    best: Any = None
+    x = np.clip(x0, lower, upper)
+    for _ in range(_RESTARTS):
+        result = least_squares(
+            lambda x: sim.residual(x, delay), x, jac=lambda x: sim.jacobian(x, delay),
+            bounds=(lower, upper), x_scale="jac", max_nfev=100,
+        )  # fmt: skip
+        improved = best is None or result.cost < (1.0 - 1e-6) * best.cost
+        if best is None or result.cost < best.cost:
+            best = result
+        if not improved:
+            break
+        x = result.x
+    return best
 
 
 def refine(
@@ -270,6 +293,7 @@ def refine(
     direction: float = 1.0,
     candidates: int = 48,
     local_fits: int = 2,
+    polish: int = 3,
     seed: int = 0,
 ) -> Refinement:
     """Refine ``J``, ``B`` and the friction levels against every sample of ``traces``.
@@ -295,9 +319,18 @@ def refine(
         Parameter sets screened per dead time, the start included.
     local_fits : int, default 2
         Local fits run from the best screened sets of each dead time.
+    polish : int, default 3
+        Second-stage fits, from this many of the best distinct first-stage minima.
     seed : int, default 0
         Seed of the random candidates (the result does not depend on the env's seed).
     """
+    if min(candidates, local_fits, polish) < 1:
+        raise ValueError(
+            f"candidates, local_fits and polish must be >= 1, got {candidates}, {local_fits}, "
+            f"{polish}"
+        )
+    if not traces:
+        raise ValueError("refine needs at least one trace")
     reading = reading or LinearReading()
     sim = _Simulator(traces, dt, limit, shape, reading, direction, split=True)
     whole = _Simulator(traces, dt, limit, shape, reading, direction, split=False)
@@ -305,23 +338,33 @@ def refine(
     x0 = np.array([start[n] for n in NAMES], dtype=np.float64)
     x0[4] = min(max(start["uc_pos"] / start["us_pos"], 0.05), 0.99)
     x0[5] = min(max(start["uc_neg"] / start["us_neg"], 0.05), 0.99)
-    x0[6:8] = np.maximum(x0[6:8], 1e-6 * x0[2:4] / x0[1])
-    lower = 1e-6 * np.abs(x0)
+    # A kink far beyond the speed scale us/B is a straight branch: no data can place it.
+    x0[6:8] = np.clip(x0[6:8], 1e-3 * x0[2:4] / x0[1], 10.0 * x0[2:4] / x0[1])
+    # Bounds: positive (a start far off must not bound the fit), the ratios at most 1.
+    lower = np.full(x0.size, 1e-9)
     upper = np.full(x0.size, np.inf)
     upper[list(_RATIOS)] = 1.0
     pool = _candidates(x0, candidates, np.random.default_rng(seed))
-    first: Any = None
-    best_delay = 0
-    starts = 0
+    found: list[tuple[float, int, Any]] = []  # first stage: (cost, delay, result)
     for delay in range(max_delay_steps + 1):
         costs = np.sum(sim.residuals(sim.positions(pool, delay)) ** 2, axis=1)
         costs = np.where(np.isfinite(costs), costs, np.inf)
         for i in np.argsort(costs, kind="stable")[:local_fits]:
             result = _local_fit(sim, pool[i], delay, lower, upper)
-            starts += 1
-            if first is None or result.cost < first.cost:
-                first, best_delay = result, delay
-    best = _local_fit(whole, first.x, best_delay, lower, upper)
+            found.append((float(result.cost), delay, result))
+    found.sort(key=lambda item: item[0])
+    # Second stage from the best distinct first-stage minima; the lowest residual wins.
+    distinct: list[tuple[float, int, Any]] = []
+    for item in found:
+        if all(abs(item[0] - other[0]) > 1e-6 * other[0] for other in distinct):
+            distinct.append(item)
+    best: Any = None
+    best_delay = 0
+    first: Any = None
+    for _, delay, result in distinct[:polish]:
+        polished = _local_fit(whole, result.x, delay, lower, upper)
+        if best is None or polished.cost < best.cost:
+            best, best_delay, first = polished, delay, result
     start_residual = whole.residual(x0, best_delay)
     resid = best.fun
     n, k = resid.size, x0.size
@@ -347,6 +390,6 @@ def refine(
         rms=math.sqrt(ssr / n),
         rms_start=math.sqrt(float(start_residual @ start_residual) / n),
         rms_split=math.sqrt(2.0 * float(first.cost) / n),
-        starts=starts,
+        starts=len(found),
         evaluations=sim.evaluations + whole.evaluations,
     )
