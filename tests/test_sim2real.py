@@ -61,7 +61,7 @@ def test_an_identified_model_and_explicit_gains_are_used(tmp_path):
         ALTINO, "emulator://altino?lockstep=1", params=str(params), repeats=1, steps=200,
         gains=PIDGains(25.0, 10.0, 12.0), log=False,
     )  # fmt: skip
-    assert set(result.models) == {"nominal", "identified"}
+    assert set(result.models) == {"nominal", "friction", "identified"}
     assert result.gains == {"kp": 25.0, "ki": 10.0, "kd": 12.0}
     assert result.gap("identified", "output") < result.gap("nominal", "output")
 

@@ -16,8 +16,8 @@ from frictiongym.sim2real.run import CONTROLLERS, run_sim2real
 
 DESCRIPTION = """\
 Run the same controller and reference on a device (repeated, to measure the device's own
-spread) and on two simulated models of it: the nominal plant without friction, and the
-nominal plant with the paper's friction (or, with --params, an identified friction.json).
+spread) and on simulated models of it: the nominal plant without friction, the nominal
+plant with the paper's friction and, with --params, an identified friction.json.
 Then compare what the controller saw (measured output, estimated velocity, applied command):
 RMSE and NRMSE fit per signal, differences of rise time, settling time, overshoot and
 steady-state error, and the timing of the device loop. The paper's claim is that friction

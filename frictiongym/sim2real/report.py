@@ -108,7 +108,8 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
     for name, closed in data["gap_closed"].items():
         lines.append(
             f"**{name}** closes {_num(100 * closed['output'], 3)} % of the nominal model's output "
-            f"gap and {_num(100 * closed['command'], 3)} % of its command gap."
+            f"gap and {_num(100 * closed['command'], 3)} % of its command gap"
+            + (" (negative: farther than the nominal model)." if min(closed.values()) < 0 else ".")
         )
     lines += ["", "## Step metrics (model minus device mean)", "",
               "| metric | device mean | device std | "
@@ -116,6 +117,8 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
               "|---|---:|---:|" + "---:|" * len(result.models)]  # fmt: skip
     for key, unit in METRICS.items():
         values = np.array([m[key] for m in data["device_metrics"]], dtype=float)
+        if not np.all(np.isfinite(values)):  # a run that never settles: no mean to speak of
+            values = np.array([math.inf if np.any(values == math.inf) else math.nan])
         unit = units["output"] if unit == "out" else unit
         diffs = [_num(data["metric_differences"][n][key]) for n in result.models]
         lines.append(
@@ -132,6 +135,11 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
             f"{1e3 * timing['period_p99']:.3f} ms, max {1e3 * timing['period_max']:.3f} ms; "
             f"{timing['late']} late commands, {timing['skipped']} skipped ticks.",
         ]  # fmt: skip
+        rate = 1.0 / float(result.device[0].t[1])
+        if timing["rate_hz"] > 1.5 * rate:
+            lines += ["", f"The loop ran faster than the device's {rate:g} Hz: its clock did not "
+                      "pace it (a lock-step emulator), so these figures show the host's speed "
+                      "only; see docs/benchmarks.md for a real-time run."]  # fmt: skip
     if figures:
         lines += ["", "## Figures", "", "![overlay](overlay.png)", "", "![timing](timing.png)"]
     path = out / "report.md"

@@ -185,7 +185,8 @@ def run_sim2real(
     gains : PIDGains, optional
         Default: the paper's for this device and controller.
     params : str, optional
-        An identified ``friction.json``: the "identified" model replaces the preset one.
+        An identified ``friction.json``: a third simulated model, "identified", and the
+        compensator's model.
     repeats : int, default 5
         Device runs (their spread is the noise floor).
     steps : int, optional
@@ -208,13 +209,12 @@ def run_sim2real(
     task: dict[str, Any] = {} if reference is None else {"reference": float(reference)}
     if params is not None:
         task["params"] = params
-    models = {
+    models: dict[str, tuple[dict[str, Any], str]] = {
         "nominal": ({"friction": "none"}, "nominal plant, no friction"),
-        "identified" if params else "friction": (
-            {"params": params} if params else {"friction": "paper"},
-            f"identified model ({params})" if params else "nominal plant + the paper's friction",
-        ),
+        "friction": ({"friction": "paper"}, "nominal plant + the paper's friction"),
     }
+    if params:
+        models["identified"] = ({"params": params}, f"the identified model ({params})")
     say = progress or (lambda _: None)
     metadata = {"controller": controller, "gains": gains, "tool": "sim2real"}
     device_env = gym.make(env_id, backend=backend, log=log, run_metadata=metadata, **task)
