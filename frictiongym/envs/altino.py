@@ -109,7 +109,9 @@ class AltinoDistanceEnv(FrictionEnv):
     ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``params`` (an identified
     ``friction.json`` of this car: its ``J`` is the mass, its ``B`` the total damping, viscous
     slope included; the preset is the file ``J = 2.2``, ``B = viscous = 10.93``),
-    ``effort_weight``, ``safety_limit`` (cm), ``limit_penalty``, ``backend``, ``render_mode``.
+    ``effort_weight``, ``safety_limit`` (cm), ``limit_penalty``, ``backend`` (a device:
+    ``"altino-stock:///dev/rfcomm0"``, ``"serial://..."``, ``"emulator://altino"``; see
+    docs/hardware.md), ``log``, ``run_metadata``, ``render_mode``.
 
     ``info`` of every step: ``position`` (true distance to the wall, cm), ``velocity`` (its
     true rate, cm/s), ``command`` (applied), ``reference``, ``time`` (s), ``stuck``.

@@ -114,7 +114,11 @@ class RotaryServoEnv(FrictionEnv):
       and compensators built with ``for_env`` model its friction. Not with ``plant`` or another
       ``friction``; a file identified on another device is refused;
     * ``effort_weight``, ``safety_limit`` (rad), ``limit_penalty``: reward and safety;
-    * ``backend``: ``"sim"`` (the only one in this version);
+    * ``backend``: ``"sim"`` (default), a device URI (``"serial:///dev/ttyACM0"``,
+      ``"quanser-hil://qube_servo2_usb/0"``, ``"emulator://rotary"``...) or a
+      :class:`~frictiongym.hardware.Backend` (docs/hardware.md); on a device ``log`` (True, a
+      directory or False) and ``run_metadata`` set the run log, simulator-only settings are
+      refused and ``info`` holds the measured estimates;
     * ``render_mode``: ``"rgb_array"`` or ``"human"`` (needs pygame).
 
     ``info`` of every step: ``position`` (true angle, rad), ``velocity`` (true, rad/s),
