@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from frictiongym.hardware import protocol as p
+from frictiongym.hardware.firmware import FIRMWARE_BUILD
 from frictiongym.hardware.protocol import (
     Capability,
     Command,
@@ -48,9 +49,19 @@ ENCODER_24 = (-(2**23), 2**23 - 1)  # the QUBE's 24-bit encoder counter, sign-ex
 
 # --- messages ---------------------------------------------------------------------------------
 
-ROTARY_HELLO = Hello(1, DeviceKind.ROTARY, Capability.WATCHDOG, 500, 2048, 1000, 10000, 20, 1)
+ROTARY_HELLO = Hello(
+    1, DeviceKind.ROTARY, Capability.WATCHDOG, 500, 2048, 1000, 10000, 20, FIRMWARE_BUILD
+)
 ALTINO_HELLO = Hello(
-    1, DeviceKind.ALTINO, Capability.WATCHDOG | Capability.DISTANCE_LIMIT, 20, 0, 1, 1000, 150, 1
+    1,
+    DeviceKind.ALTINO,
+    Capability.WATCHDOG | Capability.DISTANCE_LIMIT,
+    20,
+    0,
+    1,
+    1000,
+    150,
+    FIRMWARE_BUILD,
 )
 # fmt: off
 MESSAGES: list[tuple[str, p.Message]] = [
@@ -384,9 +395,19 @@ def rotary_scenarios() -> list[dict[str, Any]]:
     # fmt: on
 
 
+def ir(distance: float) -> int:
+    """The IR readout nearest to ``distance`` cm (paper Eq. (1) inverted: 966 / d - 45)."""
+    return round(966.0 / distance - 45.0)
+
+
 def altino_scenarios() -> list[dict[str, Any]]:
-    """Altino: 20 Hz (50000 µs), watchdog 150 ms, limit ±1000, distance limit at readout 438."""
-    dis = ["DISABLED"]
+    """Altino: 20 Hz (50000 µs), watchdog 150 ms, limit ±1000, the distance guard.
+
+    The guard's numbers (guard.py): d = 966 / (x + 45) cm, v = (d_prev - d) / 0.05 s, stop =
+    d - 0.1 v - v² / 600 when v > 0, trips at stop <= 1.5 cm. Each comment gives d, v and stop;
+    every case stays well clear of the boundary (C computes in binary32, Python in binary64).
+    """
+    dis, lim = ["DISABLED"], ["LIMIT"]
     # fmt: off
     return [
         {"name": "altino hello", "device": "altino", "events": [
@@ -399,30 +420,77 @@ def altino_scenarios() -> list[dict[str, Any]]:
             cmd(2000, 2, -1001, "ENABLE", motor=-1000),
             tick(50000, 30, status=[], applied=-1000),
         ]},
-        {"name": "distance limit stops forward commands and latches", "device": "altino",
-         "events": [
+        {"name": "guard: a fast approach trips it; it brakes until the car stops, then refuses "
+                 "forward", "device": "altino", "events": [
             cmd(1000, 1, 500, "REARM", "ENABLE", motor=500),
-            tick(50000, 300, status=[], applied=500, motor=500),
+            tick(50000, ir(10.0), status=[], applied=500, motor=500),  # 9.96 cm: no speed yet
             cmd(51000, 2, 500, "ENABLE", motor=500),
-            tick(100000, 438, status=["LIMIT"], applied=500, motor=0),  # 2.0 cm: at the limit
-            cmd(101000, 3, 400, "ENABLE", motor=0),  # forward: refused
-            tick(150000, 450, status=["LIMIT"], applied=0),
-            cmd(151000, 4, -300, "ENABLE", motor=-300),  # backing away passes
-            tick(200000, 420, status=["LIMIT"], applied=-300),
-            cmd(201000, 5, 300, "ENABLE", motor=0),  # still latched below the limit
-            tick(250000, 400, status=["LIMIT"], applied=0),
-            cmd(251000, 6, 300, "REARM", "ENABLE", motor=300),  # REARM clears it
-            tick(300000, 410, status=[], seq_applied=6, applied=300),
+            tick(100000, ir(9.0), status=[], applied=500, motor=500),  # 9.03, 18.6 cm/s: 6.59
+            cmd(101000, 3, 500, "ENABLE", motor=500),
+            tick(150000, ir(7.0), status=lim, applied=500, motor=-1000),  # 7.0, 40.6: 0.20 cm
+            cmd(151000, 4, 500, "ENABLE", motor=-1000),  # forward refused, the brake holds
+            tick(200000, ir(6.0), status=lim, applied=-1000, motor=-1000),  # 6.0, 20 cm/s
+            cmd(201000, 5, 500, "ENABLE", motor=-1000),
+            tick(250000, ir(6.0), status=lim, applied=-1000, motor=0),  # stopped: no brake
+            cmd(251000, 6, -300, "ENABLE", motor=-300),  # backing away passes
+            tick(300000, ir(6.5), status=lim, applied=-300, motor=-300),  # 6.48, -9.7 cm/s
+            cmd(301000, 7, 300, "ENABLE", motor=0),  # forward: refused while latched
+            tick(350000, ir(6.5), status=lim, applied=0, motor=0),
+            cmd(351000, 8, 300, "REARM", "ENABLE", motor=300),  # REARM clears it
+            tick(400000, ir(6.5), status=[], seq_applied=8, applied=300, motor=300),
         ]},
-        {"name": "REARM at the wall keeps the limit", "device": "altino", "events": [
+        {"name": "guard: the brake outlasts an e-stop while the car approaches",
+         "device": "altino", "events": [
+            cmd(1000, 1, 800, "REARM", "ENABLE", motor=800),
+            tick(50000, ir(12.0), status=[], applied=800, motor=800),  # 11.9 cm
+            cmd(51000, 2, 800, "ENABLE", motor=800),
+            tick(100000, ir(9.5), status=lim, applied=800, motor=-1000),  # 9.47, 49.1: 0.54 cm
+            cmd(101000, 3, 0, "ESTOP", motor=-1000),  # the host ends the episode
+            tick(150000, ir(8.0), status=["LIMIT", "DISABLED"], applied=-1000,
+                 motor=-1000),  # 7.98 cm, 29.7 cm/s: still approaching
+            tick(200000, ir(8.0), status=["LIMIT", "DISABLED"], applied=-1000, motor=0),
+            tick(250000, ir(8.0), status=["LIMIT", "DISABLED"], applied=0, motor=0),
+            cmd(251000, 4, 300, "ENABLE", motor=0),  # disarmed: nothing without REARM
+            tick(300000, ir(8.0), status=["LIMIT", "DISABLED"], applied=0, motor=0),
+        ]},
+        {"name": "guard: the brake outlasts a watchdog trip", "device": "altino", "events": [
+            cmd(1000, 1, 800, "REARM", "ENABLE", motor=800),
+            tick(50000, ir(14.0), status=[], applied=800),  # 14.0 cm
+            tick(100000, ir(12.0), status=["COMMAND_LATE"], applied=800,
+                 motor=800),  # 11.9 cm, 41.5 cm/s: 4.91 cm
+            tick(150000, ir(9.5), status=["COMMAND_LATE", "LIMIT"], applied=800,
+                 motor=-1000),  # 9.47, 49.1: 0.54 cm; 149 ms silent
+            tick(200000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
+                 motor=-1000),  # 7.49 cm, 39.6 cm/s: still approaching
+            tick(250000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
+                 motor=0),
+        ]},
+        {"name": "guard: a car at rest within the limit gets zero, and REARM keeps LIMIT",
+         "device": "altino", "events": [
             cmd(1000, 1, 0, "REARM", "ENABLE"),
-            tick(50000, 600, status=["LIMIT"], applied=0),
-            cmd(51000, 2, 200, "REARM", "ENABLE", motor=0),
-            tick(100000, 600, status=["LIMIT"], applied=0),
+            tick(50000, 760, status=lim, applied=0, motor=0),  # 1.2 cm at rest
+            cmd(51000, 2, 200, "REARM", "ENABLE", motor=0),  # judged again at once: within
+            tick(100000, 760, status=lim, applied=0, motor=0),
             cmd(101000, 3, -200, "ENABLE", motor=-200),
-            tick(150000, 437, status=["LIMIT"], applied=-200),
-            cmd(151000, 4, 200, "REARM", "ENABLE", motor=200),  # 437: just clear of the limit
-            tick(200000, 437, status=[], applied=200),
+            tick(150000, 560, status=lim, applied=-200, motor=-200),  # 1.60 cm, going away
+            cmd(151000, 4, 200, "REARM", "ENABLE", motor=200),  # clear of the limit
+            tick(200000, 560, status=[], applied=200, motor=200),
+        ]},
+        {"name": "guard: an out-of-range readout gives no speed", "device": "altino", "events": [
+            cmd(1000, 1, 500, "REARM", "ENABLE", motor=500),
+            tick(50000, 0, status=[], applied=500, motor=500),  # beyond 21.5 cm: no distance
+            cmd(51000, 2, 500, "ENABLE"),
+            tick(100000, 200, status=[], applied=500,
+                 motor=500),  # 3.94 cm: no speed (readout 0 is no distance, not 21.5 cm)
+            cmd(101000, 3, 500, "ENABLE"),
+            tick(150000, 0, status=[], applied=500, motor=500),  # a dropout
+            cmd(151000, 4, 500, "ENABLE"),
+            tick(200000, 400, status=[], applied=500,
+                 motor=500),  # 2.17 cm: no speed across the dropout (35 cm/s would trip)
+            cmd(201000, 5, 500, "ENABLE"),
+            tick(250000, 430, status=[], applied=500, motor=500),  # 2.03, 2.7 cm/s: 1.75 cm
+            cmd(251000, 6, 500, "ENABLE"),
+            tick(300000, 520, status=lim, applied=500, motor=-1000),  # 1.71, 6.5: 0.99 cm
         ]},
         {"name": "altino watchdog after 150 ms", "device": "altino", "events": [
             cmd(1000, 1, 300, "REARM", "ENABLE", motor=300),

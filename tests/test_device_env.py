@@ -21,7 +21,11 @@ from frictiongym.hardware import (
 from frictiongym.hardware.emulated import EmulatedBackend
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.runlog import read_steps
-from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI10, ROTARY_PAPER_GAINS
+from frictiongym.plants.presets import (
+    ALTINO_PAPER_GAINS_COMPENSATED,
+    ALTINO_PAPER_GAINS_KI10,
+    ROTARY_PAPER_GAINS,
+)
 
 SERVO = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
@@ -56,7 +60,8 @@ def test_a_closed_loop_episode_over_the_pty_matches_the_simulator(tmp_path, env_
     assert env.unwrapped.sim.backend.port.startswith("/dev/")  # a real pty, through pyserial
     controller = PID.for_env(env, GAINS[env_id])
     if compensated:
-        controller = FrictionCompensator(controller)
+        gains = GAINS[env_id] if env_id == SERVO else PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED)
+        controller = FrictionCompensator(PID.for_env(env, gains))
     steps = 600 if env_id == SERVO else 200
     device_obs, applied = run_closed_loop(env, controller, steps)
     env.close()
@@ -235,21 +240,32 @@ def test_the_device_watchdog_stops_the_motor_when_the_host_stalls():
     env.close()
 
 
-def test_the_altino_never_reaches_the_wall():
+@pytest.mark.parametrize("command", [600.0, 1000.0])
+def test_the_altino_never_reaches_the_wall(command):
     env = gym.make(ALTINO, backend=LOCKSTEP[ALTINO], log=False)
     emulator = emulator_of(env)
     env.reset(seed=0)
     terminated, steps = False, 0
     while not terminated and steps < 400:
-        _, reward, terminated, _, _ = env.step(np.array([600.0]))
+        _, reward, terminated, _, _ = env.step(np.array([command]))
         steps += 1
     assert terminated
     assert reward < -50  # the limit penalty
+    assert env.unwrapped.sim.last_sample.status & Status.LIMIT  # the device's guard ended it
     time.sleep(0.05)
     assert emulator.motor <= 0.0
-    for _ in range(20):  # the car coasts to a stop short of the wall
+    # The car coasts (and the guard brakes, e-stopped as it is) to a stop short of the wall:
+    # in lock-step every e-stop the host sends is one more period of device time.
+    backend, ticks = env.unwrapped.sim.backend, emulator.stats().ticks
+    for _ in range(20):
+        backend.stop()  # two ESTOP commands each
+    deadline = time.monotonic() + 5.0
+    while emulator.stats().ticks < ticks + 40 and time.monotonic() < deadline:
         time.sleep(0.002)
-    assert emulator.position > 0.5
+    assert emulator.stats().ticks >= ticks + 40
+    assert emulator.velocity == 0.0
+    assert emulator.motor == 0.0
+    assert min(tick.position for tick in emulator.history) > 1.0
     env.close()
 
 

@@ -18,12 +18,19 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import frictiongym  # noqa: F401  (registers the envs)
+from frictiongym.controllers import PID, FrictionCompensator, PIDGains
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.core import Simulation
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.emulator import Emulator, Faults
-from frictiongym.hardware.firmware import ALTINO_LIMIT_READOUT, Firmware, devices
+from frictiongym.hardware.firmware import FIRMWARE_BUILD, Firmware, devices
+from frictiongym.hardware.guard import LIMIT_CM
 from frictiongym.plants import _kernel as pk
+from frictiongym.plants.presets import (
+    ALTINO_PAPER_GAINS_COMPENSATED,
+    ALTINO_PAPER_GAINS_KI10,
+    ALTINO_PAPER_GAINS_KI20,
+)
 from frictiongym.plants.sensors import ir_readout
 
 serial = pytest.importorskip("serial")
@@ -105,7 +112,7 @@ def test_hello_describes_the_device(serve, kind, rate, cpr, scale, limit, wd, ca
     emu, host = serve(kind)
     hello = host.hello()
     assert hello == p.Hello(p.PROTOCOL_VERSION, p.DeviceKind[kind.upper()], caps, rate, cpr,
-                            scale, limit, wd, 1)  # fmt: skip
+                            scale, limit, wd, FIRMWARE_BUILD)  # fmt: skip
     host.send(p.HelloRequest(version=7))  # another version still gets a Hello: the host decides
     assert host.wait(p.Hello) == hello
     assert emu.dt == pytest.approx(1.0 / rate)
@@ -190,7 +197,8 @@ def test_any_input_keeps_the_firmware_safe(chunks, kind):
             fw.receive(message, i * fw.dt)
         state = fw.tick(i * fw.dt)
         assert abs(state.applied) <= fw.hello.command_limit
-        assert state.applied == 0 or (fw.armed and fw.enabled)
+        braking = state.status & p.Status.LIMIT and state.applied == -fw.hello.command_limit
+        assert state.applied == 0 or (fw.armed and fw.enabled) or braking
         assert bool(state.status & p.Status.DISABLED) != (fw.armed and fw.enabled)
         assert math.isfinite(fw.position)
 
@@ -275,25 +283,82 @@ def test_estop_disarms_until_rearm(serve):
     assert host.step(25000).applied == 10000  # clipped to the limit: 10 V
 
 
-def test_altino_distance_limit(serve):
-    emu, host = serve("altino", lockstep=True)
-    host.send(p.Place(4.0))
+def _drive_until_the_guard_trips(host: Host, counts: int) -> None:
     host.step(0, ARM)
-    states = [host.step(300) for _ in range(40)]
-    limited = [s for s in states if s.status & p.Status.LIMIT]
-    assert limited, "the car reached the wall without the limit"
-    first = states.index(limited[0])  # its sample crossed the limit: from the next period on
-    assert limited[0].sensor >= ALTINO_LIMIT_READOUT > states[first - 1].sensor
-    assert all(s.applied == 0 and s.status & p.Status.LIMIT for s in states[first + 1 :])
-    assert min(t.position for t in emu.history) > 0.0  # slow enough to stop short of the wall
-    assert states[-1].sensor >= ALTINO_LIMIT_READOUT
-    state = host.step(-300)  # backing away still passes, the limit stays latched
+    for _ in range(100):
+        state = host.step(counts)
+        assert state.applied == counts  # what was held over the period that ended
+        if state.status & p.Status.LIMIT:
+            return
+    raise AssertionError("the car drove on without the distance guard tripping")
+
+
+def test_altino_guard_brakes_then_refuses_forward(serve):
+    emu, host = serve("altino", lockstep=True)
+    _drive_until_the_guard_trips(host, 600)
+    assert emu.motor == -1000.0  # full reverse from the next period on
+    applied = []
+    while emu.velocity != 0.0 and len(applied) < 40:  # the host keeps asking for +600
+        state = host.step(600)
+        assert state.status == p.Status.LIMIT
+        applied.append(state.applied)
+    stopped = applied.index(0)
+    assert stopped >= 1
+    assert applied == [-1000] * stopped + [0] * (len(applied) - stopped)
+    assert emu.velocity == 0.0
+    assert min(t.position for t in emu.history) > 1.0
+    state = host.step(-300)  # backing away passes, the trip stays latched
     assert state.applied == -300
-    assert state.status & p.Status.LIMIT
-    for _ in range(20):
-        state = host.step(-300)
-    state = host.step(-300, ARM)
-    assert not state.status & p.Status.LIMIT
+    assert state.status == p.Status.LIMIT
+    assert host.step(300).applied == 0  # forward: refused
+    state = host.step(300, ARM)  # REARM, at rest well clear of the limit: cleared
+    assert state.status == p.Status(0)
+    assert state.applied == 300
+
+
+@pytest.mark.parametrize("counts", [600, 1000])
+def test_altino_guard_brakes_through_an_estop(serve, counts):
+    """The host e-stops when it sees LIMIT: the brake goes on while the car approaches."""
+    emu, host = serve("altino", lockstep=True)
+    _drive_until_the_guard_trips(host, counts)
+    state = host.step(0, p.Flag.ESTOP)
+    assert state.status == p.Status.LIMIT | p.Status.DISABLED
+    assert state.applied == -1000
+    for _ in range(40):
+        state = host.step(0, p.Flag.ESTOP)
+        assert state.applied in (-1000, 0)
+    assert emu.velocity == 0.0
+    assert emu.motor == 0.0
+    assert state.applied == 0
+    assert min(t.position for t in emu.history) > 1.0
+    assert host.step(300).applied == 0  # disarmed: ENABLE without REARM
+
+
+@pytest.mark.parametrize(("gains", "compensated"), [
+    (ALTINO_PAPER_GAINS_KI10, False),
+    (ALTINO_PAPER_GAINS_KI20, False),  # overshoots to 1.9 cm in our model
+    (ALTINO_PAPER_GAINS_COMPENSATED, True),
+])  # fmt: skip
+def test_the_paper_gains_never_trip_the_guard(gains, compensated):
+    env = gym.make(
+        "frictiongym/AltinoDistance-v0", backend="emulator://altino?lockstep=1", log=False
+    )
+    emulator = env.unwrapped.sim.backend.emulator
+    controller = PID.for_env(env, PIDGains(**gains))
+    if compensated:
+        controller = FrictionCompensator(controller)
+    obs, _ = env.reset(seed=0)
+    controller.reset()
+    steps, truncated = 0, False
+    while not truncated:
+        obs, _, terminated, truncated, _ = env.step(controller(obs))
+        assert not terminated, f"step {steps}: the episode ended (status {emulator.status!r})"
+        steps += 1
+    env.close()
+    assert steps == 400
+    ticks = emulator.history
+    assert not any(t.status & p.Status.LIMIT for t in ticks)
+    assert min(t.position for t in ticks) > LIMIT_CM
 
 
 def test_bad_frames_set_the_crc_error_bit_once(serve):

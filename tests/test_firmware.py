@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import select
 import shutil
 import subprocess
@@ -23,7 +24,10 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from frictiongym.hardware import guard
 from frictiongym.hardware import protocol as p
+from frictiongym.hardware.firmware import FIRMWARE_BUILD
+from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET
 
 ROOT = Path(__file__).resolve().parents[1]
 FIRMWARE = ROOT / "firmware"
@@ -280,7 +284,8 @@ def test_python_firmware_follows_the_scenarios(
     """The emulator's state machine (frictiongym.hardware.firmware) obeys the same table.
 
     The emulator applies commands at the tick (zero-latency idealisation), so the motor output
-    between ticks is not compared, and its sensor is physics: the scripted sample replaces it.
+    between ticks is not compared (after a tick it is: the guard's output for the next period),
+    and its sensor is physics: the scripted sample replaces it.
     """
     firmware = pytest.importorskip("frictiongym.hardware.firmware")
     if "firmware_only" in scenario:
@@ -298,6 +303,8 @@ def test_python_firmware_follows_the_scenarios(
                 got = getattr(state, key)
                 want = _status(want) if key == "status" else want
                 assert got == want, f"{where}: {key} {got!r}"
+            if "motor" in event:
+                assert device.motor_counts == event["motor"], f"{where}: motor"
             continue
         replies = [device.receive(m, now) for m in device.feed(_send_bytes(event))]
         if "reply" in event:
@@ -307,6 +314,20 @@ def test_python_firmware_follows_the_scenarios(
                 if key == "capabilities":
                     got &= ~p.Capability.PLACE  # the emulator also honours Place
                 assert got == want, f"{where}: Hello.{key}"
+
+
+def test_c_guard_constants_equal_guard_py() -> None:
+    """fg_device.h restates guard.py's constants: they must not drift apart."""
+    text = (FIRMWARE / "common" / "fg_device.h").read_text()
+    defines = {
+        name: float(value) for name, value in re.findall(r"#define (FG_\w+) ([\d.]+)f?\b", text)
+    }
+    assert defines["FG_IR_NUMERATOR"] == IR_NUMERATOR
+    assert defines["FG_IR_OFFSET"] == IR_OFFSET
+    assert defines["FG_GUARD_LIMIT_CM"] == guard.LIMIT_CM
+    assert defines["FG_GUARD_BRAKE_DECELERATION"] == guard.BRAKE_DECELERATION
+    assert defines["FG_GUARD_REACTION_PERIODS"] == guard.REACTION_PERIODS
+    assert defines["FG_GUARD_STOPPED_SPEED"] == guard.STOPPED_SPEED
 
 
 def test_device_amplifier_follows_arming(harness: Harness) -> None:
@@ -403,7 +424,7 @@ def test_qube_bridge_sketch(sketches: dict[str, Harness]) -> None:
     _, tx = _sim(qube, "run 50")
     (hello,) = p.FrameDecoder().feed(tx[0])
     assert hello == p.Hello(1, p.DeviceKind.ROTARY, p.Capability.WATCHDOG, 500, 2048, 1000,
-                            10000, 20, 1)  # fmt: skip
+                            10000, 20, FIRMWARE_BUILD)  # fmt: skip
     _, tx = _sim(qube, "run 2000")
     (state,) = _states(tx[0])
     assert state == p.State(p.Status.DISABLED, 1, state.tick_us, 0, 0, -5, 330)
@@ -474,14 +495,25 @@ def test_altino_sketch(sketches: dict[str, Harness]) -> None:
     (state,) = _states(tx[1])
     assert (state.status, state.sensor, state.applied, state.seq) == (0, 300, 400, 1)
 
-    car.ask(f"rx 0 {_car_reply(450)}")  # 1.9 cm: past the limit
+    # 2.80 cm -> 1.95 cm in a period: 17 cm/s, it would stop at -0.2 cm (guard.py's rule)
+    car.ask(f"rx 0 {_car_reply(450)}")
     car.ask(f"rx 1 {p.encode(p.Command(2, 400)).hex()}")
     _, tx = _sim(car, "run 50000")
     (state,) = _states(tx[1])
-    assert (state.status, state.sensor) == (p.Status.LIMIT, 450)
+    assert (state.status, state.sensor, state.applied) == (p.Status.LIMIT, 450, 400)
     _, tx = _sim(car, "run 10000")
-    assert _wheels(_car_frames(tx[0])[-1]) == ((255, 0), (255, 0)), "the limit stops the car"
-    car.ask(f"rx 1 {p.encode(p.Command(3, -300)).hex()}")
+    brake = (0, 32768 + 1000)
+    assert _wheels(_car_frames(tx[0])[-1]) == (brake, brake), "the guard brakes: full reverse"
+    car.ask(f"rx 0 {_car_reply(450)}")  # the car stopped there
+    car.ask(f"rx 1 {p.encode(p.Command(3, 400)).hex()}")
+    _, tx = _sim(car, "run 10000")
+    assert _wheels(_car_frames(tx[0])[-1]) == (brake, brake), "forward: refused, still braking"
+    _, tx = _sim(car, "run 30000")
+    (state,) = _states(tx[1])
+    assert (state.status, state.sensor, state.applied) == (p.Status.LIMIT, 450, -1000)
+    _, tx = _sim(car, "run 10000")
+    assert _wheels(_car_frames(tx[0])[-1]) == ((255, 0), (255, 0)), "stopped: no more brake"
+    car.ask(f"rx 1 {p.encode(p.Command(4, -300)).hex()}")
     _, tx = _sim(car, "run 10000")
     assert _wheels(_car_frames(tx[0])[-1]) == ((0, 32768 + 300), (0, 32768 + 300))
 
@@ -514,6 +546,17 @@ def test_common_code_builds_for_avr(mcu: str, tmp_path: Path) -> None:
     ).stdout.splitlines()[1:]
     text = sum(int(line.split()[0]) for line in sizes)
     data = sum(int(line.split()[1]) + int(line.split()[2]) for line in sizes)
-    print(f"{mcu}: firmware/common text {text} B, data+bss {data} B")
+    elf = tmp_path / "avr_size.elf"
+    done = subprocess.run(
+        [avr_gcc, f"-mmcu={mcu}", "-Os", *CFLAGS, "-ffunction-sections", "-fdata-sections",
+         "-Wl,--gc-sections", str(FIRMWARE / "test" / "avr_size.c"), *map(str, COMMON),
+         "-o", str(elf)],
+        capture_output=True, text=True, check=False,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    linked = subprocess.run([avr_size, str(elf)], capture_output=True, text=True, check=True)
+    flash = int(linked.stdout.splitlines()[1].split()[0])
+    print(f"{mcu}: firmware/common text {text} B, data+bss {data} B; linked {flash} B flash")
     assert text < 4096, "the shared protocol should stay well under 4 KiB of flash"
     assert data == 0, "the shared code keeps no globals: all state is in the caller's structs"
+    assert flash < 6144, "the common code and its runtime (the guard's float maths: ~1 KiB) < 6 KiB"

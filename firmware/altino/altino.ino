@@ -9,8 +9,11 @@
  * Both wheels get the host's command (motor units, +-1000; positive drives forward, toward
  * the wall in front of the IR sensor); a Command sets the wheels at once.
  * Safety (firmware/common/fg_device.c): the motor is off until the host re-arms; commands stop
- * -> zero within 150 ms; forward commands stop at readout 438 (2.0 cm) until the host re-arms;
- * a car base that stops answering for 150 ms is reported as AMP_FAULT, which disarms.
+ * -> zero within 150 ms; the distance guard (frictiongym/hardware/guard.py's rule) predicts
+ * from the IR readout and its change per tick where the car would stop, and once that is
+ * within 1.5 cm of the wall it brakes at full reverse while the car approaches (even after an
+ * e-stop or a watchdog trip) and refuses forward commands until the host re-arms; a car base
+ * that stops answering for 150 ms is reported as AMP_FAULT, which disarms.
  *
  * Build: arduino-cli compile --fqbn <your board> --library firmware/common firmware/altino
  * Host:  gym.make("frictiongym/AltinoDistance-v0", backend="serial:///dev/ttyUSB0?baud=115200")
@@ -38,7 +41,8 @@ static const uint32_t SENSOR_LEAD_US = 10000UL;
 /* Index of the front-centre IR sensor (IR[1]; research §2.3 [A3]). */
 static const uint8_t IR_FRONT = 1;
 /* A car that has not answered for this long reports AMP_FAULT (which disarms): the distance
- * limit must never act on a stale reading. Three periods, as the watchdog. */
+ * guard must never drive on a stale reading (a repeated readout is a car at rest to it, so a
+ * brake stops). Three periods, as the watchdog. */
 static const uint32_t REPLY_TIMEOUT_US = 150000UL;
 
 /* ---- vendor frames ------------------------------------------------------------------------ */
@@ -161,7 +165,7 @@ void loop()
     uint8_t hw = (uint32_t)(now - last_reply_us) > REPLY_TIMEOUT_US ? FG_STATUS_AMP_FAULT : 0;
     size_t n = fg_device_tick(&dev, now, ir_readout, 0, hw, frame, NULL);
     if (fg_device_motor(&dev) != before) {
-        frame_pending = true; /* watchdog or distance limit: stop the wheels */
+        frame_pending = true; /* watchdog: stop the wheels; distance guard: brake or stop */
     }
     HOST.write(frame, n);
 }

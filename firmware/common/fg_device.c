@@ -17,8 +17,8 @@ fg_device_config fg_config_rotary(void)
     /* +-10 V: the safe envelope of the QUBE's amplifier (research §1.1; presets.py). */
     cfg.command_limit = 10000;
     cfg.watchdog_ms = 0u; /* default: max(3 periods, 20 ms) = 20 ms */
-    cfg.limit_sensor = 0; /* unused: no FG_CAP_DISTANCE_LIMIT */
-    cfg.firmware = 1u;
+    cfg.limit_cm = 0.0f;  /* unused: no FG_CAP_DISTANCE_LIMIT */
+    cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
 
@@ -33,8 +33,8 @@ fg_device_config fg_config_altino(void)
     cfg.command_scale = 1u;    /* motor units, as Go() takes them */
     cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library, research §2.1) */
     cfg.watchdog_ms = 0u;      /* default: max(3 periods, 20 ms) = 150 ms */
-    cfg.limit_sensor = FG_ALTINO_LIMIT_READOUT;
-    cfg.firmware = 1u;
+    cfg.limit_cm = FG_GUARD_LIMIT_CM; /* guard.LIMIT_CM (assumed; see guard.py) */
+    cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
 
@@ -61,30 +61,65 @@ void fg_device_init(fg_device *dev, const fg_device_config *cfg)
     dev->requested = 0;
     dev->motor = 0;
     dev->sensor = 0;
+    dev->distance = -1.0f; /* no sample yet */
+    dev->speed = 0.0f;
     dev->armed = 0;
     dev->enabled = 0;
     dev->fresh = 0;
     dev->latched = 0;
 }
 
-/* The limit latches whenever the latest sample is at or beyond it. */
-static void check_limit(fg_device *dev)
+/* The distance guard (fg_device.h; guard.py DistanceGuard): latch LIMIT if the car, at the
+ * last sample's distance and approach speed, would stop within the limit braking now. */
+static void guard_judge(fg_device *dev)
 {
-    if ((dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) && dev->sensor >= dev->cfg.limit_sensor) {
+    float v = dev->speed;
+    float stop = dev->distance;
+    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) || stop < 0.0f) {
+        return; /* no guard, or no distance (out of range) */
+    }
+    if (v > 0.0f) { /* guard.py stopping_point: reaction travel, then braking */
+        stop = stop - v * (float)FG_GUARD_REACTION_PERIODS / (float)dev->cfg.rate_hz -
+               v * v / (2.0f * FG_GUARD_BRAKE_DECELERATION);
+    }
+    if (stop <= dev->cfg.limit_cm) {
         dev->latched |= FG_STATUS_LIMIT;
     }
 }
 
-/* What the motor holds: nothing unless armed and enabled; never forward past the limit. */
+/* Feed one sample to the guard (guard.py DistanceGuard.update). */
+static void guard_update(fg_device *dev, int32_t readout)
+{
+    float distance = -1.0f; /* readout 0: out of range, the speed is unknown */
+    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT)) {
+        return; /* the servo: no float maths at 500 Hz */
+    }
+    if (readout > 0) {
+        distance = FG_IR_NUMERATOR / ((float)readout + FG_IR_OFFSET);
+    }
+    if (distance < 0.0f || dev->distance < 0.0f) {
+        dev->speed = 0.0f;
+    } else {
+        dev->speed = (dev->distance - distance) * (float)dev->cfg.rate_hz; /* / dt */
+    }
+    dev->distance = distance;
+    guard_judge(dev);
+}
+
+/* What the motor holds: the request if armed and enabled, else nothing; once the guard has
+ * tripped (LIMIT), full reverse while the car approaches, and never forward (guard.py
+ * DistanceGuard.command). The guard acts whether or not the device is armed. */
 static void update_motor(fg_device *dev)
 {
-    if (!dev->armed || !dev->enabled) {
-        dev->motor = 0;
-    } else if ((dev->latched & FG_STATUS_LIMIT) && dev->requested > 0) {
-        dev->motor = 0;
-    } else {
-        dev->motor = dev->requested;
+    int16_t motor = (dev->armed && dev->enabled) ? dev->requested : 0;
+    if (dev->latched & FG_STATUS_LIMIT) {
+        if (dev->speed > FG_GUARD_STOPPED_SPEED) {
+            motor = (int16_t)-dev->cfg.command_limit; /* the brake */
+        } else if (motor > 0) {
+            motor = 0; /* backing away (negative) still passes */
+        }
     }
+    dev->motor = motor;
 }
 
 static int16_t clip(int16_t value, int16_t limit)
@@ -114,7 +149,7 @@ uint8_t fg_device_receive(fg_device *dev, const fg_message *msg, uint32_t now_us
     if (cmd->flags & FG_FLAG_REARM) {
         dev->latched = 0;
         dev->armed = 1;
-        check_limit(dev); /* still at the wall: LIMIT comes straight back */
+        guard_judge(dev); /* the latest sample still trips it: LIMIT comes straight back */
     }
     if (cmd->flags & FG_FLAG_ESTOP) {
         dev->armed = 0; /* after REARM: an e-stop always wins */
@@ -153,15 +188,15 @@ size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t a
         dev->latched |= FG_STATUS_WATCHDOG;
         dev->armed = 0;
     }
-    /* 3. the command held over the period ending now */
+    /* 3. the output held over the period ending now (the guard as it judged the last sample) */
     if (dev->armed && dev->enabled && !dev->fresh) {
         status |= FG_STATUS_COMMAND_LATE;
     }
     update_motor(dev);
     s->applied = dev->motor;
-    /* 4. the new sample, and the limit for the next period */
+    /* 4. the new sample; the guard's output is the motor's for the next period */
     dev->sensor = sensor;
-    check_limit(dev);
+    guard_update(dev, sensor);
     update_motor(dev);
     /* 5. the State */
     if (dev->decoder.errors != dev->errors_reported) {
@@ -208,7 +243,7 @@ int16_t fg_device_motor(const fg_device *dev)
 
 uint8_t fg_device_amp_enabled(const fg_device *dev)
 {
-    return (uint8_t)(dev->armed && dev->enabled);
+    return (uint8_t)((dev->armed && dev->enabled) || dev->motor != 0);
 }
 
 void fg_device_estop(fg_device *dev)

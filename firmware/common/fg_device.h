@@ -2,10 +2,11 @@
  * fg_device.h - the device state machine both reference firmwares share (no hardware here).
  *
  * The firmware owns the clock, the motor driver and the sensor; this module owns the rules:
- * arming, ENABLE, the e-stop latch, the watchdog, COMMAND_LATE, CRC_ERROR, the distance limit,
- * command clipping, Hello and one State frame per tick. docs/protocol.md ("Device behaviour")
- * is the specification; frictiongym/hardware/emulator.py implements the same rules in Python,
- * and tests/test_firmware.py runs the scenario table of tests/data/protocol_vectors.json here.
+ * arming, ENABLE, the e-stop latch, the watchdog, COMMAND_LATE, CRC_ERROR, the Altino's
+ * distance guard, command clipping, Hello and one State frame per tick. docs/protocol.md
+ * ("Device behaviour") is the specification; frictiongym/hardware/firmware.py implements the
+ * same rules in Python, and tests/test_firmware.py runs the scenario table of
+ * tests/data/protocol_vectors.json on both.
  *
  * Use (see firmware/altino/altino.ino and firmware/qube_bridge/qube_bridge.ino):
  *
@@ -21,7 +22,8 @@
  *       }
  *       at every tick (absolute deadlines, next += period):
  *         sample the sensor; n = fg_device_tick(&dev, now, sensor, aux, hw_status, frame);
- *         write fg_device_motor(&dev) (a watchdog trip or the limit may have zeroed it);
+ *         write fg_device_motor(&dev) (a watchdog trip may have zeroed it, the distance
+ *         guard may brake);
  *         send the n bytes of frame.
  *
  * Times are device microseconds (micros()); differences are taken modulo 2^32, so the
@@ -47,20 +49,38 @@ enum fg_action {
 #define FG_WATCHDOG_MIN_MS 20u
 #define FG_WATCHDOG_PERIODS 3u
 
-/* Altino distance limit: IR readout of 2.0 cm by the paper's calibration d = 966 / (x + 45)
- * cm (frictiongym/plants/sensors.py): x = 966 / 2.0 - 45 = 438. Readouts grow toward the
- * wall, so positive (forward) commands are refused at or above this value. */
-#define FG_ALTINO_LIMIT_READOUT 438
+/* Altino distance guard (FG_CAP_DISTANCE_LIMIT). frictiongym/hardware/guard.py is the
+ * reference and gives each constant's source; the values here must equal its. At every tick,
+ * from the sample x (the front IR readout):
+ *   d = FG_IR_NUMERATOR / (x + FG_IR_OFFSET) cm        (x <= 0: out of range, no distance)
+ *   v = (d_prev - d) / dt, cm/s toward the wall        (0 unless both samples have a distance)
+ *   stop = d - v * FG_GUARD_REACTION_PERIODS * dt - v^2 / (2 FG_GUARD_BRAKE_DECELERATION)
+ *                                                      (stop = d when v <= 0)
+ * and LIMIT latches when stop <= cfg.limit_cm (REARM clears it, unless the latest sample trips
+ * it again at once). While LIMIT is latched the motor gets -command_limit (full reverse: the
+ * brake) while v > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed,
+ * forward is refused. The brake acts even when the device is disarmed (e-stop, watchdog,
+ * fault): a car that still approaches must not coast into the wall. Maths in binary32 (AVR's
+ * double); the Python reference uses binary64, so results can differ only at the boundary. */
+#define FG_IR_NUMERATOR 966.0f             /* paper Eq. (1); plants/sensors.py IR_NUMERATOR */
+#define FG_IR_OFFSET 45.0f                 /* paper Eq. (1); plants/sensors.py IR_OFFSET */
+/* Build reported in Hello: 2 = the predictive distance guard (build 1: a fixed readout limit).
+   frictiongym/hardware/firmware.py FIRMWARE_BUILD is the same number. */
+#define FG_FIRMWARE_BUILD 2u
+#define FG_GUARD_LIMIT_CM 1.5f             /* guard.LIMIT_CM: closest approach, cm */
+#define FG_GUARD_BRAKE_DECELERATION 300.0f /* guard.BRAKE_DECELERATION, cm/s^2 */
+#define FG_GUARD_REACTION_PERIODS 2        /* guard.REACTION_PERIODS: sensing + dead time */
+#define FG_GUARD_STOPPED_SPEED 0.5f        /* guard.STOPPED_SPEED, cm/s */
 
 typedef struct {
     uint8_t kind;            /* enum fg_kind */
-    uint8_t capabilities;    /* enum fg_capability; FG_CAP_DISTANCE_LIMIT turns the limit on */
+    uint8_t capabilities;    /* enum fg_capability; FG_CAP_DISTANCE_LIMIT turns the guard on */
     uint16_t rate_hz;        /* ticks per second */
     uint16_t counts_per_rev; /* encoder counts per revolution (0: none) */
     uint16_t command_scale;  /* command counts per physical unit */
     int16_t command_limit;   /* commands are clipped to +-this, counts */
     uint16_t watchdog_ms;    /* 0: the default, max(3 periods, 20 ms) */
-    int32_t limit_sensor;    /* sensor value at or beyond which forward commands stop */
+    float limit_cm;          /* the distance guard's closest approach, cm (FG_GUARD_LIMIT_CM) */
     uint32_t firmware;       /* build number reported in Hello */
 } fg_device_config;
 
@@ -73,8 +93,10 @@ typedef struct {
     uint16_t seq;             /* State frames sent (the first State has seq 1) */
     uint16_t seq_applied;     /* seq of the newest Command (0 before any) */
     int16_t requested;        /* newest command, clipped */
-    int16_t motor;            /* the output the motor holds now */
+    int16_t motor;            /* the output the motor holds now (negative while braking) */
     int32_t sensor;           /* last sample */
+    float distance;           /* guard: distance of the last sample, cm; < 0: out of range */
+    float speed;              /* guard: approach speed, cm/s (toward the wall > 0) */
     uint8_t armed;            /* REARM received and no e-stop, watchdog or fault since */
     uint8_t enabled;          /* ENABLE bit of the newest Command */
     uint8_t fresh;            /* a Command arrived since the last tick */
@@ -97,20 +119,23 @@ uint8_t fg_device_rx(fg_device *dev, uint8_t byte, uint32_t now_us);
 /* Act on one decoded message at time now_us; returns enum fg_action bits. */
 uint8_t fg_device_receive(fg_device *dev, const fg_message *msg, uint32_t now_us);
 
-/* The tick at now_us with a fresh sample: run the watchdog and the limit, write the State
- * frame (with its 0x00) into frame (FG_FRAME_BUFFER bytes); returns its length. If state is
- * not NULL it receives the State as well. */
+/* The tick at now_us with a fresh sample: run the watchdog, report the output held over the
+ * period that ends now, feed the sample to the distance guard (its output is the motor's for
+ * the next period), write the State frame (with its 0x00) into frame (FG_FRAME_BUFFER bytes);
+ * returns its length. If state is not NULL it receives the State as well. */
 size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t aux,
                       uint8_t hw_status, uint8_t *frame, fg_state *state);
 
 /* The Hello frame (with its 0x00) into frame; returns its length. */
 size_t fg_device_hello(const fg_device *dev, uint8_t *frame);
 
-/* Motor output now, counts (0 unless armed and enabled), and whether to enable the amplifier. */
+/* Motor output now, counts (0 unless armed and enabled, or the distance guard brakes), and
+ * whether to enable the amplifier (armed and enabled, or a non-zero output). */
 int16_t fg_device_motor(const fg_device *dev);
 uint8_t fg_device_amp_enabled(const fg_device *dev);
 
-/* Zero the motor and disarm (firmware-side e-stop: a button, a fault the MCU detects). */
+/* Disarm and recompute the motor (firmware-side e-stop: a button, a fault the MCU detects):
+ * 0, unless the distance guard brakes a car that still approaches the wall. */
 void fg_device_estop(fg_device *dev);
 
 #ifdef __cplusplus

@@ -72,7 +72,7 @@ enum fg_status {
     FG_STATUS_WATCHDOG = 0x08,     /* latched until REARM */
     FG_STATUS_COMMAND_LATE = 0x10, /* no new command this period: the last one was held */
     FG_STATUS_CRC_ERROR = 0x20,    /* a bad frame arrived since the last State */
-    FG_STATUS_LIMIT = 0x40,        /* distance limit hit; latched until REARM */
+    FG_STATUS_LIMIT = 0x40,        /* distance guard tripped; latched until REARM */
     FG_STATUS_DISABLED = 0x80      /* the motor is off: not armed or not enabled */
 };
 

@@ -22,7 +22,9 @@ rate (rotary: QUBE-Servo 2, 500 Hz; altino: Altino car, 20 Hz), on a pseudo-term
 --tcp, on a TCP port for another process or machine. It behaves as the firmware does: boots
 with the motor disabled, answers Hello, holds each command over its period, streams one state
 frame per tick, zeroes the motor when commands stop for --watchdog ms (latched until re-armed)
-and, on the Altino, refuses forward commands once the IR sensor reads 2 cm or less (latched
+and, on the Altino, runs the distance guard: when the car, at the speed the IR readings show,
+could no longer stop 1.5 cm short of the wall, it brakes at full reverse while the car
+approaches (even after an e-stop or a watchdog trip), then refuses forward commands (latched
 until re-armed; backing away still works).
 
 The first line of output is the port to connect to. Connect an env to it:

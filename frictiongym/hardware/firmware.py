@@ -2,14 +2,15 @@
 
 :class:`Firmware` is what ``firmware/common/`` does on the microcontroller, in Python: it
 answers ``HelloRequest`` at once, queues ``Command`` and ``Place`` frames, and at every tick of
-the device clock applies them (the newest command wins), runs the watchdog and the Altino's
-distance limit, holds the motor command over the period, samples the sensor and builds one
-``State``. The plant is the env's own :class:`~frictiongym.envs.core.Simulation` of one env, so
-the physics exists once and the sensor numbers are the env's own measurements (bit-identical
-to the simulated env fed the same applied commands). The emulator
-(:class:`frictiongym.hardware.emulator.Emulator`) drives it from a real-time or lock-step clock
-behind a pty or a TCP socket; ``tests/test_firmware.py`` checks it against the C firmware's
-scenario table.
+the device clock applies them (the newest command wins), runs the watchdog, holds the motor
+command over the period, samples the sensor, feeds the sample to the Altino's distance guard
+(:class:`~frictiongym.hardware.guard.DistanceGuard`, whose output the motor holds over the
+next period) and builds one ``State``. The plant is the env's own
+:class:`~frictiongym.envs.core.Simulation` of one env, so the physics exists once and the
+sensor numbers are the env's own measurements (bit-identical to the simulated env fed the same
+applied commands). The emulator (:class:`frictiongym.hardware.emulator.Emulator`) drives it
+from a real-time or lock-step clock behind a pty or a TCP socket; ``tests/test_firmware.py``
+checks it against the C firmware's scenario table.
 
 Timing idealisation: a command is held over the *whole* period in which it arrived, and the
 ``State`` that ends that period echoes it; the emulator has no transport or computation delay
@@ -32,24 +33,20 @@ from frictiongym.envs.core import Device, Simulation
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS
+from frictiongym.hardware.guard import DistanceGuard
 from frictiongym.params import DeviceParams
 from frictiongym.plants import _kernel as pk
-from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET, QUBE_COUNTS_PER_REV
+from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 
-#: Build number the emulated firmware reports in its ``Hello`` (issue E: the first build).
-FIRMWARE_BUILD = 1
+#: Build number the firmware reports in its ``Hello``, the same as ``FG_FIRMWARE_BUILD`` in
+#: firmware/common/fg_device.h: 2 = the predictive distance guard (1: a fixed readout limit).
+FIRMWARE_BUILD = 2
 #: Command counts per physical unit: mV for the servo (protocol.DeviceKind), the Altino's own
 #: motor units.
 COMMAND_SCALE = {"rotary": 1000, "altino": 1}
 #: Default watchdog: three periods, at least 20 ms (research/hardware.md §0 item 3).
 WATCHDOG_PERIODS = 3
 WATCHDOG_MIN_MS = 20
-#: The Altino never drives closer to the wall than this, cm (issue E: "a distance limit so the
-#: Altino never drives into the wall"; 2 cm leaves room for one 50 ms period at speed).
-ALTINO_LIMIT_CM = 2.0
-#: IR readout at that distance (paper Eq. (1) inverted: 966 / 2 - 45 = 438); at or above it the
-#: firmware refuses positive (toward the wall) commands.
-ALTINO_LIMIT_READOUT = math.ceil(IR_NUMERATOR / ALTINO_LIMIT_CM - IR_OFFSET)
 #: Safety limit of the emulated servo, rad: large enough never to end anything (the firmware
 #: does not stop on the env's termination; the disk has no end stops).
 ROTARY_NO_LIMIT = 1e9
@@ -176,15 +173,17 @@ class Firmware:
         self.armed = False
         self.enabled = False
         self.held = 0  #: counts of the newest command (clipped to the limit)
-        self.motor_counts = 0  #: counts the motor holds now
+        self.motor_counts = 0  #: counts the motor holds now (negative while the guard brakes)
         self.seq_applied = 0
         self.latched = p.Status(0)  #: latched WATCHDOG / LIMIT bits
         self.status = p.Status.DISABLED  #: status bits of the last state
         self.last_command = -math.inf  #: arrival time of the newest command, s
         self.history: deque[Tick] = deque(maxlen=HISTORY_TICKS)
         self._errors_seen = 0
+        #: The Altino's distance guard (None on the servo): brakes before the wall.
+        self.guard = DistanceGuard(self.dt, self.hello.command_limit) if altino else None
+        self.sensor = 0
         self._place(self.device.start if start is None else float(start))
-        self.sensor = self._sensor()
 
     # -- plant ------------------------------------------------------------------------------
 
@@ -202,16 +201,30 @@ class Firmware:
 
     @property
     def motor(self) -> float:
-        """The command the motor holds now, physical units (0.0 when disabled)."""
+        """The command the motor holds now, physical units.
+
+        0.0 when disabled, except while the Altino's distance guard brakes (full reverse).
+        """
         return self.motor_counts / self.scale
 
     def _place(self, position: float) -> None:
-        """Reset the plant at rest at ``position`` and observe it (the env's own reset)."""
+        """Reset the plant at rest at ``position`` and sample it (the env's own reset).
+
+        The distance guard starts afresh there (the car did not drive there: no speed), keeping
+        its trip, and judges the new sample at once.
+        """
         self._fresh[0] = True
         self.sim.prepare_reset(self._fresh, lambda _: self._rng, {"position": position})
         self._command[0] = 0.0
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
         self._fresh[0] = False
+        self.sensor = self._sensor()
+        if self.guard is not None:
+            tripped = self.guard.tripped
+            self.guard = DistanceGuard(self.dt, self.hello.command_limit)
+            self.guard.tripped = tripped
+            self._watch()
+        self.motor_counts = self._output()
 
     def _zero_position(self) -> None:
         """Reset the encoder count: the plant's position is 0, the rest of its state kept.
@@ -261,14 +274,14 @@ class Firmware:
                     self._place(float(message.position))
                 except ValueError:  # out of range or not finite: a device ignores it
                     self.rejected += 1
-                else:
-                    self.sensor = self._sensor()
                 continue
             got = True
             flags = message.flags
             if flags & p.Flag.REARM:
                 self.latched = p.Status(0)
                 self.armed = True
+                if self.guard is not None and self.guard.rearm():
+                    self.latched |= p.Status.LIMIT  # still too close or too fast: at once
             if flags & p.Flag.ESTOP:
                 self.armed = False
             if flags & p.Flag.ZERO_POSITION and self.kind == "rotary":
@@ -289,25 +302,34 @@ class Firmware:
 
     # -- tick -------------------------------------------------------------------------------
 
-    def _limit_check(self) -> None:
-        if self.kind == "altino" and self.sensor >= ALTINO_LIMIT_READOUT:
+    def _watch(self) -> None:
+        """Feed the latest sample to the distance guard; latch ``LIMIT`` when it trips."""
+        if self.guard is not None and self.guard.update(self.sensor):
             self.latched |= p.Status.LIMIT
+
+    def _output(self) -> int:
+        """Return the counts the motor holds: the request if armed and enabled, via the guard.
+
+        The guard acts whether or not the device is armed: once tripped it brakes while the
+        car still approaches, after an e-stop or a watchdog trip too.
+        """
+        requested = self.held if self.armed and self.enabled else 0
+        return requested if self.guard is None else round(self.guard.command(requested))
 
     def tick(self, now: float) -> p.State:
         """Run one device period ending at ``now`` (s); return its ``State``.
 
-        Applies the queued messages, trips the watchdog if it is due, holds the motor command
-        over the period, integrates the plant, samples the sensor.
+        Applies the queued messages, trips the watchdog if it is due, holds the motor output
+        over the period (through the distance guard, as it judged the previous sample),
+        integrates the plant, samples the sensor and feeds the sample to the guard; the
+        guard's answer is the motor output of the next period (:attr:`motor`).
         """
         got = self.apply_pending()
         deadline = self.watchdog_deadline()
         if deadline is not None and now >= deadline:
             self.armed = False
             self.latched |= p.Status.WATCHDOG
-        self._limit_check()
-        counts = self.held if self.armed and self.enabled else 0
-        if counts > 0 and self.latched & p.Status.LIMIT:
-            counts = 0  # backing away (negative) still passes
+        counts = self._output()
         self.motor_counts = counts
         self._command[0] = counts / self.scale
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
@@ -317,7 +339,8 @@ class Firmware:
             self.sim.state[0, pk.S_V] = 0.0
             self.sim.state[0, pk.S_STUCK] = 1.0
         self.sensor = self._sensor()
-        self._limit_check()
+        self._watch()
+        self.motor_counts = self._output()  # the guard may brake from now on
         self.ticks += 1
         driving = self.armed and self.enabled
         status = self.latched
@@ -345,7 +368,6 @@ class Firmware:
 
 
 __all__ = [
-    "ALTINO_LIMIT_READOUT",
     "COMMAND_SCALE",
     "FIRMWARE_BUILD",
     "Firmware",

@@ -71,9 +71,18 @@ class DistanceGuard:
         self.speed = 0.0  #: approach speed, cm/s (positive toward the wall)
         self._distance: float | None = None
 
-    def rearm(self) -> None:
-        """Clear the trip (the host re-armed the device)."""
-        self.tripped = False
+    def rearm(self) -> bool:
+        """Clear the trip (the host re-armed the device); return whether it trips again at once.
+
+        The latest sample is judged again: a car still within the limit, or approaching too fast
+        to stop short of it, stays tripped.
+        """
+        self.tripped = self._distance is not None and self._trips(self._distance)
+        return self.tripped
+
+    def _trips(self, distance: float) -> bool:
+        stop = stopping_point(distance, self.speed, self.dt, self.reaction_periods)
+        return stop <= self.limit_cm
 
     def update(self, readout: float) -> bool:
         """Take one readout; return whether the guard is tripped."""
@@ -84,8 +93,7 @@ class DistanceGuard:
             self.speed = (self._distance - distance) / self.dt
         self._distance = distance
         if distance is not None:
-            stop = stopping_point(distance, self.speed, self.dt, self.reaction_periods)
-            self.tripped |= stop <= self.limit_cm
+            self.tripped |= self._trips(distance)
         return self.tripped
 
     def command(self, requested: float) -> float:

@@ -83,7 +83,9 @@ class Status(enum.IntFlag):
     WATCHDOG = 0x08  #: no valid command within the watchdog time; latched until ``REARM``
     COMMAND_LATE = 0x10  #: no new command arrived for this period; the last one was held
     CRC_ERROR = 0x20  #: a bad frame was received since the last state
-    LIMIT = 0x40  #: a position or distance limit stopped the motor; latched until ``REARM``
+    #: the distance guard tripped (it brakes, then refuses forward commands); latched until
+    #: ``REARM``
+    LIMIT = 0x40
     #: the motor is off whatever the command: not armed (boot, e-stop, watchdog, fault) or not
     #: enabled
     DISABLED = 0x80
@@ -99,7 +101,8 @@ class Capability(enum.IntFlag):
 
     WATCHDOG = 0x01  #: zeroes the motor when commands stop
     PLACE = 0x02  #: honours ``Place`` (the emulator)
-    DISTANCE_LIMIT = 0x04  #: refuses to drive closer to the wall than its limit (Altino)
+    #: brakes before the wall (the predictive guard of hardware/guard.py; the Altino)
+    DISTANCE_LIMIT = 0x04
 
 
 @dataclass(frozen=True)
