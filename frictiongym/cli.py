@@ -100,10 +100,28 @@ def _command_module(name: str) -> Any:
 
 
 def _run_tool(args: argparse.Namespace) -> int:
-    status: int = _command_module(args.command).run(
-        args, shlex.join(["frictiongym", *sys.argv[1:]])
-    )
+    status: int = _command_module(args.command).run(args, args.command_line)
     return status
+
+
+def tool_parser(name: str) -> argparse.ArgumentParser:
+    """Build the parser of the tool command ``name`` alone (for its tests and help)."""
+    module = _command_module(name)
+    parser = argparse.ArgumentParser(
+        prog=f"frictiongym {name}",
+        description=module.DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    module.add_arguments(parser)
+    return parser
+
+
+def tool_main(name: str, argv: Sequence[str] | None = None) -> int:
+    """Run ``frictiongym NAME ARGV...`` (ARGV: the command line's arguments by default).
+
+    The ``scripts/`` wrappers and each command module's ``main`` call this.
+    """
+    return main([name, *(sys.argv[1:] if argv is None else argv)])
 
 
 #: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).
@@ -184,7 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(words)
+    args.command_line = shlex.join(["frictiongym", *words])
     if args.command is None:
         parser.print_help()
         return 0

@@ -543,9 +543,10 @@ def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
 
 
 def test_cli_help_and_unknown_device(capsys):
-    from frictiongym.hardware.command import build_parser, main
+    from frictiongym.cli import tool_parser
+    from frictiongym.hardware.command import main
 
-    text = build_parser().format_help()
+    text = tool_parser("emulate").format_help()
     for word in ("--device", "--tcp", "--drop", "--unplug-after", "serial://", "socket://"):
         assert word in text
     for argv in (["--device", "segway"], ["--device", "rotary", "--tcp", "port"]):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import fnmatch
-import shlex
 import sys
 import time
 from collections.abc import Sequence
@@ -142,17 +141,8 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
     return 0
 
 
-def build_parser(prog: str = "frictiongym benchmark") -> argparse.ArgumentParser:
-    """Build the benchmark's own parser (``scripts/benchmark.py``)."""
-    parser = argparse.ArgumentParser(
-        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    add_arguments(parser)
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` and run the benchmark."""
-    args = build_parser().parse_args(argv)
-    words = sys.argv[1:] if argv is None else list(argv)
-    return run(args, shlex.join(["frictiongym", "benchmark", *words]))
+    """Run ``frictiongym benchmark`` with ``argv`` (default: the command line; ``scripts/``)."""
+    from frictiongym.cli import tool_main
+
+    return tool_main("benchmark", argv)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import shlex
 import signal
 import sys
 import threading
@@ -169,24 +168,15 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             signal.signal(sig, handler)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the parser of ``scripts/emulate.py`` (the options of ``frictiongym emulate``)."""
-    parser = argparse.ArgumentParser(
-        prog="emulate.py", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add_arguments(parser)
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` and run."""
-    args = build_parser().parse_args(argv)
-    return run(args, shlex.join(["emulate.py", *(sys.argv[1:] if argv is None else argv)]))
+    """Run ``frictiongym emulate`` with ``argv`` (default: the command line; ``scripts/``)."""
+    from frictiongym.cli import tool_main
+
+    return tool_main("emulate", argv)
 
 
 if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "main", "run"]
+__all__ = ["DESCRIPTION", "add_arguments", "main", "run"]

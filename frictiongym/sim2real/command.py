@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -133,19 +132,8 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the parser of ``scripts/sim2real.py``."""
-    parser = argparse.ArgumentParser(
-        prog="sim2real.py", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add_arguments(parser)
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``scripts/sim2real.py``."""
-    args = build_parser().parse_args(argv)
-    return run(
-        args, shlex.join(["frictiongym", "sim2real", *(sys.argv[1:] if argv is None else argv)])
-    )
+    """Run ``frictiongym sim2real`` with ``argv`` (default: the command line; ``scripts/``)."""
+    from frictiongym.cli import tool_main
+
+    return tool_main("sim2real", argv)

@@ -6,7 +6,6 @@ import argparse
 import dataclasses
 import json
 import math
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -200,17 +199,8 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
     return 0
 
 
-def build_parser(prog: str = "frictiongym tune") -> argparse.ArgumentParser:
-    """Build the tuner's own parser (``scripts/tune.py``)."""
-    parser = argparse.ArgumentParser(
-        prog=prog, description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    add_arguments(parser)
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` and run the tuner."""
-    args = build_parser().parse_args(argv)
-    words = sys.argv[1:] if argv is None else list(argv)
-    return run(args, shlex.join(["frictiongym", "tune", *words]))
+    """Run ``frictiongym tune`` with ``argv`` (default: the command line; ``scripts/``)."""
+    from frictiongym.cli import tool_main
+
+    return tool_main("tune", argv)
