@@ -8,6 +8,7 @@
 """
 
 import os
+import tempfile
 
 from hypothesis import settings
 
@@ -21,3 +22,6 @@ settings.load_profile(
 # Render tests and gymnasium's check_env (which opens every render mode) never need a screen.
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
+
+# Device runs log to $FRICTIONGYM_RUNS by default: keep the tests' logs out of the checkout.
+os.environ["FRICTIONGYM_RUNS"] = tempfile.mkdtemp(prefix="frictiongym-runs-")
