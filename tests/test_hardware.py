@@ -1,0 +1,159 @@
+"""The backend contract without I/O: URIs, the base class's safety rules, run logs, timing."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from frictiongym.hardware import Backend, DeviceInfo, HardwareError, Sample, resolve_backend
+from frictiongym.hardware.base import _OPEN, _stop_all
+from frictiongym.hardware.emulated import EmulatedBackend
+from frictiongym.hardware.runlog import RunLog, Timing, read_steps
+from frictiongym.hardware.serial_backend import SerialBackend
+
+
+class Recorder(Backend):
+    """A backend that records what reached the 'device'."""
+
+    def __init__(self, fail_with: BaseException | None = None) -> None:
+        self.sent: list[float] = []
+        self.stops = 0
+        self.fail_with = fail_with
+
+    def _open(self) -> DeviceInfo:
+        return DeviceInfo("rotary", 500.0, 10.0, 0.001, 2048, 0.02)
+
+    def _start(self, zero_position: bool) -> Sample:
+        return Sample(0.0, 0.0, 0, 0)
+
+    def _exchange(self, command: float) -> Sample:
+        if self.fail_with is not None:
+            raise self.fail_with
+        self.sent.append(command)
+        return Sample(0.0, command, 0, 0)
+
+    def _stop(self) -> None:
+        self.stops += 1
+
+    def _close(self) -> None:
+        pass
+
+
+@pytest.mark.parametrize(
+    ("uri", "port", "baud"),
+    [
+        ("serial:///dev/ttyACM0", "/dev/ttyACM0", 1_000_000),
+        ("serial:///dev/ttyUSB1?baud=115200", "/dev/ttyUSB1", 115200),
+        ("/dev/pts/4", "/dev/pts/4", 1_000_000),
+        ("socket://127.0.0.1:5000", "socket://127.0.0.1:5000", 1_000_000),
+        ("COM3", "COM3", 1_000_000),
+    ],
+)
+def test_serial_uris(uri, port, baud):
+    backend = resolve_backend(uri, "rotary")
+    assert isinstance(backend, SerialBackend)
+    assert (backend.port, backend.baud) == (port, baud)
+    assert not backend.is_open  # nothing is opened before the env needs it
+
+
+def test_other_uris_and_objects():
+    assert resolve_backend("sim", "rotary") is None
+    assert resolve_backend(None, "altino") is None
+    emulated = resolve_backend("emulator://", "altino")
+    assert isinstance(emulated, EmulatedBackend)
+    assert emulated.kind == "altino"
+    assert resolve_backend("emulator://rotary?lockstep=1", "altino").lockstep
+    recorder = Recorder()
+    assert resolve_backend(recorder, "rotary") is recorder
+
+
+@pytest.mark.parametrize(
+    ("spec", "error", "match"),
+    [
+        ("ftp://host", ValueError, "unknown backend 'ftp://host'"),
+        ("serial://", ValueError, "names no port"),
+        ("serial:///dev/x?speed=3", ValueError, r"unknown option\(s\) \['speed'\]"),
+        ("serial:///dev/x?baud=fast", ValueError, "not a number"),
+        ("emulator://segway", ValueError, "unknown device kind"),
+        ("emulator://rotary?lockstep=maybe", ValueError, "must be 1 or 0"),
+        (3.5, TypeError, "URI string or a Backend"),
+    ],
+)
+def test_bad_backends_say_what_is_accepted(spec, error, match):
+    with pytest.raises(error, match=match):
+        resolve_backend(spec, "rotary")
+
+
+def test_the_base_class_refuses_non_finite_commands_and_saturates():
+    backend = Recorder()
+    backend.start()
+    backend.step(3.0)
+    backend.step(25.0)
+    backend.step(-1e300)
+    assert backend.sent == [3.0, 10.0, -10.0]
+    for bad in (math.nan, math.inf, -math.inf, "1 V", None):
+        with pytest.raises(ValueError, match="not a finite number"):
+            backend.step(bad)
+    assert backend.sent == [3.0, 10.0, -10.0]  # nothing more reached the device
+    assert backend.stops >= 5
+    with pytest.raises(HardwareError, match="stopped"):
+        backend.step(1.0)  # the NaN stopped it: start again first
+    backend.start()
+    backend.step(1.0)
+    assert backend.sent[-1] == 1.0
+    backend.close()
+
+
+@pytest.mark.parametrize("failure", [KeyboardInterrupt(), OSError("gone"), HardwareError("x")])
+def test_any_failure_inside_a_step_stops_the_device(failure):
+    backend = Recorder(fail_with=failure)
+    backend.start()
+    with pytest.raises(type(failure)):
+        backend.step(1.0)
+    assert backend.stops == 1
+    assert not backend.armed
+
+
+def test_open_backends_are_stopped_at_exit():
+    backend = Recorder()
+    backend.start()
+    assert backend in _OPEN
+    _stop_all()
+    assert backend.stops == 1
+    assert not backend.is_open
+    backend.close()  # idempotent
+    assert backend.stops == 1
+
+
+def test_run_log_survives_an_interruption_and_refuses_to_overwrite(tmp_path):
+    log = RunLog(tmp_path / "run", ("angle", "velocity"), {"device": "rotary"})
+    log.record((0, 0, 0.0, 1, 2, 3, 4, 0, 0, 0, 0.5, 0.5, 0.1, 0.1, 0.0, -1.0, 0))
+    log.record((0, 1, 0.002, 1, 2, 3, 4, 1, 2, 16, 0.5, 0.5, 0.2, 0.2, 50.0, -1.0, 1))
+    # Not closed (as after a crash): every recorded row is already on disk.
+    steps = read_steps(tmp_path / "run")
+    assert steps["step"].tolist() == [0.0, 1.0]
+    assert steps["late"].tolist() == [0.0, 1.0]
+    assert steps["obs_velocity"].tolist() == [0.0, 50.0]
+    with (tmp_path / "run" / "steps.csv").open("a") as handle:
+        handle.write("0,2,0.004")  # a half-written last line is dropped
+    assert len(read_steps(tmp_path / "run")["step"]) == 2
+    log.close(timing={"steps": 1})
+    meta = json.loads((tmp_path / "run" / "meta.json").read_text())
+    assert meta["device"] == "rotary"
+    assert meta["rows"] == 2
+    assert meta["timing"] == {"steps": 1}
+    with pytest.raises(FileExistsError, match="own directory"):
+        RunLog(tmp_path / "run", ("angle",), {})
+
+
+def test_timing_statistics():
+    periods = np.array([0.002] * 98 + [0.004, 0.0021])
+    timing = Timing.from_periods(periods, 0.002, late=1, skipped=2)
+    assert timing.steps == 100
+    assert timing.rate_hz == pytest.approx(100 / periods.sum())
+    assert timing.period_p50 == pytest.approx(0.0, abs=1e-12)
+    assert timing.period_max == pytest.approx(0.002)
+    assert (timing.late, timing.skipped) == (1, 2)
