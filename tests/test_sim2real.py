@@ -75,7 +75,11 @@ def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     assert status == 0
     assert "friction" in capsys.readouterr().out
     assert (out / "report.md").exists()
-    assert (out / "device-log" / "steps.csv").exists()
+    (log,) = (out / "device-logs").iterdir()
+    assert (log / "steps.csv").exists()
+    assert main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+                 "--repeats", "1", "--steps", "10", "--out", str(out), "--quiet"]) == 0  # fmt: skip
+    assert len(list((out / "device-logs").iterdir())) == 2  # a rerun keeps the first log
     file = tmp_path / "a-file"
     file.write_text("x")
     assert main(["sim2real", "--env", SERVO, "--backend", "emulator://", "--out", str(file)]) == 2

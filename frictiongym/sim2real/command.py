@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from collections.abc import Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 
 from frictiongym.controllers import PIDGains
@@ -23,7 +24,8 @@ steady-state error, and the timing of the device loop. The paper's claim is that
 modelling closes most of the gap; the report says how much.
 
 Writes to --out: report.md, sim2real.json, overlay.png, timing.png; the device run's log
-(steps.csv + meta.json) goes to --out/device-log.
+(steps.csv + meta.json) goes to a new --out/device-logs/<UTC time>/, so a rerun into the
+same --out keeps the earlier logs.
 
 Try it without hardware:  frictiongym sim2real --env frictiongym/RotaryServo-v0 \\
     --backend emulator://rotary --out sim2real-results
@@ -103,6 +105,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="print only errors")  # fmt: skip
 
 
+def _log_directory(out: Path) -> Path:
+    """Return a new directory for this run's device log under ``out/device-logs``."""
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    path, n = out / "device-logs" / stamp, 1
+    while path.exists():
+        n += 1
+        path = out / "device-logs" / f"{stamp}-{n}"
+    return path
+
+
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the comparison; return the exit status."""
     if args.repeats < 1 or (args.steps is not None and args.steps < 1):
@@ -116,7 +128,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         result = run_sim2real(
             args.env, args.backend, controller=args.controller, gains=args.gains,
             params=args.params, repeats=args.repeats, steps=args.steps,
-            reference=args.reference, log=args.out / "device-log", progress=say,
+            reference=args.reference, log=_log_directory(args.out), progress=say,
         )  # fmt: skip
     except (HardwareError, ParamsFileError, ValueError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)

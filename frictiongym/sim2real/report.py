@@ -117,15 +117,13 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
               "|---|---:|---:|" + "---:|" * len(result.models)]  # fmt: skip
     for key, unit in METRICS.items():
         values = np.array([m[key] for m in data["device_metrics"]], dtype=float)
-        if not np.all(np.isfinite(values)):  # a run that never settles: no mean to speak of
-            values = np.array([math.inf if np.any(values == math.inf) else math.nan])
+        if np.all(np.isfinite(values)):
+            mean, std = float(values.mean()), float(values.std())
+        else:  # a run that never settles: no spread to speak of
+            mean, std = (math.inf if np.any(values == math.inf) else math.nan), math.nan
         unit = units["output"] if unit == "out" else unit
         diffs = [_num(data["metric_differences"][n][key]) for n in result.models]
-        lines.append(
-            f"| {key} ({unit}) | {_num(float(values.mean()))} | {_num(float(values.std()))} | "
-            + " | ".join(diffs)
-            + " |"
-        )
+        lines.append(f"| {key} ({unit}) | {_num(mean)} | {_num(std)} | " + " | ".join(diffs) + " |")
     timing = data["timing"]
     if timing is not None:
         lines += [
