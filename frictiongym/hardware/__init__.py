@@ -34,18 +34,38 @@ from frictiongym.hardware.errors import (
 
 __all__ = [
     "KINDS",
+    "AltinoStockBackend",
     "Backend",
     "DeviceDisconnectedError",
     "DeviceFaultError",
     "DeviceInfo",
     "DeviceNotFoundError",
     "DeviceTimeoutError",
+    "EmulatedBackend",
+    "Emulator",
     "HardwareError",
     "ProtocolError",
+    "QuanserHILBackend",
     "SDKNotAvailableError",
     "Sample",
+    "SerialBackend",
     "resolve_backend",
 ]
+
+#: Classes imported on first use (pyserial, the emulator's simulation): name -> module.
+_LAZY = {
+    "SerialBackend": "frictiongym.hardware.serial_backend",
+    "EmulatedBackend": "frictiongym.hardware.emulated",
+    "Emulator": "frictiongym.hardware.emulator",
+    "AltinoStockBackend": "frictiongym.hardware.altino_stock",
+    "QuanserHILBackend": "frictiongym.hardware.quanser_hil",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'frictiongym.hardware' has no attribute {name!r}")
 
 #: URI scheme -> (module, class); each class has ``from_uri(path, query)``.
 SCHEMES = {
