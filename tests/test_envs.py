@@ -232,7 +232,9 @@ def test_bad_arguments_say_what_is_wrong(kwargs, match):
 
 
 def test_a_missing_port_says_what_to_check():
-    with pytest.raises(FileNotFoundError, match="could not open '/dev/frictiongym-none'.*plugged in"):
+    with pytest.raises(
+        FileNotFoundError, match=r"could not open '/dev/frictiongym-none'.*plugged in"
+    ):
         gym.make(SERVO, backend="/dev/frictiongym-none")
 
 

@@ -9,7 +9,10 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
-DOCS = (README, ROOT / "docs" / "controllers.md", ROOT / "docs" / "identification.md")
+DOCS = (
+    README,
+    *(ROOT / "docs" / name for name in ("controllers.md", "identification.md", "tuning.md")),
+)
 BLOCKS = [
     (path, block)
     for path in DOCS

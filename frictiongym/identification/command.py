@@ -10,6 +10,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.fit import LAWS
 from frictiongym.identification.identify import Identification, identify, make_env, plan_for
@@ -28,7 +29,7 @@ Writes to --out:
   summary.md      the table printed at the end
 
 On the simulator the table also shows the simulated truth. Every experiment runs through
-the env's observations only, so a device backend (--backend, issue E) runs the same procedure.
+the env's observations only, so a device backend (--backend) runs the same procedure.
 """
 
 UNITS = {"RotaryServo": ("rad/s", "V"), "AltinoDistance": ("cm/s", "motor units")}
@@ -135,6 +136,9 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         env = make_env(args.env, plan, **kwargs)
     except (ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except (OSError, HardwareError) as exc:  # a device backend that cannot be opened
+        print(f"error: backend {args.backend}: {exc}", file=sys.stderr)
         return 2
     bar: Any = None
     if not args.quiet:

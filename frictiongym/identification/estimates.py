@@ -14,6 +14,7 @@ one sliding branch of friction (research/friction.md §6):
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -56,10 +57,14 @@ def _basis(t: FloatArray, t0: float, tau: float) -> FloatArray:
     return np.column_stack([np.ones_like(t), t - t0, np.exp(-(t - t0) / tau)])
 
 
-def fit_exponential(t: FloatArray, y: FloatArray, tau_max: float) -> ExponentialFit:
+def fit_exponential(
+    t: FloatArray, y: FloatArray, tau_max: float, weight: FloatArray | None = None
+) -> ExponentialFit:
     """Fit ``a + v (t - t0) + c exp(-(t - t0)/tau)`` to samples, ``tau`` in ``(0, tau_max]``.
 
     For each ``tau`` the other three parameters are linear; ``tau`` minimises the residual.
+    ``weight`` (one per sample, default 1) weights the squared residuals: the inverse noise
+    variance of each sample, for a sensor whose resolution varies along the run.
     """
     if t.size < 6:
         raise IdentificationError(
@@ -69,18 +74,19 @@ def fit_exponential(t: FloatArray, y: FloatArray, tau_max: float) -> Exponential
     t0 = float(t[0])
     span = float(t[-1] - t0)
     dt = span / (t.size - 1)
+    root = np.ones_like(y) if weight is None else np.sqrt(weight / np.mean(weight))
 
     def residual(log_tau: float) -> float:
-        basis = _basis(t, t0, math.exp(log_tau))
-        coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
-        return float(np.sum((basis @ coef - y) ** 2))
+        basis = _basis(t, t0, math.exp(log_tau)) * root[:, None]
+        coef, *_ = np.linalg.lstsq(basis, y * root, rcond=None)
+        return float(np.sum((basis @ coef - y * root) ** 2))
 
     lo, hi = math.log(0.5 * dt), math.log(tau_max)
     best = minimize_scalar(residual, bounds=(lo, hi), method="bounded", options={"xatol": 1e-4})
     tau = math.exp(float(best.x))
-    basis = _basis(t, t0, tau)
-    coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
-    resid = basis @ coef - y
+    basis = _basis(t, t0, tau) * root[:, None]
+    coef, *_ = np.linalg.lstsq(basis, y * root, rcond=None)
+    resid = basis @ coef - y * root
     dof = max(t.size - 4, 1)
     sigma2 = float(resid @ resid) / dof
     cov = np.linalg.pinv(basis.T @ basis) * sigma2
@@ -109,7 +115,12 @@ class SteadyPoint:
     transient: float = 0.0  #: size of the fitted transient over the residual RMS
 
 
-def steady_velocity(trace: Trace, skip: float = 0.4, tau_max: float = 2.0) -> SteadyPoint:
+def steady_velocity(
+    trace: Trace,
+    skip: float = 0.4,
+    tau_max: float = 2.0,
+    weight: Callable[[FloatArray], FloatArray] | None = None,
+) -> SteadyPoint:
     """Steady speed of a constant-input run (magnitude, in the level's direction).
 
     Parameters
@@ -122,6 +133,9 @@ def steady_velocity(trace: Trace, skip: float = 0.4, tau_max: float = 2.0) -> St
         less than ten times the scatter of its first samples is reported as stuck.
     tau_max : float, default 2.0
         Largest time constant considered, s.
+    weight : callable, optional
+        ``weight(positions)``: each sample's weight in the fit (its inverse noise variance,
+        up to a factor); equal weights by default.
     """
     level = abs(trace.settings["level"])
     y = trace.position
@@ -134,7 +148,8 @@ def steady_velocity(trace: Trace, skip: float = 0.4, tau_max: float = 2.0) -> St
     if abs(tail.mean() - head.mean()) <= 10.0 * scatter:
         return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.sign)
     index = index[int(skip * index.size) :]
-    fit = fit_exponential(trace.t[index], y[index], tau_max)
+    w = None if weight is None else weight(y[index])
+    fit = fit_exponential(trace.t[index], y[index], tau_max, w)
     transient = abs(fit.amplitude) / max(fit.rms, 1e-300)
     return SteadyPoint(
         level, trace.sign * fit.velocity, fit.velocity_se, fit.tau, True, trace.sign, transient

@@ -13,19 +13,26 @@ output matches the measured one.
   noise); fitting distances would let the far, coarse samples dominate.
 * **Position offsets.** The measured start of a run is not known exactly, so each run gets
   its own offset, solved by Gauss-Newton inside every residual evaluation.
-* **Two stages.** A relay run drives back and forth for 20 s: a small error in the parameters
+* **Stages.** A relay run drives back and forth for 20 s: a small error in the parameters
   piles up over its reversals, which makes the fit very precise near the optimum but its
   residual rugged far from it. The first stage therefore cuts every run where its command
-  reverses and gives each segment its own offset; the second starts from the first's result
-  with one offset per run, from each of its best few distinct minima. The first stage's many
-  offsets bias it by a few per cent (on the Altino with noise, ``v_0-`` by -3 to -8 %); the
-  second removes that.
-* **Multi-start.** In the first stage, random parameter sets around the start (broad ranges,
-  a fixed seed) are screened at each dead time of 0 to ``max_delay_steps`` periods, in one
-  batched simulation per dead time; local fits start from the best few of each, and the
-  lowest final residual wins. The residual of the paper's law has local minima: a kink
-  ``v_0`` pushed beyond the measured speeds turns the low-speed branch into a straight
-  line.
+  reverses and gives each segment its own offset. From the first stage's best few distinct
+  minima, the next stages join 2, 4 and 8 segments under one offset, and the last has one
+  offset per run; each starts from the previous one's result (a continuation). The first
+  stage's many offsets bias it by a few per cent, sometimes by more than the last stage's
+  basin is wide; the steps in between bridge that.
+* **Multi-start.** In the first stage, parameter sets spread over broad ranges around the
+  start (a scrambled Sobol sequence, fixed seed) are screened at each dead time of 0 to
+  ``max_delay_steps`` periods, in one batched simulation per dead time; local fits start
+  from the best few of each, and the lowest final residual wins. The residual of the
+  paper's law has local minima: a kink ``v_0`` pushed beyond the measured speeds turns the
+  low-speed branch into a straight line, and a lower ``B`` makes up for it; a kink at zero
+  speed turns the decay into a sudden drop. So from the best two minima each direction's
+  kink is also moved (along its low-speed branch, or at its Coulomb level), and fitted
+  again from the best place.
+* **Restarts.** Each local fit restarts from its own result until it stops improving: the
+  stick/slip residual is only piecewise smooth, and a trust region shrunk on one kink can
+  stop the solver early.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 from scipy.optimize import least_squares
+from scipy.stats import qmc
 
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification.experiments import Trace
@@ -52,6 +60,9 @@ NAMES = ("J", "B", "us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
 _RATIOS = (4, 5)
 #: Gauss-Newton iterations of each segment's offset.
 _OFFSET_ITERATIONS = 5
+#: Segments sharing a position offset at each stage (0: one offset per run): the first stage
+#: has one per segment, the last one per run.
+_JOINS = (1, 2, 4, 8, 0)
 #: Most runs of ``least_squares`` in one local fit (each from the last one's result).
 _RESTARTS = 4
 _TINY = 1e-300
@@ -150,7 +161,7 @@ class _Simulator:
         shape: str,
         reading: Reading,
         direction: float,
-        split: bool,
+        join: int,
     ) -> None:
         self.dt = dt
         self.limit = limit
@@ -169,7 +180,8 @@ class _Simulator:
             self.commands[:n, j] = trace.command
             mask[:n, j] = trace.valid
             measured[:n, j] = trace.position
-            ids = segments(trace.command) if split else np.zeros(n, dtype=np.int64)
+            # ``join`` consecutive segments share an offset; 0: one offset for the whole run.
+            ids = segments(trace.command) // join if join else np.zeros(n, dtype=np.int64)
             group[:n, j] = first + ids
             first += int(ids[-1]) + 1 if n else 0
         self.mask = mask
@@ -238,23 +250,64 @@ class _Simulator:
         return ((r[1:] - r[0]) / h[:, None]).T
 
 
-def _candidates(x0: FloatArray, count: int, rng: np.random.Generator) -> FloatArray:
-    """``x0`` and ``count - 1`` random parameter sets in broad ranges around it.
+def _candidates(x0: FloatArray, count: int, seed: int) -> FloatArray:
+    """``x0`` and ``count - 1`` parameter sets spread over broad ranges around it.
 
     ``B`` within a factor of 4 of the start, the time constant ``J/B`` anywhere in 0.02–2 s
-    (the map's ``J`` is the least reliable start value), the Coulomb levels at 30–98 % of
-    break-away, the kinks ``v_0`` at a tenth to three times the speed scale ``u_s/B``.
+    (the map's ``J`` is the least reliable start value), ``u_s±`` within 5 %, the Coulomb
+    levels at 30–98 % of break-away, the kinks ``v_0`` at a tenth to three times the speed
+    scale ``u_s/B``. The sets are a scrambled Sobol sequence (``seed``), which covers the
+    8-dimensional box more evenly than independent draws.
     """
+    unit = qmc.Sobol(d=x0.size, scramble=True, seed=seed).random(count)
+
+    def spread(column: int, low: float, high: float) -> FloatArray:
+        return np.exp(math.log(low) + unit[:, column] * math.log(high / low))
+
     c = np.empty((count, x0.size))
-    c[:, 1] = x0[1] * np.exp(rng.uniform(math.log(0.25), math.log(4.0), count))
-    c[:, 0] = c[:, 1] * np.exp(rng.uniform(math.log(0.02), math.log(2.0), count))
-    c[:, 2:4] = x0[2:4] * rng.uniform(0.95, 1.05, (count, 2))
-    c[:, 4:6] = rng.uniform(0.3, 0.98, (count, 2))
-    c[:, 6:8] = np.exp(rng.uniform(math.log(0.1), math.log(3.0), (count, 2))) * (
-        c[:, 2:4] / c[:, 1:2]
-    )
+    c[:, 1] = x0[1] * spread(1, 0.25, 4.0)
+    c[:, 0] = c[:, 1] * spread(0, 0.02, 2.0)
+    c[:, 2] = x0[2] * (0.95 + 0.1 * unit[:, 2])
+    c[:, 3] = x0[3] * (0.95 + 0.1 * unit[:, 3])
+    c[:, 4:6] = 0.3 + 0.68 * unit[:, 4:6]
+    c[:, 6] = spread(6, 0.1, 3.0) * c[:, 2] / c[:, 1]
+    c[:, 7] = spread(7, 0.1, 3.0) * c[:, 3] / c[:, 1]
     c[0] = x0
     return c
+
+
+def _kink_moves(x: FloatArray, ratio_index: int, count: int = 24) -> FloatArray:
+    """Parameter sets that move one direction's kink ``v_0`` and leave the rest of ``x``.
+
+    Two families, each over kinks at a tenth to three times the speed scale ``u_s/B``:
+
+    * along the low-speed branch: its slope ``(u_s - u_c)/v_0`` is kept (so
+      ``u_c = u_s - slope v_0``), which changes the law above the old kink only;
+    * at the same Coulomb level ``u_c``.
+
+    They leave the degenerate minima of the paper's law: a kink beyond the measured speeds (a
+    straight branch, a lower ``B`` making up for it), or at zero speed (a sudden drop).
+    """
+    us_index, v0_index = ratio_index - 2, ratio_index + 2
+    us, ratio, v0 = x[us_index], x[ratio_index], x[v0_index]
+    kinks = np.geomspace(0.1, 3.0, count) * us / x[1]
+    along = 1.0 - (1.0 - ratio) * kinks / v0
+    ratios = np.concatenate([along, np.full(count, ratio)])
+    kinks = np.concatenate([kinks, kinks])
+    keep = (ratios > 0.05) & (ratios < 0.999)
+    moved = np.repeat(x[None, :], int(np.count_nonzero(keep)), axis=0)
+    moved[:, ratio_index] = ratios[keep]
+    moved[:, v0_index] = kinks[keep]
+    return moved
+
+
+def _distinct(found: list[tuple[float, int, Any]]) -> list[tuple[float, int, Any]]:
+    """Return the minima of ``found`` (sorted by cost) whose costs differ by more than 1e-6."""
+    distinct: list[tuple[float, int, Any]] = []
+    for item in found:
+        if all(abs(item[0] - other[0]) > 1e-6 * other[0] for other in distinct):
+            distinct.append(item)
+    return distinct
 
 
 def _local_fit(
@@ -291,7 +344,7 @@ def refine(
     max_delay_steps: int = 3,
     reading: Reading | None = None,
     direction: float = 1.0,
-    candidates: int = 48,
+    candidates: int = 128,
     local_fits: int = 2,
     polish: int = 3,
     seed: int = 0,
@@ -315,14 +368,16 @@ def refine(
         by default.
     direction : float, default 1.0
         Sign that turns a trace's position (plant direction) into the env's output.
-    candidates : int, default 48
-        Parameter sets screened per dead time, the start included.
+    candidates : int, default 128
+        Parameter sets screened per dead time, the start included (a power of 2 keeps the
+        Sobol sequence balanced).
     local_fits : int, default 2
         Local fits run from the best screened sets of each dead time.
     polish : int, default 3
-        Second-stage fits, from this many of the best distinct first-stage minima.
+        First-stage minima (the best distinct ones) continued through the later stages.
     seed : int, default 0
-        Seed of the random candidates (the result does not depend on the env's seed).
+        Seed of the candidates' scrambling (fixed: the result does not depend on the env's
+        seed).
     """
     if min(candidates, local_fits, polish) < 1:
         raise ValueError(
@@ -332,8 +387,8 @@ def refine(
     if not traces:
         raise ValueError("refine needs at least one trace")
     reading = reading or LinearReading()
-    sim = _Simulator(traces, dt, limit, shape, reading, direction, split=True)
-    whole = _Simulator(traces, dt, limit, shape, reading, direction, split=False)
+    ladder = [_Simulator(traces, dt, limit, shape, reading, direction, j) for j in _JOINS]
+    sim, whole = ladder[0], ladder[-1]
     # Coulomb levels as fractions of break-away, bounded by 1, so every trial law is valid.
     x0 = np.array([start[n] for n in NAMES], dtype=np.float64)
     x0[4] = min(max(start["uc_pos"] / start["us_pos"], 0.05), 0.99)
@@ -344,7 +399,7 @@ def refine(
     lower = np.full(x0.size, 1e-9)
     upper = np.full(x0.size, np.inf)
     upper[list(_RATIOS)] = 1.0
-    pool = _candidates(x0, candidates, np.random.default_rng(seed))
+    pool = _candidates(x0, candidates, seed)
     found: list[tuple[float, int, Any]] = []  # first stage: (cost, delay, result)
     for delay in range(max_delay_steps + 1):
         costs = np.sum(sim.residuals(sim.positions(pool, delay)) ** 2, axis=1)
@@ -353,16 +408,26 @@ def refine(
             result = _local_fit(sim, pool[i], delay, lower, upper)
             found.append((float(result.cost), delay, result))
     found.sort(key=lambda item: item[0])
-    # Second stage from the best distinct first-stage minima; the lowest residual wins.
-    distinct: list[tuple[float, int, Any]] = []
-    for item in found:
-        if all(abs(item[0] - other[0]) > 1e-6 * other[0] for other in distinct):
-            distinct.append(item)
+    # Move each direction's kink from the best two distinct minima.
+    for _, delay, result in _distinct(found)[:2]:
+        for ratio_index in _RATIOS:
+            moved = _kink_moves(result.x, ratio_index)
+            if moved.size:
+                costs = np.sum(sim.residuals(sim.positions(moved, delay)) ** 2, axis=1)
+                better = _local_fit(sim, moved[int(np.nanargmin(costs))], delay, lower, upper)
+                found.append((float(better.cost), delay, better))
+    found.sort(key=lambda item: item[0])
+    # The later stages from the best distinct first-stage minima, through ever fewer offsets
+    # to one per run (a continuation: each stage's minimum lies in the next one's basin); the
+    # lowest final residual wins.
+    distinct = _distinct(found)
     best: Any = None
     best_delay = 0
     first: Any = None
     for _, delay, result in distinct[:polish]:
-        polished = _local_fit(whole, result.x, delay, lower, upper)
+        polished = result
+        for step in ladder[1:]:
+            polished = _local_fit(step, polished.x, delay, lower, upper)
         if best is None or polished.cost < best.cost:
             best, best_delay, first = polished, delay, result
     start_residual = whole.residual(x0, best_delay)
@@ -391,5 +456,5 @@ def refine(
         rms_start=math.sqrt(float(start_residual @ start_residual) / n),
         rms_split=math.sqrt(2.0 * float(first.cost) / n),
         starts=len(found),
-        evaluations=sim.evaluations + whole.evaluations,
+        evaluations=sum(step.evaluations for step in ladder),
     )

@@ -1,0 +1,154 @@
+"""Check the identification on simulated devices whose true parameters are known.
+
+``python -m frictiongym.identification.validate --env ID [--noise] [--draws 0-3] [--seeds 0,1]``
+identifies the paper's preset (draw ``-``) and devices drawn at random within ±15 % of it, with
+each noise seed, and prints every parameter's error as a markdown table, with the issue's
+tolerances (3 % for the friction parameters, 2 % for ``J`` and ``B``). The numbers in
+docs/identification.md come from it; ``tests/test_identification.py`` checks the same draws.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from frictiongym.friction import StictionCoulomb
+from frictiongym.identification.identify import identify, make_env
+from frictiongym.plants.plant import PlantParams
+
+#: The friction levels and kinks drawn independently.
+FRICTION_KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
+#: Keys of :func:`errors`, in the parameter file's order.
+KEYS = (*FRICTION_KEYS, "viscous", "J", "B")
+#: The issue's tolerances: relative error of each friction parameter, of ``J`` and of ``B``.
+TOLERANCE = {**{k: 0.03 for k in (*FRICTION_KEYS, "viscous")}, "J": 0.02, "B": 0.02}
+
+
+def draw_device(
+    rng: np.random.Generator, friction: StictionCoulomb, plant: PlantParams, spread: float = 0.15
+) -> tuple[StictionCoulomb, PlantParams]:
+    """Draw a device within ``±spread`` of a preset, its low-speed map branch still rising.
+
+    Each friction level, ``v_0``, the viscous slope, ``J`` and ``B`` are drawn independently
+    and uniformly. Draws are rejected until ``u_c < u_s`` and the map's slope just above rest
+    is at least a fifth of the total damping in both directions: an open-loop map cannot
+    observe a falling branch (research/friction.md §6.2).
+    """
+    low, high = 1.0 - spread, 1.0 + spread
+    while True:
+        f = {k: getattr(friction, k) * rng.uniform(low, high) for k in FRICTION_KEYS}
+        inertia = plant.inertia * rng.uniform(low, high)
+        damping = plant.damping * rng.uniform(low, high)
+        viscous = friction.viscous * rng.uniform(low, high)
+        total = damping + viscous
+        rising = all(
+            total - (f[f"us_{d}"] - f[f"uc_{d}"]) / f[f"v0_{d}"] > 0.2 * total
+            for d in ("pos", "neg")
+        )
+        if rising and f["uc_pos"] < f["us_pos"] and f["uc_neg"] < f["us_neg"]:
+            law = StictionCoulomb(**f, viscous=viscous, shape=friction.shape)
+            return law, PlantParams(
+                inertia, damping, plant.command_limit, plant.lag, plant.dead_time
+            )
+
+
+def errors(
+    env_id: str,
+    friction: StictionCoulomb,
+    plant: PlantParams,
+    seed: int = 3,
+    **kwargs: Any,
+) -> dict[str, float]:
+    """Identify the simulated device and return each parameter's relative error.
+
+    ``B`` and ``viscous`` are compared with the total linear damping (the plant's and the
+    law's viscous slope), as the parameter file defines them.
+    """
+    env = make_env(env_id, friction=friction, plant=plant, **kwargs)
+    params = identify(env, seed=seed).params()
+    total = plant.damping + friction.viscous
+    truth = {**{k: getattr(friction, k) for k in FRICTION_KEYS}, "viscous": total}
+    result = {k: getattr(params.friction, k) / v - 1.0 for k, v in truth.items()}
+    result["J"] = params.inertia / plant.inertia - 1.0
+    result["B"] = params.damping / total - 1.0
+    return result
+
+
+def within_tolerance(result: dict[str, float]) -> bool:
+    """Whether every error is inside the issue's :data:`TOLERANCE`."""
+    return all(abs(result[k]) < TOLERANCE[k] for k in KEYS)
+
+
+def _integers(text: str) -> list[int]:
+    """Parse ``"0,2,5-7"`` into ``[0, 2, 5, 6, 7]``."""
+    out: list[int] = []
+    for part in filter(None, text.split(",")):
+        first, _, last = part.partition("-")
+        out += list(range(int(first), int(last or first) + 1))
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Print the error table; return 0 if every run is within the tolerances, else 1."""
+    parser = argparse.ArgumentParser(prog="python -m frictiongym.identification.validate")
+    parser.add_argument("--env", required=True, metavar="ID")
+    parser.add_argument("--noise", action="store_true", help="the device's sensor noise on")
+    parser.add_argument(
+        "--draws", default="", help="random devices, e.g. 0-3 (the preset always runs)"
+    )
+    parser.add_argument("--seeds", default="0", help="noise seeds of the simulator, e.g. 0,1")
+    args = parser.parse_args(argv)
+    try:
+        device = _device(args.env)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    preset_friction, preset_plant = device.paper_friction, device.plant
+    if not isinstance(preset_friction, StictionCoulomb):
+        print(f"error: {args.env}'s preset is not the paper's law", file=sys.stderr)
+        return 2
+    print("| device | seed | " + " | ".join(KEYS) + " | within |")
+    print("|---|---|" + "---|" * len(KEYS) + "---|")
+    worst = dict.fromkeys(KEYS, 0.0)
+    runs, good_runs, started = 0, 0, time.perf_counter()
+    for draw in [None, *_integers(args.draws)]:
+        if draw is None:
+            friction, plant = preset_friction, preset_plant
+        else:
+            rng = np.random.default_rng(draw)
+            friction, plant = draw_device(rng, preset_friction, preset_plant)
+        for seed in _integers(args.seeds):
+            result = errors(args.env, friction, plant, seed, sensor_noise=args.noise, quantize=True)
+            good = within_tolerance(result)
+            runs, good_runs = runs + 1, good_runs + good
+            worst = {k: max(worst[k], abs(result[k])) for k in KEYS}
+            cells = " | ".join(f"{100 * result[k]:+.2f} %" for k in KEYS)
+            name = "preset" if draw is None else f"draw {draw}"
+            print(f"| {name} | {seed} | {cells} | {'yes' if good else 'NO'} |", flush=True)
+    cells = " | ".join(f"{100 * worst[k]:.2f} %" for k in KEYS)
+    print(f"| worst \\|error\\| | | {cells} | {good_runs} of {runs} |")
+    seconds = time.perf_counter() - started
+    print(f"{runs} identifications in {seconds:.0f} s", file=sys.stderr)
+    ok = good_runs == runs
+    return 0 if ok else 1
+
+
+def _device(env_id: str) -> Any:
+    """Return the device description (preset friction and plant) behind a registered env id."""
+    import importlib
+
+    from frictiongym.envs import ENV_IDS
+
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
+    module, single, _, _ = ENV_IDS[env_id]
+    return getattr(importlib.import_module(module), single).device
+
+
+if __name__ == "__main__":
+    sys.exit(main())
