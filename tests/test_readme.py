@@ -11,7 +11,10 @@ ROOT = Path(__file__).resolve().parent.parent
 README = ROOT / "README.md"
 DOCS = (
     README,
-    *(ROOT / "docs" / name for name in ("controllers.md", "identification.md", "tuning.md")),
+    *(
+        ROOT / "docs" / name
+        for name in ("controllers.md", "identification.md", "tuning.md", "hardware.md")
+    ),
 )
 BLOCKS = [
     (path, block)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import shlex
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -181,24 +180,15 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     return 0
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the parser of ``scripts/identify.py`` (the options of ``frictiongym identify``)."""
-    parser = argparse.ArgumentParser(
-        prog="identify.py", description=DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )  # fmt: skip
-    add_arguments(parser)
-    return parser
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    """Parse ``argv`` and run."""
-    args = build_parser().parse_args(argv)
-    return run(args, shlex.join(["identify.py", *(sys.argv[1:] if argv is None else argv)]))
+    """Run ``frictiongym identify`` with ``argv`` (default: the command line; ``scripts/``)."""
+    from frictiongym.cli import tool_main
+
+    return tool_main("identify", argv)
 
 
 if __name__ == "__main__":
     sys.exit(main())
 
 
-__all__ = ["DESCRIPTION", "add_arguments", "build_parser", "main", "run", "summary"]
+__all__ = ["DESCRIPTION", "add_arguments", "main", "run", "summary"]
