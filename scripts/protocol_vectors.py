@@ -403,9 +403,11 @@ def ir(distance: float) -> int:
 def altino_scenarios() -> list[dict[str, Any]]:
     """Altino: 20 Hz (50000 µs), watchdog 150 ms, limit ±1000, the distance guard.
 
-    The guard's numbers (guard.py): d = 966 / (x + 45) cm, v = (d_prev - d) / 0.05 s, stop =
-    d - 0.1 v - v² / 600 when v > 0, trips at stop <= 1.5 cm. Each comment gives d, v and stop;
-    every case stays well clear of the boundary (C computes in binary32, Python in binary64).
+    The guard's numbers (guard.py): d = 966 / (x + 45) cm, v = (d_prev - d) / 0.05 s; a sample
+    trips it at d - 0.1 v - v² / 600 <= 1.5 cm (v > 0), and a forward command u held next
+    trips it at d - (0.1 v + 0.005 a) - (v + 0.1 a)² / 600 <= 1.5 cm, a = u / 2.2 (v < 0 taken
+    as 0). Each comment gives d, v and stop; every case stays well clear of the boundary (C
+    computes in binary32, Python in binary64).
     """
     dis, lim = ["DISABLED"], ["LIMIT"]
     # fmt: off
@@ -454,12 +456,12 @@ def altino_scenarios() -> list[dict[str, Any]]:
             tick(300000, ir(8.0), status=["LIMIT", "DISABLED"], applied=0, motor=0),
         ]},
         {"name": "guard: the brake outlasts a watchdog trip", "device": "altino", "events": [
-            cmd(1000, 1, 800, "REARM", "ENABLE", motor=800),
-            tick(50000, ir(14.0), status=[], applied=800),  # 14.0 cm
-            tick(100000, ir(12.0), status=["COMMAND_LATE"], applied=800,
-                 motor=800),  # 11.9 cm, 41.5 cm/s: 4.91 cm
-            tick(150000, ir(9.5), status=["COMMAND_LATE", "LIMIT"], applied=800,
-                 motor=-1000),  # 9.47, 49.1: 0.54 cm; 149 ms silent
+            cmd(1000, 1, 300, "REARM", "ENABLE", motor=300),
+            tick(50000, ir(14.0), status=[], applied=300),  # 14.0 cm; with +300 held: 13.0 cm
+            tick(100000, ir(12.5), status=["COMMAND_LATE"], applied=300,
+                 motor=300),  # 12.5 cm, 29.1 cm/s: 8.2 cm; with +300 held: 5.9 cm
+            tick(150000, ir(9.5), status=["COMMAND_LATE", "LIMIT"], applied=300,
+                 motor=-1000),  # 9.47, 61.5: -3.0 cm; 149 ms silent
             tick(200000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
                  motor=-1000),  # 7.49 cm, 39.6 cm/s: still approaching
             tick(250000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
@@ -473,24 +475,47 @@ def altino_scenarios() -> list[dict[str, Any]]:
             tick(100000, 760, status=lim, applied=0, motor=0),
             cmd(101000, 3, -200, "ENABLE", motor=-200),
             tick(150000, 560, status=lim, applied=-200, motor=-200),  # 1.60 cm, going away
-            cmd(151000, 4, 200, "REARM", "ENABLE", motor=200),  # clear of the limit
-            tick(200000, 560, status=[], applied=200, motor=200),
+            cmd(151000, 4, -200, "REARM", "ENABLE", motor=-200),  # clear of the limit
+            tick(200000, 560, status=[], applied=-200, motor=-200),
+            cmd(201000, 5, 200, "ENABLE", motor=0),  # forward from 1.60 cm at rest: 1.01 cm
+            tick(250000, 560, status=lim, applied=0, motor=0),
+        ]},
+        {"name": "guard: at rest near the wall, a large forward command trips it at once",
+         "device": "altino", "events": [
+            tick(50000, ir(5.0), status=dis),  # 5.01 cm at rest
+            cmd(51000, 1, 1000, "REARM", "ENABLE", motor=0),  # held: 5.01 - 2.27 - 3.44 cm
+            tick(100000, ir(5.0), status=lim, applied=0, motor=0),
+            cmd(101000, 2, 1000, "ENABLE", motor=0),  # refused while latched
+            tick(150000, ir(5.0), status=lim, applied=0, motor=0),
+            cmd(151000, 3, -300, "ENABLE", motor=-300),  # backing away passes
+            tick(200000, ir(5.5), status=lim, applied=-300, motor=-300),
+        ]},
+        {"name": "guard: a small forward command far from the wall passes", "device": "altino",
+         "events": [
+            tick(50000, ir(10.0), status=dis),  # 9.96 cm at rest
+            cmd(51000, 1, 300, "REARM", "ENABLE", motor=300),  # held: 9.96 - 0.68 - 0.31 cm
+            tick(100000, ir(9.8), status=[], applied=300,
+                 motor=300),  # 9.76 cm, 4.0 cm/s: 8.15 cm with +300 held
+            cmd(101000, 2, 300, "ENABLE", motor=300),
+            tick(150000, ir(9.5), status=[], applied=300,
+                 motor=300),  # 9.47 cm, 5.7 cm/s: 7.59 cm with +300 held
         ]},
         {"name": "guard: an out-of-range readout gives no speed", "device": "altino", "events": [
-            cmd(1000, 1, 500, "REARM", "ENABLE", motor=500),
-            tick(50000, 0, status=[], applied=500, motor=500),  # beyond 21.5 cm: no distance
-            cmd(51000, 2, 500, "ENABLE"),
-            tick(100000, 200, status=[], applied=500,
-                 motor=500),  # 3.94 cm: no speed (readout 0 is no distance, not 21.5 cm)
-            cmd(101000, 3, 500, "ENABLE"),
-            tick(150000, 0, status=[], applied=500, motor=500),  # a dropout
-            cmd(151000, 4, 500, "ENABLE"),
-            tick(200000, 400, status=[], applied=500,
-                 motor=500),  # 2.17 cm: no speed across the dropout (35 cm/s would trip)
-            cmd(201000, 5, 500, "ENABLE"),
-            tick(250000, 430, status=[], applied=500, motor=500),  # 2.03, 2.7 cm/s: 1.75 cm
-            cmd(251000, 6, 500, "ENABLE"),
-            tick(300000, 520, status=lim, applied=500, motor=-1000),  # 1.71, 6.5: 0.99 cm
+            cmd(1000, 1, 100, "REARM", "ENABLE", motor=100),
+            tick(50000, 0, status=[], applied=100, motor=100),  # beyond 21.5 cm: no distance
+            cmd(51000, 2, 100, "ENABLE"),
+            tick(100000, 200, status=[], applied=100,
+                 motor=100),  # 3.94 cm: no speed (readout 0 is no distance, not 21.5 cm): 3.68
+            cmd(101000, 3, 100, "ENABLE"),
+            tick(150000, 0, status=[], applied=100, motor=100),  # a dropout
+            cmd(151000, 4, 100, "ENABLE"),
+            tick(200000, 300, status=[], applied=100,
+                 motor=100),  # 2.80 cm: no speed across the dropout (22.8 cm/s would trip): 2.54
+            cmd(201000, 5, 100, "ENABLE"),
+            tick(250000, 320, status=[], applied=100,
+                 motor=100),  # 2.65 cm, 3.1 cm/s: 2.32 cm; with +100 held: 2.02 cm
+            cmd(251000, 6, 100, "ENABLE"),
+            tick(300000, 400, status=lim, applied=100, motor=-1000),  # 2.17, 9.5: 1.07 cm
         ]},
         {"name": "altino watchdog after 150 ms", "device": "altino", "events": [
             cmd(1000, 1, 300, "REARM", "ENABLE", motor=300),

@@ -240,11 +240,17 @@ def test_the_device_watchdog_stops_the_motor_when_the_host_stalls():
     env.close()
 
 
-@pytest.mark.parametrize("command", [600.0, 1000.0])
-def test_the_altino_never_reaches_the_wall(command):
+@pytest.mark.parametrize("command", [300.0, 600.0, 1000.0])
+@pytest.mark.parametrize("start", [2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 15.0, 30.0, None])
+def test_the_altino_never_reaches_the_wall(start, command):
+    """From rest anywhere (None: the default start), the guard stops the car short of the wall.
+
+    Close to the wall it refuses the forward command before the car moves (guard.py: the
+    command is judged, held over the reaction time, before the motor gets it).
+    """
     env = gym.make(ALTINO, backend=LOCKSTEP[ALTINO], log=False)
     emulator = emulator_of(env)
-    env.reset(seed=0)
+    env.reset(seed=0, options=None if start is None else {"position": start})
     terminated, steps = False, 0
     while not terminated and steps < 400:
         _, reward, terminated, _, _ = env.step(np.array([command]))

@@ -328,6 +328,8 @@ def test_c_guard_constants_equal_guard_py() -> None:
     assert defines["FG_GUARD_BRAKE_DECELERATION"] == guard.BRAKE_DECELERATION
     assert defines["FG_GUARD_REACTION_PERIODS"] == guard.REACTION_PERIODS
     assert defines["FG_GUARD_STOPPED_SPEED"] == guard.STOPPED_SPEED
+    assert defines["FG_GUARD_MASS"] == guard.MASS
+    assert defines["FG_GUARD_FRICTION"] == guard.FRICTION
 
 
 def test_device_amplifier_follows_arming(harness: Harness) -> None:
@@ -483,19 +485,19 @@ def test_altino_sketch(sketches: dict[str, Harness]) -> None:
     _, tx = _sim(car, "setup")
     (boot,) = _car_frames(tx[0])
     assert _wheels(boot) == ((255, 0), (255, 0)), "boot: both wheels stopped"
-    car.ask(f"rx 0 {_car_reply(300)}")
+    car.ask(f"rx 0 {_car_reply(150)}")  # 4.95 cm: +400 held would stop at 3.49 cm
     car.ask(f"rx 1 {p.encode(p.Command(1, 400, p.Flag.REARM | p.Flag.ENABLE)).hex()}")
     _, tx = _sim(car, "run 10000")  # the vendor's 10 ms frame gap
     (drive,) = _car_frames(tx[0])
     assert _wheels(drive) == ((0, 400), (0, 400))
     _, tx = _sim(car, "run 35000")  # the sensor poll 10 ms before the tick
     assert len(_car_frames(tx[0])) == 1
-    car.ask(f"rx 0 {_car_reply(300)}")
+    car.ask(f"rx 0 {_car_reply(150)}")
     _, tx = _sim(car, "run 5000")
     (state,) = _states(tx[1])
-    assert (state.status, state.sensor, state.applied, state.seq) == (0, 300, 400, 1)
+    assert (state.status, state.sensor, state.applied, state.seq) == (0, 150, 400, 1)
 
-    # 2.80 cm -> 1.95 cm in a period: 17 cm/s, it would stop at -0.2 cm (guard.py's rule)
+    # 4.95 cm -> 1.95 cm in a period: 60 cm/s, it would stop at -10.1 cm (guard.py's rule)
     car.ask(f"rx 0 {_car_reply(450)}")
     car.ask(f"rx 1 {p.encode(p.Command(2, 400)).hex()}")
     _, tx = _sim(car, "run 50000")

@@ -69,20 +69,34 @@ void fg_device_init(fg_device *dev, const fg_device_config *cfg)
     dev->latched = 0;
 }
 
-/* The distance guard (fg_device.h; guard.py DistanceGuard): latch LIMIT if the car, at the
- * last sample's distance and approach speed, would stop within the limit braking now. */
+/* The distance guard's prediction (fg_device.h; guard.py stopping_point): would the car, at
+ * the last sample's distance and approach speed, holding command (counts = units on the
+ * Altino) over the reaction time, fail to stop short of the limit braking then? */
+static uint8_t guard_trips(const fg_device *dev, int16_t command)
+{
+    float v = dev->speed > 0.0f ? dev->speed : 0.0f; /* a receding car counts as at rest */
+    float a = (float)command > FG_GUARD_FRICTION /* forward, beyond the least friction */
+                  ? ((float)command - FG_GUARD_FRICTION) / FG_GUARD_MASS
+                  : 0.0f;
+    float t = (float)FG_GUARD_REACTION_PERIODS / (float)dev->cfg.rate_hz;
+    float stop = dev->distance;
+    float v_end;
+    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) || stop < 0.0f) {
+        return 0; /* no guard, or no distance (out of range) */
+    }
+    if (v > 0.0f || a > 0.0f) { /* reaction travel, then braking */
+        v_end = v + a * t;
+        stop = stop - (v * t + 0.5f * a * t * t) -
+               v_end * v_end / (2.0f * FG_GUARD_BRAKE_DECELERATION);
+    }
+    return (uint8_t)(stop <= dev->cfg.limit_cm);
+}
+
+/* Judge the last sample (guard.py DistanceGuard.update): latch LIMIT if the car would not
+ * stop short of the limit braking now. */
 static void guard_judge(fg_device *dev)
 {
-    float v = dev->speed;
-    float stop = dev->distance;
-    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) || stop < 0.0f) {
-        return; /* no guard, or no distance (out of range) */
-    }
-    if (v > 0.0f) { /* guard.py stopping_point: reaction travel, then braking */
-        stop = stop - v * (float)FG_GUARD_REACTION_PERIODS / (float)dev->cfg.rate_hz -
-               v * v / (2.0f * FG_GUARD_BRAKE_DECELERATION);
-    }
-    if (stop <= dev->cfg.limit_cm) {
+    if (guard_trips(dev, 0)) {
         dev->latched |= FG_STATUS_LIMIT;
     }
 }
@@ -106,12 +120,17 @@ static void guard_update(fg_device *dev, int32_t readout)
     guard_judge(dev);
 }
 
-/* What the motor holds: the request if armed and enabled, else nothing; once the guard has
- * tripped (LIMIT), full reverse while the car approaches, and never forward (guard.py
- * DistanceGuard.command). The guard acts whether or not the device is armed. */
+/* What the motor holds: the request if armed and enabled, else nothing; a forward one is
+ * judged first, held from the last sample, and trips the guard if the car could not stop
+ * short of the limit; once the guard has tripped (LIMIT), full reverse while the car
+ * approaches, and never forward (guard.py DistanceGuard.command). The guard acts whether or
+ * not the device is armed. */
 static void update_motor(fg_device *dev)
 {
     int16_t motor = (dev->armed && dev->enabled) ? dev->requested : 0;
+    if (!(dev->latched & FG_STATUS_LIMIT) && motor > 0 && guard_trips(dev, motor)) {
+        dev->latched |= FG_STATUS_LIMIT; /* the forward command is not let through */
+    }
     if (dev->latched & FG_STATUS_LIMIT) {
         if (dev->speed > FG_GUARD_STOPPED_SPEED) {
             motor = (int16_t)-dev->cfg.command_limit; /* the brake */
@@ -188,13 +207,15 @@ size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t a
         dev->latched |= FG_STATUS_WATCHDOG;
         dev->armed = 0;
     }
-    /* 3. the output held over the period ending now (the guard as it judged the last sample) */
+    /* 3. the output held over the period ending now (the guard as it judged the last sample;
+     *    the newest command, checked against it on arrival and again here) */
     if (dev->armed && dev->enabled && !dev->fresh) {
         status |= FG_STATUS_COMMAND_LATE;
     }
     update_motor(dev);
     s->applied = dev->motor;
-    /* 4. the new sample; the guard's output is the motor's for the next period */
+    /* 4. the new sample; the guard's output, the held command checked against the new
+     *    sample, is the motor's for the next period */
     dev->sensor = sensor;
     guard_update(dev, sensor);
     update_motor(dev);

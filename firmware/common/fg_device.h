@@ -54,10 +54,15 @@ enum fg_action {
  * from the sample x (the front IR readout):
  *   d = FG_IR_NUMERATOR / (x + FG_IR_OFFSET) cm        (x <= 0: out of range, no distance)
  *   v = (d_prev - d) / dt, cm/s toward the wall        (0 unless both samples have a distance)
- *   stop = d - v * FG_GUARD_REACTION_PERIODS * dt - v^2 / (2 FG_GUARD_BRAKE_DECELERATION)
- *                                                      (stop = d when v <= 0)
- * and LIMIT latches when stop <= cfg.limit_cm (REARM clears it, unless the latest sample trips
- * it again at once). While LIMIT is latched the motor gets -command_limit (full reverse: the
+ *   T = FG_GUARD_REACTION_PERIODS * dt, v+ = max(v, 0),
+ *   a = max(u - FG_GUARD_FRICTION, 0) / FG_GUARD_MASS for the command u about to be held
+ *   stop(u) = d - (v+ T + a T^2 / 2) - (v+ + a T)^2 / (2 FG_GUARD_BRAKE_DECELERATION)
+ *                                                      (stop = d when v+ = 0 and a = 0)
+ * and LIMIT latches when stop(0) <= cfg.limit_cm at a sample, or when stop(u) <= cfg.limit_cm
+ * for the forward command u the motor is about to hold (checked whenever the output is
+ * computed: on a Command's arrival and at every tick, against the last sample), so that
+ * command is not let through (REARM clears LIMIT, unless the latest sample trips it again at
+ * once). While LIMIT is latched the motor gets -command_limit (full reverse: the
  * brake) while v > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed,
  * forward is refused. The brake acts even when the device is disarmed (e-stop, watchdog,
  * fault): a car that still approaches must not coast into the wall. Maths in binary32 (AVR's
@@ -71,6 +76,8 @@ enum fg_action {
 #define FG_GUARD_BRAKE_DECELERATION 300.0f /* guard.BRAKE_DECELERATION, cm/s^2 */
 #define FG_GUARD_REACTION_PERIODS 2        /* guard.REACTION_PERIODS: sensing + dead time */
 #define FG_GUARD_STOPPED_SPEED 0.5f        /* guard.STOPPED_SPEED, cm/s */
+#define FG_GUARD_MASS 2.2f                 /* guard.MASS: units s^2/cm (assumed; guard.py) */
+#define FG_GUARD_FRICTION 150.4f           /* guard.FRICTION: least forward friction, units */
 
 typedef struct {
     uint8_t kind;            /* enum fg_kind */

@@ -67,6 +67,7 @@ def __getattr__(name: str) -> Any:
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'frictiongym.hardware' has no attribute {name!r}")
 
+
 #: URI scheme -> (module, class); each class has ``from_uri(path, query)``.
 SCHEMES = {
     "serial": ("frictiongym.hardware.serial_backend", "SerialBackend"),

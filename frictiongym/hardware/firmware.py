@@ -3,7 +3,8 @@
 :class:`Firmware` is what ``firmware/common/`` does on the microcontroller, in Python: it
 answers ``HelloRequest`` at once, queues ``Command`` and ``Place`` frames, and at every tick of
 the device clock applies them (the newest command wins), runs the watchdog, holds the motor
-command over the period, samples the sensor, feeds the sample to the Altino's distance guard
+command over the period (the Altino's distance guard checks a forward command against the
+latest sample first), samples the sensor, feeds the sample to the guard
 (:class:`~frictiongym.hardware.guard.DistanceGuard`, whose output the motor holds over the
 next period) and builds one ``State``. The plant is the env's own
 :class:`~frictiongym.envs.core.Simulation` of one env, so the physics exists once and the
@@ -311,25 +312,34 @@ class Firmware:
         """Return the counts the motor holds: the request if armed and enabled, via the guard.
 
         The guard acts whether or not the device is armed: once tripped it brakes while the
-        car still approaches, after an e-stop or a watchdog trip too.
+        car still approaches, after an e-stop or a watchdog trip too. A forward request is
+        judged first, from the latest sample (``DistanceGuard.command``); if it trips the
+        guard, ``LIMIT`` latches here.
         """
         requested = self.held if self.armed and self.enabled else 0
-        return requested if self.guard is None else round(self.guard.command(requested))
+        if self.guard is None:
+            return requested
+        counts = round(self.guard.command(requested))
+        if self.guard.tripped:
+            self.latched |= p.Status.LIMIT
+        return counts
 
     def tick(self, now: float) -> p.State:
         """Run one device period ending at ``now`` (s); return its ``State``.
 
         Applies the queued messages, trips the watchdog if it is due, holds the motor output
-        over the period (through the distance guard, as it judged the previous sample),
-        integrates the plant, samples the sensor and feeds the sample to the guard; the
-        guard's answer is the motor output of the next period (:attr:`motor`).
+        over the period (through the distance guard, as it judged the previous sample; a
+        forward command, the newest one applied now, is checked against that sample before it
+        is held), integrates the plant, samples the sensor and feeds the sample to the guard;
+        the guard's answer, the held command checked against the new sample, is the motor
+        output of the next period (:attr:`motor`).
         """
         got = self.apply_pending()
         deadline = self.watchdog_deadline()
         if deadline is not None and now >= deadline:
             self.armed = False
             self.latched |= p.Status.WATCHDOG
-        counts = self._output()
+        counts = self._output()  # the newest command, a forward one checked by the guard
         self.motor_counts = counts
         self._command[0] = counts / self.scale
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
