@@ -179,11 +179,13 @@ class SerialBackend(Backend):
             raise ProtocolError(f"the device's Hello makes no sense: {hello}")
         return hello
 
-    def _read_available(self) -> bytes:
-        """Read what arrived, waiting at most the port's timeout for a first byte."""
+    def _read_available(self, wait: bool = True) -> bytes:
+        """Read what arrived, waiting at most the port's timeout for a first byte if ``wait``."""
         serial = _pyserial()
         try:
             waiting = self._serial.in_waiting
+            if not (wait or waiting):
+                return b""
             data: bytes = self._serial.read(max(1, waiting))
         except (serial.SerialException, OSError) as exc:
             raise DeviceDisconnectedError(
@@ -215,7 +217,7 @@ class SerialBackend(Backend):
 
     def _states(self, wait: bool) -> list[p.State]:
         """Decode the states that arrived (waiting up to the port timeout if ``wait``)."""
-        data = self._read_available() if wait or self._serial.in_waiting else b""
+        data = self._read_available(wait)
         states = []
         for message in self.decoder.feed(data):
             if isinstance(message, p.State):
