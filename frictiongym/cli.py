@@ -146,6 +146,10 @@ TOOLS = {
         "frictiongym.hardware.command",
         "emulate a QUBE-Servo 2 or an Altino behind the device protocol (pty or TCP)",
     ),
+    "train": (
+        "frictiongym.residual.command",
+        "train a residual policy (SAC, TD3, PPO) on top of the compensated PID",
+    ),
 }
 
 

@@ -35,6 +35,8 @@ def test_plot_friction_writes_a_png(tmp_path):
         ("sim2real.py", ("--env", "--backend", "--controller", "--gains", "--params",
                          "--repeats", "--out")),
         ("bench_hardware.py", ("--seconds", "--frames")),
+        ("train_residual.py", ("--env", "--algo", "--steps", "--seed", "--out", "--randomize",
+                               "--quick", "--resume", "--n-envs", "--checkpoint-every", "--quiet")),
     ],
 )  # fmt: skip
 def test_script_help_explains_its_options(script, options):

@@ -3,17 +3,23 @@
 * :class:`PID`: discrete PID, derivative on the measurement, anti-windup.
 * :class:`FrictionCompensator`: any controller plus the modelled friction (the paper's).
 * :class:`ControllerPolicy`: any controller as an SB3-style policy (``predict``).
+* :class:`ResidualController`: a base controller plus a trained residual policy (SB3 lazily).
 * :func:`rollout`: one episode of any controller on any env, single or vector.
 
 Build a controller for an env with ``PID.for_env(env, gains)``: it reads the env's
 :class:`LoopSpec` (observation layout, ``dt``, action limit, sign of the plant's gain).
 """
 
+from typing import TYPE_CHECKING, Any
+
 from frictiongym.controllers.base import Controller, LoopSpec
 from frictiongym.controllers.compensation import MODES, FrictionCompensator
 from frictiongym.controllers.pid import PID, PIDGains
 from frictiongym.controllers.policy import ControllerPolicy
 from frictiongym.controllers.rollout import Rollout, rollout
+
+if TYPE_CHECKING:
+    from frictiongym.controllers.residual import ResidualController
 
 __all__ = [
     "MODES",
@@ -23,6 +29,16 @@ __all__ = [
     "FrictionCompensator",
     "LoopSpec",
     "PIDGains",
+    "ResidualController",
     "Rollout",
     "rollout",
 ]
+
+
+def __getattr__(name: str) -> Any:
+    # ResidualController is imported on first use: frictiongym.residual imports this package.
+    if name == "ResidualController":
+        from frictiongym.controllers.residual import ResidualController
+
+        return ResidualController
+    raise AttributeError(f"module 'frictiongym.controllers' has no attribute {name!r}")

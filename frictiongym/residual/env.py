@@ -1,0 +1,143 @@
+"""Residual-learning env: the applied action is a base controller's plus a bounded residual."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium import spaces
+
+from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.residual.core import (
+    OBSERVATION_BOUND,
+    OBSERVATION_SIZE,
+    ResidualConfig,
+    bounded_residual,
+    make_base,
+    residual_observation,
+)
+
+ObsArray = npt.NDArray[np.float32]
+#: A base controller, or a factory building one for the wrapped env.
+BaseSpec = Controller | Callable[[Any], Controller] | None
+
+
+class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
+    """A frictiongym env whose action is a bounded correction to a base controller's action.
+
+    At every step the base controller computes its action ``u_b`` from the env's observation,
+    and the applied action is ``clip(u_b + scale * clip(a, -1, 1), -limit, limit)`` for the
+    policy's action ``a``: the residual never exceeds ``scale`` in magnitude, whatever the
+    policy outputs (NaN counts as 0), and the total never exceeds the env's limit. A policy
+    that outputs 0 reproduces the base controller exactly.
+
+    ## Action Space
+
+    ``Box(-1, 1, (1,), float32)``: the residual as a fraction of ``scale``.
+
+    ## Observation Space
+
+    ``Box(-10, 10, (6,), float32)``: :func:`~frictiongym.residual.core.residual_observation`
+    of the env's observation and of ``u_b`` (the error on a coarse and a fine scale, the rate,
+    the reference, ``u_b / limit``, and whether the output is at rest), in the sign convention
+    of the command.
+
+    ## Rewards
+
+    The env's reward, minus ``residual_cost * (residual / scale)**2`` (0 by default: no
+    shaping).
+
+    ## Info
+
+    The env's ``info`` plus ``base_action`` (``u_b``) and ``residual`` (the bounded residual
+    before the saturation of the total; ``info["command"]`` is the applied action).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A frictiongym env made with ``gym.make`` (any arguments: ``randomize``, ``reference``,
+        ``max_episode_steps``, a device ``backend``...).
+    base : Controller or callable, optional
+        The base controller, built for ``env``, or a factory ``env -> Controller``. By default
+        the paper's friction-compensated PID of the device
+        (:func:`~frictiongym.residual.core.make_base`). It is reset with the env.
+    config : ResidualConfig, optional
+        Observation scales and the residual bound; the device's defaults by default.
+    scale : float, optional
+        The residual bound in action units (V, motor units), overriding ``config``'s; by
+        default 10 % of the limit for the servo (1 V) and 20 % for the Altino (200).
+    residual_cost : float, default 0.0
+        Weight of the optional penalty on the residual's size.
+    """
+
+    def __init__(
+        self,
+        env: gym.Env[Any, Any],
+        base: BaseSpec = None,
+        *,
+        config: ResidualConfig | None = None,
+        scale: float | None = None,
+        residual_cost: float = 0.0,
+    ) -> None:
+        super().__init__(env)
+        if config is None:
+            config = ResidualConfig.for_env(env, scale)
+        elif scale is not None:
+            config = ResidualConfig.from_dict({**config.to_dict(), "scale": float(scale)})
+        if base is None:
+            controller = make_base(env)
+        elif isinstance(base, Controller):
+            controller = base
+        elif callable(base):
+            controller = base(env)
+        else:
+            raise TypeError(
+                f"base must be a Controller or a factory env -> Controller, got {base!r}"
+            )
+        if not isinstance(controller, Controller):
+            raise TypeError(f"the base factory returned {controller!r}, not a Controller")
+        if controller.spec.limit != config.limit:
+            raise ValueError(
+                f"the base controller's limit {controller.spec.limit} differs from the "
+                f"config's {config.limit}: build both for this env"
+            )
+        if not (np.isfinite(residual_cost) and residual_cost >= 0.0):
+            raise ValueError(f"residual_cost must be >= 0, got {residual_cost!r}")
+        self.base = controller
+        self.config = config
+        self.residual_cost = float(residual_cost)
+        self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
+        bound = OBSERVATION_BOUND
+        self.observation_space = spaces.Box(-bound, bound, (OBSERVATION_SIZE,), np.float32)
+        self._base_action: FloatArray = np.zeros(1)
+
+    @property
+    def scale(self) -> float:
+        """The residual bound, in action units."""
+        return self.config.scale
+
+    def _observe(self, obs: Any) -> ObsArray:
+        self._base_action = self.base(obs)
+        return residual_observation(obs, self.base.spec, self._base_action, self.config)
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[ObsArray, dict[str, Any]]:
+        """Reset the env and the base controller; return the residual observation."""
+        obs, info = self.env.reset(seed=seed, options=options)
+        self.base.reset()
+        return self._observe(obs), info
+
+    def step(self, action: Any) -> tuple[ObsArray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Apply the base action plus the bounded residual ``action``; see the class docstring."""
+        residual = bounded_residual(np.asarray(action).reshape(-1)[:1], self.config.scale)
+        base = self._base_action.reshape(1)
+        total = np.clip(base + residual, -self.config.limit, self.config.limit)
+        obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
+        info = {**info, "base_action": float(base[0]), "residual": float(residual[0])}
+        if self.residual_cost:
+            reward = float(reward) - self.residual_cost * (residual[0] / self.config.scale) ** 2
+        return self._observe(obs), reward, terminated, truncated, info

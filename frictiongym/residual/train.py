@@ -1,0 +1,382 @@
+"""Train a residual policy with Stable-Baselines3 on randomised frictiongym plants.
+
+``train(TrainSettings(...))`` is what ``frictiongym train`` runs. Stable-Baselines3 and torch
+are imported inside :func:`train` only.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import math
+import platform
+import re
+import sys
+import time
+import zipfile
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+
+from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
+from frictiongym.residual.core import ResidualConfig, base_gains, device_name
+from frictiongym.residual.env import ResidualEnv
+
+#: Domain randomisation of ``--randomize default``: factors drawn at every reset
+#: (docs/envs.md). Friction ±30 % (the compensator keeps the paper's model, so the policy
+#: meets a compensator up to 30 % too weak or too strong, where the Altino's limit-cycles),
+#: inertia and damping ±20 %, the servo's encoder scale ±1 % (a calibration error) and the
+#: Altino's IR reflectivity ±10 % (assumed; docs/residual.md).
+RANDOMIZATION: dict[str, dict[str, tuple[float, float]]] = {
+    "RotaryServo": {
+        "friction": (0.7, 1.3),
+        "inertia": (0.8, 1.2),
+        "damping": (0.8, 1.2),
+        "sensor_gain": (0.99, 1.01),
+    },
+    "AltinoDistance": {
+        "friction": (0.7, 1.3),
+        "inertia": (0.8, 1.2),
+        "damping": (0.8, 1.2),
+        "sensor_gain": (0.9, 1.1),
+    },
+}
+
+#: Training episodes: random set-point steps (the benchmark's step references are held out),
+#: servo 2 s (1000 steps at 500 Hz, two set-points, a shorter episode than the registered
+#: 5 s so PPO's rollouts span several episodes), Altino the registered 20 s (400 steps at
+#: 20 Hz, four set-points).
+TRAINING_ENV: dict[str, dict[str, Any]] = {
+    "RotaryServo": {"reference": "random_steps", "max_episode_steps": 1000},
+    "AltinoDistance": {"reference": "random_steps", "max_episode_steps": 400},
+}
+
+#: Steps of ``--quick`` per algorithm (a smoke run of well under a minute).
+QUICK_STEPS = {"ppo": 2048, "sac": 300, "td3": 300}
+#: Checkpoint file names: ``checkpoints/model_<steps>_steps.zip`` (SB3's CheckpointCallback).
+CHECKPOINT_PREFIX = "model"
+_CHECKPOINT = re.compile(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip")
+
+
+class TrainingError(Exception):
+    """A user error in the training settings; the message says what to do."""
+
+
+@dataclass
+class TrainSettings:
+    """Settings of :func:`train` (``frictiongym train``'s options).
+
+    ``steps`` is the total number of env-steps of the model; a resumed run trains what is
+    missing to reach it. ``resume`` is ``None``, ``"latest"`` (the most trained of
+    ``out/checkpoints/*`` and ``out/model.zip``) or the path of a model zip.
+    """
+
+    env_id: str
+    algo: str = "ppo"
+    steps: int | None = None
+    seed: int = 0
+    out: Path = Path("residual-results")
+    randomize: str = "default"
+    quick: bool = False
+    resume: str | None = None
+    n_envs: int = 1
+    checkpoint_every: int = 50_000
+    scale: float | None = None  # fraction of the action limit; the device's default if None
+    quiet: bool = False
+    command_line: str = ""
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+
+
+def check_settings(settings: TrainSettings) -> None:
+    """Raise :class:`TrainingError` for settings that cannot work, before anything is built."""
+    if settings.algo not in ALGORITHMS:
+        raise TrainingError(f"unknown --algo {settings.algo!r}; use one of {', '.join(ALGORITHMS)}")
+    ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
+    if settings.env_id not in ids:
+        raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
+    if settings.randomize not in ("none", "default"):
+        raise TrainingError(f"--randomize must be 'none' or 'default', got {settings.randomize!r}")
+    for name in ("steps", "n_envs", "checkpoint_every"):
+        value = getattr(settings, name)
+        if value is not None and value < 1:
+            raise TrainingError(
+                f"--{name.replace('_', '-')} must be a positive number, got {value}"
+            )
+    if settings.scale is not None and not (0.0 < settings.scale <= 1.0):
+        raise TrainingError(
+            f"--scale is a fraction of the action limit in (0, 1], got {settings.scale}"
+        )
+    if settings.out.exists() and not settings.out.is_dir():
+        raise TrainingError(f"--out {settings.out} is a file; give a directory")
+
+
+def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
+    """Return the ``gym.make`` arguments of the training env of ``env_id``."""
+    device = device_name(gym.make(env_id))
+    kwargs = dict(TRAINING_ENV[device])
+    if randomize == "default":
+        kwargs["randomize"] = dict(RANDOMIZATION[device])
+    return kwargs
+
+
+def hyperparameters(algo: str, steps: int, n_envs: int, quick: bool) -> dict[str, Any]:
+    """SB3 constructor arguments: the library's defaults except as commented here.
+
+    PPO: rollouts of about 2048 env-steps over all envs (512 with ``quick``, so a smoke run
+    still makes several updates) and an initial action std of ``exp(-1) = 0.37`` instead of
+    1, so the untrained policy perturbs the base controller by about a third of the bound,
+    not mostly at the bound. SAC and TD3: a replay buffer no larger than the run, learning
+    from step 1000 (100 with ``quick``).
+    """
+    if algo == "ppo":
+        n_steps = max(64, (512 if quick else 2048) // n_envs)
+        return {"n_steps": n_steps, "batch_size": 64, "policy_kwargs": {"log_std_init": -1.0}}
+    return {
+        "buffer_size": int(min(steps, 1_000_000)),
+        "learning_starts": 100 if quick else 1000,
+    }
+
+
+def saved_steps(path: Path) -> int:
+    """Return the env-steps a saved SB3 model zip was trained for (-1 if unreadable)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return int(json.loads(archive.read("data")).get("num_timesteps", -1))
+    except (OSError, zipfile.BadZipFile, KeyError, ValueError, TypeError):
+        return -1
+
+
+def latest_checkpoint(out: Path) -> Path | None:
+    """Return the most trained of ``out/checkpoints/*`` and ``out/model.zip`` (None if none).
+
+    A tie goes to ``model.zip``, which has the final replay buffer.
+    """
+    found = [
+        (saved_steps(p), 0, p)
+        for p in (out / "checkpoints").glob(f"{CHECKPOINT_PREFIX}_*_steps.zip")
+        if _CHECKPOINT.fullmatch(p.name)
+    ]
+    final = out / "model.zip"
+    if final.is_file():
+        found.append((saved_steps(final), 1, final))
+    return max(found)[2] if found else None
+
+
+def _replay_buffer_of(model_path: Path) -> Path:
+    """Where the replay buffer saved with a checkpoint or final model lies."""
+    m = _CHECKPOINT.fullmatch(model_path.name)
+    if m:
+        return model_path.with_name(f"{CHECKPOINT_PREFIX}_replay_buffer_{m.group(1)}_steps.pkl")
+    return model_path.with_name("replay_buffer.pkl")
+
+
+def _versions() -> dict[str, str]:
+    import numpy
+    import stable_baselines3
+    import torch
+
+    from frictiongym import __version__
+
+    return {
+        "frictiongym": __version__,
+        "stable_baselines3": stable_baselines3.__version__,
+        "torch": torch.__version__,
+        "gymnasium": gym.__version__,
+        "numpy": numpy.__version__,
+        "python": platform.python_version(),
+    }
+
+
+def _progress_callback(total: int, disable: bool) -> Any:
+    """Return an SB3 callback drawing a tqdm bar of ``total`` env-steps on stderr."""
+    from stable_baselines3.common.callbacks import BaseCallback
+    from tqdm import tqdm
+
+    class ProgressBar(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.bar = tqdm(
+                total=total, unit="step", disable=disable, file=sys.stderr, dynamic_ncols=True
+            )
+
+        def _on_step(self) -> bool:
+            self.bar.update(self.training_env.num_envs)
+            return True
+
+        def _on_training_end(self) -> None:
+            self.bar.close()
+
+    return ProgressBar()
+
+
+def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Train (or continue training) a residual policy; write ``settings.out``.
+
+    Writes ``model.zip`` (with the residual metadata that
+    :meth:`~frictiongym.controllers.residual.ResidualController.load` reads),
+    ``checkpoints/``, TensorBoard logs in ``tb/`` (CSV in ``logs/`` when tensorboard is not
+    installed), ``replay_buffer.pkl`` for SAC and TD3, and ``train.json``.
+
+    Returns
+    -------
+    dict
+        The content of ``train.json``.
+
+    Raises
+    ------
+    TrainingError
+        For bad settings or a missing Stable-Baselines3 (the message says what to do).
+    """
+    say = say or (lambda _: None)
+    check_settings(settings)
+    algo, out = settings.algo, settings.out
+    try:
+        import stable_baselines3
+        import torch  # noqa: F401
+        from stable_baselines3.common.callbacks import CallbackList, CheckpointCallback
+        from stable_baselines3.common.env_util import make_vec_env
+        from stable_baselines3.common.logger import configure
+        from stable_baselines3.common.vec_env import DummyVecEnv
+    except ImportError as exc:
+        raise TrainingError(
+            f'training needs Stable-Baselines3 and torch: pip install "frictiongym[rl]" ({exc})'
+        ) from None
+    start = time.perf_counter()
+    steps = settings.steps or (QUICK_STEPS[algo] if settings.quick else 200_000)
+    kwargs = env_kwargs(settings.env_id, settings.randomize)
+    probe = gym.make(settings.env_id, **kwargs)
+    device = device_name(probe)
+    limit = ResidualConfig.for_env(probe).limit
+    config = ResidualConfig.for_env(
+        probe, None if settings.scale is None else settings.scale * limit
+    )
+    probe.close()
+    meta = {
+        "env_id": settings.env_id,
+        "algo": algo,
+        "config": config.to_dict(),
+        "base": {"kind": "compensated", "gains": base_gains(device)},
+        "env_kwargs": kwargs,
+    }
+
+    resumed_from: Path | None = None
+    if settings.resume is not None:
+        resumed_from = (
+            latest_checkpoint(out) if settings.resume == "latest" else Path(settings.resume)
+        )
+        if resumed_from is None:
+            raise TrainingError(
+                f"--resume: no checkpoint in {out / 'checkpoints'} and no {out / 'model.zip'}; "
+                "give the model zip to continue (--resume PATH) or drop --resume"
+            )
+        try:
+            saved = read_metadata(resumed_from)
+        except (FileNotFoundError, ValueError) as exc:
+            raise TrainingError(f"--resume: {exc}") from None
+        if (saved["env_id"], saved["algo"]) != (settings.env_id, algo):
+            raise TrainingError(
+                f"--resume: {resumed_from} is {saved['algo']} on {saved['env_id']}; give "
+                f"--env {saved['env_id']} --algo {saved['algo']}"
+            )
+        config = ResidualConfig.from_dict(saved["config"])  # the policy's own inputs
+        meta = {**saved, "env_kwargs": kwargs}
+
+    def make_env() -> ResidualEnv:
+        return ResidualEnv(gym.make(settings.env_id, **kwargs), config=config)
+
+    vec = make_vec_env(
+        make_env, n_envs=settings.n_envs, seed=settings.seed, vec_env_cls=DummyVecEnv
+    )
+    algorithm = getattr(stable_baselines3, ALGORITHMS[algo])
+    if resumed_from is not None:
+        model = algorithm.load(str(resumed_from), env=vec, device="cpu")
+        buffer = _replay_buffer_of(resumed_from)
+        if algo != "ppo" and buffer.is_file():
+            model.load_replay_buffer(str(buffer))
+        say(f"resuming from {resumed_from} at {model.num_timesteps} steps")
+    else:
+        params = {
+            **hyperparameters(algo, steps, settings.n_envs, settings.quick),
+            **settings.hyperparameters,
+        }
+        model = algorithm("MlpPolicy", vec, seed=settings.seed, device="cpu", verbose=0, **params)
+    setattr(model, METADATA_ATTRIBUTE, meta)
+    done_before = int(model.num_timesteps)
+    remaining = steps - done_before
+    if remaining <= 0:
+        raise TrainingError(
+            f"the model has {done_before} steps already, --steps {steps} asks for no more: "
+            "give a larger --steps to continue"
+        )
+
+    out.mkdir(parents=True, exist_ok=True)
+    if importlib.util.find_spec("tensorboard") is not None:
+        log_dir, formats = out / "tb", ["tensorboard", "csv"]
+    else:
+        log_dir, formats = out / "logs", ["csv"]
+        say("tensorboard is not installed: logging to CSV in logs/ (pip install tensorboard)")
+    run = 1
+    while (log_dir / f"{algo}_{run}").exists():
+        run += 1
+    model.set_logger(configure(str(log_dir / f"{algo}_{run}"), formats))
+    every = max(settings.checkpoint_every // settings.n_envs, 1)
+    checkpoints = CheckpointCallback(
+        every, str(out / "checkpoints"), CHECKPOINT_PREFIX, save_replay_buffer=algo != "ppo"
+    )
+    bar = _progress_callback(remaining, settings.quiet)
+    say(f"training {algo.upper()} on {settings.env_id} for {remaining} steps -> {out}")
+    learn_start = time.perf_counter()
+    model.learn(
+        remaining,
+        callback=CallbackList([checkpoints, bar]),
+        reset_num_timesteps=resumed_from is None,
+    )
+    learn_time = time.perf_counter() - learn_start
+    model.save(str(out / "model.zip"))
+    if algo != "ppo":
+        model.save_replay_buffer(str(out / "replay_buffer.pkl"))
+    vec.close()
+    trained = int(model.num_timesteps) - done_before
+    summary = {
+        "env_id": settings.env_id,
+        "device": device,
+        "algo": algo,
+        "steps": int(model.num_timesteps),
+        "steps_this_run": trained,
+        "seed": settings.seed,
+        "n_envs": settings.n_envs,
+        "randomize": settings.randomize,
+        "env_kwargs": kwargs,
+        "scale": config.scale,
+        "scale_fraction": config.scale / config.limit,
+        "config": config.to_dict(),
+        "base": meta["base"],
+        "hyperparameters": {
+            k: repr(v) if not isinstance(v, (int, float, str)) else v
+            for k, v in model_hyperparameters(model, algo).items()
+        },
+        "resumed_from": None if resumed_from is None else str(resumed_from),
+        "learn_seconds": round(learn_time, 3),
+        "wall_seconds": round(time.perf_counter() - start, 3),
+        "steps_per_second": round(trained / learn_time, 1) if learn_time > 0 else math.nan,
+        "logs": {"dir": str(log_dir / f"{algo}_{run}"), "formats": formats},
+        "versions": _versions(),
+        "command_line": settings.command_line,
+    }
+    (out / "train.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def model_hyperparameters(model: Any, algo: str) -> dict[str, Any]:
+    """Return the main hyperparameters of an SB3 model, for ``train.json``."""
+    names = ["learning_rate", "gamma", "batch_size"]
+    names += (
+        ["n_steps", "n_epochs", "gae_lambda", "clip_range", "ent_coef"]
+        if algo == "ppo"
+        else ["buffer_size", "learning_starts", "tau", "train_freq", "gradient_steps"]
+    )
+    values = {name: getattr(model, name) for name in names if hasattr(model, name)}
+    values["policy_kwargs"] = model.policy_kwargs
+    return values
