@@ -121,3 +121,84 @@ def test_bad_input_is_reported(tmp_path, capsys):
     assert "not a directory" in capsys.readouterr().err
     assert target.read_text() == "keep me"
     assert main(["benchmark", "--seeds", "0", "--list"]) == 2
+
+
+# --- residual policies (SB3 and torch imported inside the tests) -----------------------------
+
+
+@pytest.fixture(scope="module")
+def residual_model(tmp_path_factory):
+    """A tiny PPO servo model, trained through ``frictiongym train``."""
+    pytest.importorskip("stable_baselines3")
+    path = tmp_path_factory.mktemp("train") / "run"
+    status = main(["train", "--env", "frictiongym/RotaryServo-v0", "--quick", "--steps", "512",
+                   "--out", str(path), "--quiet"])  # fmt: skip
+    assert status == 0
+    return path / "model.zip"
+
+
+def test_a_residual_model_runs_next_to_the_compensated_pid(residual_model, tmp_path, capsys):
+    args = ["benchmark", "--quick", "--no-figures", "--heldout", "3", "--out", str(tmp_path),
+            "--residual", f"rotary={residual_model}"]  # fmt: skip
+    assert main([*args, "--list", "--group", "residual"]) == 0
+    listed = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
+    assert listed == [f"residual-rotary-{plants}-{kind}" for plants in ("nominal", "heldout")
+                      for kind in ("compensated", "residual")]  # fmt: skip
+    assert main([*args, "--quiet"]) == 0
+    records = json.loads((tmp_path / "results.json").read_text())
+    assert "paper-rotary-compensated" in {r["scenario"] for r in records}  # the rest still runs
+    mine = [r for r in records if r["group"] == "residual"]
+    by = {(r["scenario"], r["seed"]): r for r in mine}
+    assert len(mine) == 2 * (1 + 3)
+    heldout = [r for r in mine if "heldout" in r["scenario"]]
+    assert {r["seed"] for r in heldout} == {1000, 1001, 1002}  # disjoint from training's
+    assert heldout[0]["env_kwargs"]["randomize"]["friction"] == [0.7, 1.3]
+    for (name, seed), r in by.items():
+        if name.endswith("-residual"):
+            assert r["controller"] == "residual"
+            assert r["residual"]["model"] == str(residual_model)
+            assert by[name.replace("-residual", "-compensated"), seed]["controller"] == (
+                "compensated-pid"
+            )
+            assert math.isfinite(r["metrics"]["itae"])
+    # The same plants for both controllers: the compensated PID's runs do not depend on the
+    # model, and the paired table is in results.md.
+    text = (tmp_path / "results.md").read_text()
+    assert "## Residual policy vs compensated PID" in text
+    assert "| rotary | heldout | 3 |" in text
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    assert {r["controller"] for r in rows if r["group"] == "residual"} == {
+        "compensated-pid",
+        "residual",
+    }
+
+
+def test_residual_options_are_checked(residual_model, tmp_path, capsys):
+    for bad, message in (
+        ("rotary", "rotary=MODEL"),
+        ("arm=x.zip", "rotary=MODEL"),
+        (f"altino={residual_model}", "not for altino"),
+        (f"rotary={tmp_path / 'none.zip'}", "no model at"),
+    ):
+        assert main(["benchmark", "--list", "--residual", bad]) == 2
+        assert message in capsys.readouterr().err
+    assert (
+        main(
+            [
+                "benchmark",
+                "--list",
+                "--residual",
+                f"rotary={residual_model}",
+                "--heldout",
+                "2",
+                "--heldout-seed",
+                "2000",
+                "--scenario",
+                "*heldout*",
+            ]
+        )
+        == 0
+    )
+    assert "(seeds 2000..2001)" in capsys.readouterr().out
+    assert main(["benchmark", "--list", "--group", "residual"]) == 2  # no model given
+    assert "no scenario matches" in capsys.readouterr().err

@@ -11,9 +11,22 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from frictiongym.benchmark.figures import write_figures
-from frictiongym.benchmark.report import format_metric, paper_claims, write_reports
+from frictiongym.benchmark.report import (
+    format_metric,
+    paper_claims,
+    residual_markdown,
+    write_reports,
+)
 from frictiongym.benchmark.run import Result, run_benchmark
-from frictiongym.benchmark.scenarios import GROUPS, NOISE_SEEDS, Scenario, all_scenarios
+from frictiongym.benchmark.scenarios import (
+    GROUPS,
+    HELDOUT_PLANTS,
+    HELDOUT_SEED,
+    NOISE_SEEDS,
+    Scenario,
+    all_scenarios,
+    residual_scenarios,
+)
 
 DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
@@ -27,6 +40,13 @@ the nominal model), mismatch (every compensator variant with its model's frictio
 x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, on over several seeds, and an ideal
 sensor without quantisation), friction
 (each friction law in the plant). The default run takes well under 2 minutes on 2 cores.
+
+--residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE rotary or altino) adds
+the group residual: the compensated PID and the residual controller on the paper's step, on
+the nominal plant and on --heldout randomised plants (seeds from --heldout-seed, factors
+drawn from the training ranges, the same plants for both), and a table of ITAE, SSE,
+terminations and limit cycles of the residual against the compensated PID in results.md.
+It needs Stable-Baselines3 and torch.
 """
 
 
@@ -67,6 +87,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"seeds of the noisy scenarios, 0..N-1 (default: {len(NOISE_SEEDS)}); the "
         "noiseless ones are deterministic and run once",
     )
+    parser.add_argument(
+        "--residual",
+        action="append",
+        default=[],
+        metavar="DEVICE=MODEL",
+        help="add residual scenarios for DEVICE (rotary or altino) with the model zip MODEL "
+        "from frictiongym train (repeatable, once per device)",
+    )
+    parser.add_argument(
+        "--heldout",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"held-out randomised plants per residual device (default {HELDOUT_PLANTS}, "
+        "4 with --quick)",
+    )
+    parser.add_argument(
+        "--heldout-seed",
+        type=int,
+        default=HELDOUT_SEED,
+        metavar="S",
+        help=f"seed of the first held-out plant (default {HELDOUT_SEED}; keep clear of the "
+        "training seeds)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
@@ -78,12 +122,12 @@ def select(args: argparse.Namespace) -> list[Scenario]:
         raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
     seeds = tuple(range(args.seeds))
     chosen = []
-    for s in all_scenarios(quick=args.quick):
+    for s in all_scenarios(quick=args.quick) + _residual(args):
         if args.group and s.group not in args.group:
             continue
         if args.scenario and not any(fnmatch.fnmatchcase(s.name, p) for p in args.scenario):
             continue
-        if len(s.seeds) > 1:
+        if len(s.seeds) > 1 and s.group != "residual":  # held-out plants keep their seeds
             s = dataclasses.replace(s, seeds=seeds)
         chosen.append(s)
     if not chosen:
@@ -93,6 +137,34 @@ def select(args: argparse.Namespace) -> list[Scenario]:
             f"(e.g. {names}, ...)"
         )
     return chosen
+
+
+def _residual(args: argparse.Namespace) -> list[Scenario]:
+    """Return the residual scenarios of ``--residual DEVICE=MODEL`` (ValueError if malformed)."""
+    from frictiongym.controllers.residual import read_metadata
+
+    plants = args.heldout if args.heldout is not None else (4 if args.quick else HELDOUT_PLANTS)
+    if plants < 1:
+        raise ValueError(f"--heldout must be at least 1, got {plants}")
+    models: dict[str, str] = {}
+    for spec in getattr(args, "residual", None) or []:
+        device, sep, path = spec.partition("=")
+        if not sep or device not in ("rotary", "altino") or not path:
+            raise ValueError(f"--residual takes rotary=MODEL or altino=MODEL, got {spec!r}")
+        if device in models:
+            raise ValueError(f"--residual {device}= given twice; give one model per device")
+        models[device] = path
+    out = []
+    for device, path in models.items():
+        meta = read_metadata(path)  # FileNotFoundError / ValueError with a message
+        trained_for = {"RotaryServo": "rotary", "AltinoDistance": "altino"}
+        if trained_for.get(meta["config"]["device"]) != device:
+            raise ValueError(f"--residual {device}={path}: the model is for "
+                             f"{meta['config']['device']}, not for {device}")  # fmt: skip
+        randomize = meta.get("env_kwargs", {}).get("randomize")
+        seed = getattr(args, "heldout_seed", HELDOUT_SEED)
+        out += residual_scenarios(device, path, plants, randomize, seed)
+    return out
 
 
 def _summary(results: Sequence[Result]) -> None:
@@ -108,13 +180,16 @@ def _summary(results: Sequence[Result]) -> None:
     for c in paper_claims(results):
         print(f"\n[{'agrees' if c.agrees else 'differs'}] {c.claim}\n  paper: {c.paper}"
               f"\n  ours:  {c.ours}")  # fmt: skip
+    table = residual_markdown(results)
+    if table:
+        print("\n" + "\n".join(table[4:]))
 
 
 def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int:
     """Run the benchmark for parsed ``args``; return the exit status."""
     try:
         scenarios = select(args)
-    except ValueError as error:
+    except (ValueError, FileNotFoundError) as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.list:

@@ -146,6 +146,82 @@ def paper_claims(results: Sequence[Result]) -> list[Claim]:
     return claims
 
 
+@dataclass(frozen=True)
+class Comparison:
+    """Residual vs compensated PID on one device and plant set (paired runs, same seeds)."""
+
+    device: str
+    plants: str
+    runs: int
+    itae: tuple[float, float]  # means: compensated, residual
+    sse: tuple[float, float]
+    sse_pct: tuple[float, float]
+    itae_wins: int  # plants where the residual's ITAE is lower
+    sse_wins: int
+    terminated: tuple[int, int]  # runs ended by a safety limit: compensated, residual
+    cycles: tuple[int, int]  # runs with a sustained limit cycle: compensated, residual
+
+
+def residual_comparisons(results: Sequence[Result]) -> list[Comparison]:
+    """Pair the ``residual`` group's runs by device, plant set and seed."""
+    runs: dict[tuple[str, str], dict[str, dict[int, Result]]] = {}
+    for r in results:
+        if r.scenario.group != "residual":
+            continue
+        _, device, plants, kind = r.scenario.name.split("-", 3)
+        runs.setdefault((device, plants), {}).setdefault(kind, {})[r.seed] = r
+    out = []
+    for (device, plants), kinds in runs.items():
+        comp, res = kinds.get("compensated", {}), kinds.get("residual", {})
+        seeds = sorted(set(comp) & set(res))
+        if not seeds:
+            continue
+        pairs = [(comp[s], res[s]) for s in seeds]
+
+        def mean(field: str, i: int, pairs: list[tuple[Result, Result]] = pairs) -> float:
+            return sum(getattr(p[i].metrics, field) for p in pairs) / len(pairs)
+
+        def both(field: str) -> tuple[float, float]:
+            return mean(field, 0), mean(field, 1)
+
+        out.append(Comparison(
+            device, plants, len(pairs), both("itae"), both("steady_state_error"),
+            both("steady_state_error_pct"),
+            sum(r.metrics.itae < c.metrics.itae for c, r in pairs),
+            sum(r.metrics.steady_state_error < c.metrics.steady_state_error for c, r in pairs),
+            (sum(c.terminated for c, _ in pairs), sum(r.terminated for _, r in pairs)),
+            (sum(c.metrics.limit_cycle_amplitude > 0 for c, _ in pairs),
+             sum(r.metrics.limit_cycle_amplitude > 0 for _, r in pairs)),
+        ))  # fmt: skip
+    return out
+
+
+def residual_markdown(results: Sequence[Result]) -> list[str]:
+    """Return the residual-vs-compensated-PID table of ``results.md`` ([] without residuals)."""
+    comparisons = residual_comparisons(results)
+    if not comparisons:
+        return []
+    lines = [
+        "## Residual policy vs compensated PID", "",
+        "Paired runs on the paper's step: the same plants (seeds) for both controllers. ITAE "
+        "and SSE are means over the plants; `wins`: plants where the residual's is lower; "
+        "`terminated`: runs ended by a safety limit (the servo's run-away guard, the Altino "
+        "touching the wall) and `cycles`: runs with a sustained limit cycle, compensated / "
+        "residual.", "",
+        "| device | plants | runs | ITAE comp. | ITAE resid. | wins | SSE comp. | SSE resid. "
+        "| SSE % comp. | SSE % resid. | wins | terminated | cycles |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]  # fmt: skip
+    for c in comparisons:
+        lines.append(
+            f"| {c.device} | {c.plants} | {c.runs} | {c.itae[0]:.4g} | {c.itae[1]:.4g} | "
+            f"{c.itae_wins}/{c.runs} | {c.sse[0]:.4g} | {c.sse[1]:.4g} | {c.sse_pct[0]:.2f} | "
+            f"{c.sse_pct[1]:.2f} | {c.sse_wins}/{c.runs} | {c.terminated[0]} / {c.terminated[1]} | "
+            f"{c.cycles[0]} / {c.cycles[1]} |"
+        )
+    return [*lines, ""]
+
+
 def to_markdown(results: Sequence[Result], command: str = "") -> str:
     """``results.md``: the paper check and one table per scenario group."""
     lines = ["# frictiongym benchmark", ""]
@@ -158,6 +234,7 @@ def to_markdown(results: Sequence[Result], command: str = "") -> str:
         lines += [f"| {c.claim} | {c.paper} | {c.ours} | {'yes' if c.agrees else 'no'} |"
                   for c in claims]  # fmt: skip
         lines.append("")
+    lines += residual_markdown(results)
     lines += [
         "Metrics of the true output against the reference: 10-90 % rise, 2 % settling, SSE "
         "= mean |r - y| over the last 10 % of the run (rad or cm, and % of the step), IAE and "

@@ -34,8 +34,13 @@ class Result:
         return bool(self.rollout.terminated[self.env])
 
     def record(self) -> dict[str, Any]:
-        """Return the run as a JSON-ready dict (non-finite numbers become None; see the docs)."""
+        """Return the run as a JSON-ready dict (non-finite numbers become None; see the docs).
+
+        A residual run also carries ``residual``: the model's path (its base controller is
+        in ``gains`` and ``compensator``).
+        """
         s = self.scenario
+        extra = {} if s.residual is None else {"residual": {"model": s.residual}}
         return {
             "scenario": s.name,
             "group": s.group,
@@ -47,6 +52,7 @@ class Result:
             "seed": self.seed,
             "terminated": self.terminated,
             "metrics": {k: _finite(v) for k, v in self.metrics.as_dict().items()},
+            **extra,
         }
 
 

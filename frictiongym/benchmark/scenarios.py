@@ -30,7 +30,12 @@ STEPS = {ROTARY_ID: 2500, ALTINO_ID: 1200}
 MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
 #: Seeds of the noisy scenarios (the noiseless ones are deterministic: one run).
 NOISE_SEEDS = (0, 1, 2, 3, 4)
-GROUPS = ("paper", "mismatch", "noise", "friction")
+GROUPS = ("paper", "mismatch", "noise", "friction", "residual")
+#: Seeds of the held-out randomised plants of the ``residual`` group: disjoint from training,
+#: whose env copies are seeded ``S + i`` for small ``S`` (``frictiongym train --seed``).
+HELDOUT_SEED = 1000
+#: Held-out plants per device (``--heldout``; 4 with ``--quick``).
+HELDOUT_PLANTS = 20
 
 ROTARY_GAINS = PIDGains(**ROTARY_PAPER_GAINS)
 ALTINO_KI10 = PIDGains(**ALTINO_PAPER_GAINS_KI10)
@@ -60,6 +65,10 @@ class Scenario:
         One run per seed.
     description : str
         What the scenario shows, for the report.
+    residual : str or None
+        Path of a residual model (``frictiongym train``'s ``model.zip``): the controller is
+        :class:`~frictiongym.controllers.ResidualController` on the base it was trained with,
+        and ``gains`` and ``mode`` only describe that base.
     """
 
     name: str
@@ -71,10 +80,13 @@ class Scenario:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     seeds: tuple[int, ...] = (0,)
     description: str = ""
+    residual: str | None = None
 
     @property
     def controller_name(self) -> str:
-        """``pid`` or ``compensated-pid``."""
+        """``pid``, ``compensated-pid`` or ``residual``."""
+        if self.residual is not None:
+            return "residual"
         return "pid" if self.mode is None else "compensated-pid"
 
     @property
@@ -89,6 +101,10 @@ class Scenario:
 
     def controller(self, env: Any) -> Controller:
         """Build the scenario's controller for ``env``."""
+        if self.residual is not None:
+            from frictiongym.controllers.residual import ResidualController  # imports SB3
+
+            return ResidualController.load(self.residual, env)
         pid = PID.for_env(env, self.gains)
         if self.mode is None:
             return pid
@@ -180,6 +196,47 @@ def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]
             f"friction-{{device}}-{law}-{{kind}}", "friction", f"{law} law", {"friction": law}
         )
     ]
+
+
+def residual_scenarios(
+    device: str,
+    model: str,
+    plants: int = HELDOUT_PLANTS,
+    randomize: dict[str, Any] | None = None,
+    first_seed: int = HELDOUT_SEED,
+) -> list[Scenario]:
+    """Return compensated PID and a residual model side by side on the paper's step.
+
+    Two pairs per device: the paper's plant with its nominal parameters (``nominal``) and
+    ``plants`` held-out randomised plants (``heldout``, seeds ``first_seed...``, factors
+    drawn from ``randomize``, by default the training ranges of ``frictiongym train``). A
+    plant's factors depend only on its seed, so both controllers meet the same plants: the
+    comparison is paired.
+    """
+    from frictiongym.residual.train import RANDOMIZATION  # no torch at import
+
+    env_ids = {"rotary": ROTARY_ID, "altino": ALTINO_ID}
+    if device not in env_ids:
+        raise ValueError(f"unknown residual device {device!r}; use rotary or altino")
+    if plants < 1:
+        raise ValueError(f"the held-out plants must be at least 1, got {plants}")
+    env_id = env_ids[device]
+    gains = ROTARY_GAINS if device == "rotary" else ALTINO_COMPENSATED
+    ranges = randomize or RANDOMIZATION["RotaryServo" if device == "rotary" else "AltinoDistance"]
+    heldout = {"randomize": {k: tuple(v) for k, v in ranges.items()}}
+    seeds = tuple(range(first_seed, first_seed + plants))
+    out = []
+    for plant, kwargs, plant_seeds, what in (
+        ("nominal", {}, (0,), "the paper's plant, nominal parameters"),
+        ("heldout", heldout, seeds, f"{plants} held-out randomised plants"),
+    ):
+        for kind, path in (("compensated", None), ("residual", model)):
+            out.append(
+                Scenario(f"residual-{device}-{plant}-{kind}", "residual", env_id, gains,
+                         mode="command", env_kwargs=kwargs, seeds=plant_seeds,
+                         description=f"{kind}, {what}", residual=path)
+            )  # fmt: skip
+    return out
 
 
 def all_scenarios(quick: bool = False) -> list[Scenario]:
