@@ -21,7 +21,8 @@ class Rollout:
     """Signals of a closed-loop run, sample ``k`` at time ``t[k]``, one column per env.
 
     ``position``, ``velocity`` and ``reference`` are the true state from ``info``;
-    ``measured`` is the output the controller saw (its observation entry); ``command[k]`` is
+    ``measured`` and ``rate`` are the output and its rate as the controller saw them (its
+    observation entries; ``rate`` is NaN when the observation has none); ``command[k]`` is
     the applied (saturated) command held from ``t[k]`` to ``t[k+1]`` (the last sample repeats
     it); ``reward[k]`` is the reward of the step that ended at ``t[k]`` (0 at ``k = 0``);
     ``stuck[k]`` tells whether friction held the body at ``t[k]``. Env ``i`` has ``length[i]``
@@ -33,6 +34,7 @@ class Rollout:
     position: FloatArray
     velocity: FloatArray
     measured: FloatArray
+    rate: FloatArray
     command: FloatArray
     reference: FloatArray
     reward: FloatArray
@@ -109,7 +111,7 @@ def rollout(
     vector = hasattr(env, "num_envs")
     n = int(env.num_envs) if vector else 1
     size = (int(steps) + 1, n)
-    rec = {name: np.full(size, np.nan) for name in (*SIGNALS, "measured", "reward")}
+    rec = {name: np.full(size, np.nan) for name in (*SIGNALS, "measured", "rate", "reward")}
     stuck = np.zeros(size, dtype=bool)
     active = np.ones(n, dtype=bool)
     length = np.full(n, size[0], dtype=np.int64)
@@ -119,9 +121,10 @@ def rollout(
         for name in SIGNALS:
             if name in info:
                 rec[name][k, mask] = np.asarray(info[name], dtype=np.float64).reshape(n)[mask]
-        rec["measured"][k, mask] = np.asarray(obs, dtype=np.float64).reshape(n, -1)[
-            mask, controller.spec.position
-        ]
+        seen = np.asarray(obs, dtype=np.float64).reshape(n, -1)[mask]
+        rec["measured"][k, mask] = seen[:, controller.spec.position]
+        if controller.spec.velocity is not None:
+            rec["rate"][k, mask] = seen[:, controller.spec.velocity]
         if "stuck" in info:
             stuck[k, mask] = np.asarray(info["stuck"], dtype=bool).reshape(n)[mask]
 

@@ -9,7 +9,7 @@ output, the estimated velocity and the applied command.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -17,7 +17,7 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
+from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
 from frictiongym.hardware.runlog import Timing
 from frictiongym.metrics import ResponseMetrics, response_metrics
 from frictiongym.plants.presets import (
@@ -64,31 +64,16 @@ class Trace:
         )  # fmt: skip
 
 
-def record(env: Any, controller: Controller, steps: int, options: Mapping[str, Any] | None = None,
-           seed: int | None = None) -> Trace:  # fmt: skip
+def record(env: Any, controller: Controller, steps: int) -> Trace:
     """Run one episode of ``controller`` on ``env`` for ``steps`` steps (or until it ends)."""
-    names = env.unwrapped.sim.device.observation_names
-    out_col, vel_col, ref_col = (names.index(n) for n in (
-        env.unwrapped.sim.device.output, "velocity", "reference"))  # fmt: skip
-    obs, info = env.reset(seed=seed, options=dict(options or {}))
-    controller.reset()
-    rows, commands = [obs], []
-    terminated = False
-    for _ in range(steps):
-        obs, _, terminated, truncated, info = env.step(controller(obs))
-        rows.append(obs)
-        commands.append(info["command"])
-        if terminated or truncated:
-            break
-    data = np.asarray(rows, dtype=np.float64)
-    u = np.asarray([*commands, commands[-1] if commands else 0.0], dtype=np.float64)
+    run = rollout(env, controller, steps)
     return Trace(
-        t=np.arange(len(rows)) * env.unwrapped.dt,
-        output=data[:, out_col],
-        velocity=data[:, vel_col],
-        command=u,
-        reference=data[:, ref_col],
-        terminated=bool(terminated),
+        t=run.t,
+        output=run.signal("measured"),
+        velocity=run.signal("rate"),
+        command=run.signal("command"),
+        reference=run.signal("reference"),
+        terminated=bool(run.terminated[0]),
     )
 
 
