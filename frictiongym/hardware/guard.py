@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import math
 
-from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET
+from frictiongym.plants.sensors import ir_estimate
 
 #: Closest the car may come to the wall, cm. Assumed (docs/hardware.md): above the IR sensor's
 #: nearest reading (966 / (800 + 45) = 1.14 cm) and below the closest approach of the paper's
@@ -52,7 +52,7 @@ STOPPED_SPEED = 0.5
 
 def readout_distance(readout: float) -> float | None:
     """Distance (cm) an IR readout stands for (paper Eq. (1)); None when out of range (0)."""
-    return IR_NUMERATOR / (readout + IR_OFFSET) if readout > 0 else None
+    return float(ir_estimate(readout)) if readout > 0 else None
 
 
 def stopping_point(
