@@ -10,11 +10,11 @@ import csv
 import io
 import json
 import math
-import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from frictiongym._io import write_text_atomic
 from frictiongym.benchmark.run import METRICS, Result
 
 #: Table columns of the metrics: (field, header, format).
@@ -34,13 +34,6 @@ COLUMNS = (
 )
 #: The paper's time-domain specs for the servo PID (§3.1): metric -> upper bound.
 SERVO_SPECS = {"rise_time": 0.05, "peak_time": 0.1, "settling_time": 1.5, "overshoot_pct": 20.0}
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file and a rename."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
 
 
 def to_json(results: Sequence[Result]) -> str:
@@ -265,7 +258,7 @@ def write_reports(
         ("results.csv", to_csv(results)),
         ("results.md", to_markdown(results, command)),
     ):
-        write_atomic(out / name, text)
+        write_text_atomic(out / name, text)
         written.append(out / name)
     if figures is not None:
         written += figures(results, out)

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym._io import write_text_atomic
 from frictiongym.hardware.runlog import write_json_atomic
 from frictiongym.sim2real.run import SIGNALS, Sim2RealResult, differences
 
@@ -141,7 +142,7 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
     if figures:
         lines += ["", "## Figures", "", "![overlay](overlay.png)", "", "![timing](timing.png)"]
     path = out / "report.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
 
 

@@ -176,7 +176,7 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
         return 2
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
-    from frictiongym.benchmark.report import write_atomic
+    from frictiongym._io import write_text_atomic
 
     with tqdm(total=args.samples, desc="tune", unit="cand", unit_scale=True,
               disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
@@ -186,7 +186,7 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
         )  # fmt: skip
     result.extra["command"] = command_line
     written = [args.out / "tune.json"]
-    write_atomic(written[0], json.dumps(result.record(), indent=1, allow_nan=False) + "\n")
+    write_text_atomic(written[0], json.dumps(result.record(), indent=1, allow_nan=False) + "\n")
     if not args.no_figures:
         from frictiongym.tuning.figures import plot_feasible_set
 
