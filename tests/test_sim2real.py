@@ -86,3 +86,6 @@ def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     assert main(["sim2real", "--env", SERVO, "--backend", "/dev/frictiongym-none",
                  "--out", str(tmp_path / "x")]) == 2  # fmt: skip
     assert "could not open" in capsys.readouterr().err
+    assert main(["sim2real", "--env", "frictiongym/Nope-v0", "--backend", "emulator://",
+                 "--out", str(tmp_path / "y")]) == 2  # fmt: skip
+    assert "unknown env id 'frictiongym/Nope-v0'" in capsys.readouterr().err

@@ -18,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
+from frictiongym.envs import ENV_IDS
 from frictiongym.hardware.runlog import Timing
 from frictiongym.metrics import ResponseMetrics, response_metrics
 from frictiongym.plants.presets import (
@@ -183,6 +184,8 @@ def run_sim2real(
     progress : callable, optional
         Called with a short text before each run.
     """
+    if env_id not in ENV_IDS:
+        raise ValueError(f"unknown env id {env_id!r}; use one of {sorted(ENV_IDS)}")
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     if not (isinstance(repeats, int) and repeats >= 1):
