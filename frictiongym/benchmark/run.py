@@ -11,7 +11,7 @@ import gymnasium as gym
 
 import frictiongym  # noqa: F401  (registers the env ids)
 from frictiongym.benchmark.scenarios import Scenario
-from frictiongym.controllers import Rollout, rollout
+from frictiongym.controllers import Controller, Rollout, rollout
 from frictiongym.metrics import ResponseMetrics
 
 #: Metric names of a record, in the order of the tables (``ResponseMetrics`` fields).
@@ -60,8 +60,14 @@ def _finite(value: float) -> float | None:
     return value if math.isfinite(value) else None
 
 
-def run_scenario(scenario: Scenario) -> list[Result]:
-    """Run every seed of ``scenario`` side by side in one vector env."""
+def run_scenario(
+    scenario: Scenario, controller: Callable[[Any], Controller] | None = None
+) -> list[Result]:
+    """Run every seed of ``scenario`` side by side in one vector env.
+
+    ``controller`` builds the controller for the vector env instead of
+    ``scenario.controller`` (e.g. a residual policy still in training).
+    """
     env = gym.make_vec(
         scenario.env_id,
         num_envs=len(scenario.seeds),
@@ -70,7 +76,8 @@ def run_scenario(scenario: Scenario) -> list[Result]:
         **scenario.env_kwargs,
     )
     try:
-        run = rollout(env, scenario.controller(env), scenario.steps, seed=list(scenario.seeds))
+        build = controller or scenario.controller
+        run = rollout(env, build(env), scenario.steps, seed=list(scenario.seeds))
     finally:
         env.close()
     return [Result(scenario, seed, run.metrics(i), run, i) for i, seed in enumerate(scenario.seeds)]

@@ -47,8 +47,12 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
 
     ## Rewards
 
-    The env's reward, minus ``residual_cost * (residual / scale)**2`` (0 by default: no
-    shaping).
+    The env's reward by default. With ``precision`` set, its tracking term ``-|e| / e0`` is
+    replaced by ``-log(1 + |e| / precision)`` (``e`` the true tracking error of the step,
+    ``info``'s ``reference - position``): the few encoder counts or IR steps friction leaves
+    then weigh about as much per step as a large transient error, where the env's linear
+    term makes them a thousandth of it. The env's effort term and safety penalty are kept.
+    ``residual_cost * (residual / scale)**2`` is subtracted from either (0 by default).
 
     ## Info
 
@@ -71,6 +75,9 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         default 10 % of the limit for the servo (1 V) and 20 % for the Altino (200).
     residual_cost : float, default 0.0
         Weight of the optional penalty on the residual's size.
+    precision : float, optional
+        Error scale of the logarithmic tracking reward (rad, cm); the env's linear reward if
+        None.
     """
 
     def __init__(
@@ -81,6 +88,7 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         config: ResidualConfig | None = None,
         scale: float | None = None,
         residual_cost: float = 0.0,
+        precision: float | None = None,
     ) -> None:
         super().__init__(env)
         if config is None:
@@ -106,9 +114,14 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
             )
         if not (np.isfinite(residual_cost) and residual_cost >= 0.0):
             raise ValueError(f"residual_cost must be >= 0, got {residual_cost!r}")
+        if precision is not None and not (np.isfinite(precision) and precision > 0.0):
+            raise ValueError(f"precision must be a positive error scale, got {precision!r}")
         self.base = controller
         self.config = config
         self.residual_cost = float(residual_cost)
+        self.precision = None if precision is None else float(precision)
+        unwrapped: Any = env.unwrapped
+        self._error_scale = float(unwrapped.sim.device.error_scale)  # the env's e0
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         bound = OBSERVATION_BOUND
         self.observation_space = spaces.Box(-bound, bound, (OBSERVATION_SIZE,), np.float32)
@@ -138,6 +151,14 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         total = np.clip(base + residual, -self.config.limit, self.config.limit)
         obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
         info = {**info, "base_action": float(base[0]), "residual": float(residual[0])}
+        if self.precision is not None:
+            reward = self._precision_reward(float(reward), info)
         if self.residual_cost:
             reward = float(reward) - self.residual_cost * (residual[0] / self.config.scale) ** 2
         return self._observe(obs), reward, terminated, truncated, info
+
+    def _precision_reward(self, reward: float, info: dict[str, Any]) -> float:
+        """Swap the env's linear tracking term for the logarithmic one (class docstring)."""
+        assert self.precision is not None
+        error = abs(float(info["reference"]) - float(info["position"]))
+        return reward + error / self._error_scale - float(np.log1p(error / self.precision))

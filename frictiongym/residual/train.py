@@ -24,6 +24,12 @@ import gymnasium as gym
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
 from frictiongym.residual.core import ResidualConfig, base_gains, device_name
 from frictiongym.residual.env import ResidualEnv
+from frictiongym.residual.selection import (
+    METRICS,
+    VALIDATION_PLANTS,
+    VALIDATION_SEED,
+    Validation,
+)
 
 #: Domain randomisation of ``--randomize default``: factors drawn at every reset
 #: (docs/envs.md). Friction ±30 % (the compensator keeps the paper's model, so the policy
@@ -53,6 +59,15 @@ TRAINING_ENV: dict[str, dict[str, Any]] = {
     "RotaryServo": {"reference": "random_steps", "max_episode_steps": 1000},
     "AltinoDistance": {"reference": "random_steps", "max_episode_steps": 400},
 }
+
+#: Error scale of ``--reward precision`` (ResidualEnv's ``precision``): one step of the
+#: sensor at the target, so an error of one count costs log 2 per step. Servo: one encoder
+#: count, 2π/2048 rad. Altino: one IR count at the paper's 5 cm target, |dd/dx| = 966/(x+45)²
+#: at x = 966/5 - 45 (d = 966/(x+45)).
+PRECISION = {"RotaryServo": 2.0 * math.pi / 2048, "AltinoDistance": 5.0**2 / 966.0}
+
+#: Training rewards: the env's own, or ResidualEnv's logarithmic one at ``PRECISION``.
+REWARDS = ("env", "precision")
 
 #: Steps of ``--quick`` per algorithm (a smoke run of well under a minute).
 QUICK_STEPS = {"ppo": 2048, "sac": 300, "td3": 300}
@@ -85,6 +100,10 @@ class TrainSettings:
     n_envs: int = 1
     checkpoint_every: int = 50_000
     scale: float | None = None  # fraction of the action limit; the device's default if None
+    reward: str = "env"  # "env" or "precision" (ResidualEnv's logarithmic tracking reward)
+    residual_cost: float = 0.0
+    validate_every: int | None = 20_000  # env-steps between validations; None: no validation
+    validation_plants: int = VALIDATION_PLANTS
     quiet: bool = False
     command_line: str = ""
     hyperparameters: dict[str, Any] = field(default_factory=dict)
@@ -99,7 +118,13 @@ def check_settings(settings: TrainSettings) -> None:
         raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
     if settings.randomize not in ("none", "default"):
         raise TrainingError(f"--randomize must be 'none' or 'default', got {settings.randomize!r}")
-    for name in ("steps", "n_envs", "checkpoint_every"):
+    if settings.reward not in REWARDS:
+        raise TrainingError(
+            f"--reward must be one of {', '.join(REWARDS)}, got {settings.reward!r}"
+        )
+    if not (math.isfinite(settings.residual_cost) and settings.residual_cost >= 0.0):
+        raise TrainingError(f"--residual-cost must be >= 0, got {settings.residual_cost}")
+    for name in ("steps", "n_envs", "checkpoint_every", "validate_every", "validation_plants"):
         value = getattr(settings, name)
         if value is not None and value < 1:
             raise TrainingError(
@@ -211,6 +236,65 @@ def _progress_callback(total: int, disable: bool) -> Any:
     return ProgressBar()
 
 
+def _validation_callback(
+    validation: Validation, every: int, out: Path, say: Callable[[str], None]
+) -> Any:
+    """Return an SB3 callback that scores the policy every ``every`` env-steps and at the end.
+
+    Appends each score to ``out/validation.csv`` and saves the best-scoring policy so far as
+    ``out/best.zip`` (written to a temporary file first, so a stopped run never leaves half a
+    zip). A resumed run keeps the best score of the CSV it continues.
+    """
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    table = out / "validation.csv"
+    names = [f"{plants}/{metric}" for plants in ("nominal", "randomised") for metric in METRICS]
+
+    class Validate(BaseCallback):
+        def _on_training_start(self) -> None:
+            self.best, self.seconds = _best_score(table), 0.0
+            self.due = (self.num_timesteps // every + 1) * every
+            if not table.is_file():
+                table.write_text(",".join(["steps", "score", *names, "terminated"]) + "\n")
+
+        def _on_step(self) -> bool:
+            if self.num_timesteps >= self.due:
+                self.due += every
+                self.validate()
+            return True
+
+        def _on_training_end(self) -> None:
+            if self.num_timesteps != self.due - every:
+                self.validate()
+
+        def validate(self) -> None:
+            start = time.perf_counter()
+            result = validation(self.model)
+            self.seconds += time.perf_counter() - start
+            for name in names:
+                self.logger.record(f"validation/{name}", result.ratios[name])
+            self.logger.record("validation/score", result.score)
+            row = [self.num_timesteps, result.score, *(result.ratios[n] for n in names)]
+            with table.open("a") as file:
+                file.write(",".join(f"{v:.6g}" for v in row) + f",{result.terminated}\n")
+            if result.score < self.best:
+                self.best = result.score
+                partial = out / ".best.partial.zip"
+                self.model.save(str(partial))
+                partial.replace(out / "best.zip")
+                say(f"validation at {self.num_timesteps} steps: score {result.score:.3f} (best)")
+
+    return Validate()
+
+
+def _best_score(table: Path) -> float:
+    """Return the lowest score in a validation CSV (infinity if none)."""
+    if not table.is_file():
+        return math.inf
+    lines = table.read_text().splitlines()[1:]
+    return min((float(line.split(",")[1]) for line in lines if line), default=math.inf)
+
+
 def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Train (or continue training) a residual policy; write ``settings.out``.
 
@@ -283,8 +367,15 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         config = ResidualConfig.from_dict(saved["config"])  # the policy's own inputs
         meta = {**saved, "env_kwargs": kwargs}
 
+    precision = PRECISION[device] if settings.reward == "precision" else None
+
     def make_env() -> ResidualEnv:
-        return ResidualEnv(gym.make(settings.env_id, **kwargs), config=config)
+        return ResidualEnv(
+            gym.make(settings.env_id, **kwargs),
+            config=config,
+            residual_cost=settings.residual_cost,
+            precision=precision,
+        )
 
     vec = make_vec_env(
         make_env, n_envs=settings.n_envs, seed=settings.seed, vec_env_cls=DummyVecEnv
@@ -326,14 +417,24 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         every, str(out / "checkpoints"), CHECKPOINT_PREFIX, save_replay_buffer=algo != "ppo"
     )
     bar = _progress_callback(remaining, settings.quiet)
+    callbacks = [checkpoints, bar]
+    validate = None
+    if settings.validate_every is not None:
+        validation = Validation(
+            device, kwargs.get("randomize", RANDOMIZATION[device]), config,
+            settings.validation_plants,
+        )  # fmt: skip
+        validate = _validation_callback(validation, settings.validate_every, out, say)
+        callbacks.append(validate)
     say(f"training {algo.upper()} on {settings.env_id} for {remaining} steps -> {out}")
     learn_start = time.perf_counter()
     model.learn(
         remaining,
-        callback=CallbackList([checkpoints, bar]),
+        callback=CallbackList(callbacks),
         reset_num_timesteps=resumed_from is None,
     )
     learn_time = time.perf_counter() - learn_start
+    training_time = learn_time - (validate.seconds if validate is not None else 0.0)
     model.save(str(out / "model.zip"))
     if algo != "ppo":
         model.save_replay_buffer(str(out / "replay_buffer.pkl"))
@@ -357,10 +458,22 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
             k: repr(v) if not isinstance(v, (int, float, str)) else v
             for k, v in model_hyperparameters(model, algo).items()
         },
+        "reward": settings.reward,
+        "precision": precision,
+        "residual_cost": settings.residual_cost,
+        "validation": None
+        if validate is None
+        else {
+            "every": settings.validate_every,
+            "plants": settings.validation_plants,
+            "first_seed": VALIDATION_SEED,
+            "best_score": validate.best,
+            "seconds": round(validate.seconds, 3),
+        },
         "resumed_from": None if resumed_from is None else str(resumed_from),
         "learn_seconds": round(learn_time, 3),
         "wall_seconds": round(time.perf_counter() - start, 3),
-        "steps_per_second": round(trained / learn_time, 1) if learn_time > 0 else math.nan,
+        "steps_per_second": round(trained / training_time, 1) if training_time > 0 else math.nan,
         "logs": {"dir": str(log_dir / f"{algo}_{run}"), "formats": formats},
         "versions": _versions(),
         "command_line": settings.command_line,
