@@ -73,6 +73,8 @@ def test_validation_scores_the_base_as_one_and_a_biased_policy_as_worse(env_id):
 
 def test_training_keeps_the_best_validated_policy(tmp_path):
     pytest.importorskip("stable_baselines3")
+    torch = pytest.importorskip("torch")
+    torch.set_num_threads(2)  # numba's OpenMP layer would also leave it at 2 (bench_training.py)
     out = tmp_path / "run"
     status = main(["train", "--env", ALTINO, "--quick", "--steps", "1024", "--out", str(out),
                    "--validate-every", "256", "--validation-plants", "1", "--reward", "precision",
@@ -88,6 +90,8 @@ def test_training_keeps_the_best_validated_policy(tmp_path):
     assert summary["precision"] == PRECISION["AltinoDistance"]
     assert summary["hyperparameters"]["gamma"] == 0.98
     assert summary["hyperparameters"]["n_epochs"] == 2
+    assert summary["threads"] == 1
+    assert torch.get_num_threads() == 1  # held at --threads (default 1) for the updates
     # best.zip is the policy that scored best: scoring it again gives that score.
     controller = ResidualController.load(out / "best.zip", gym.make(ALTINO))
     config = controller.config

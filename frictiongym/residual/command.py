@@ -119,10 +119,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--reward",
         choices=("env", "precision"),
-        default="env",
-        help="training reward: the env's own (default), or precision: its linear tracking "
-        "term replaced by -log(1 + |e| / one sensor step), which weighs the few counts "
-        "friction leaves about as much as a transient (docs/residual.md)",
+        default="precision",
+        help="training reward: precision (default): the env's linear tracking term replaced "
+        "by -log(1 + |e| / one sensor step), which weighs the few counts friction leaves "
+        "about as much as a transient; or env: the env's own (docs/residual.md)",
     )
     parser.add_argument(
         "--residual-cost",
@@ -143,10 +143,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--validate-every",
         type=int,
-        default=20_000,
+        default=10_000,
         metavar="N",
         help="score the policy on validation plants every N env-steps and keep the best as "
-        "best.zip (default 20000; 0: never)",
+        "best.zip (default 10000; 0: never)",
     )
     parser.add_argument(
         "--validation-plants",
@@ -154,6 +154,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=VALIDATION_PLANTS,
         metavar="V",
         help=f"randomised validation plants besides the nominal one (default {VALIDATION_PLANTS})",
+    )
+    parser.add_argument(
+        "--threads",
+        type=_positive,
+        default=1,
+        metavar="N",
+        help="torch threads (default 1: the residual's networks are too small to gain from "
+        "more; run several trainings side by side instead)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar; only errors")
 
@@ -166,6 +174,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         checkpoint_every=args.checkpoint_every, scale=args.scale, quiet=args.quiet,
         reward=args.reward, residual_cost=args.residual_cost, hyperparameters=dict(args.sb3),
         validate_every=args.validate_every or None, validation_plants=args.validation_plants,
+        threads=args.threads,
         command_line=command_line,
     )  # fmt: skip
     say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))

@@ -24,7 +24,7 @@ from frictiongym.residual.core import ResidualConfig, make_base
 #: ``frictiongym.benchmark.scenarios.HELDOUT_SEED``), so choosing on them leaves those unseen.
 VALIDATION_SEED = 500
 #: Validation plants per device, besides the nominal one.
-VALIDATION_PLANTS = 10
+VALIDATION_PLANTS = 20
 #: The metrics compared, in ``ResponseMetrics`` names: ITAE and the steady-state error.
 METRICS = ("itae", "steady_state_error")
 

@@ -66,6 +66,12 @@ TRAINING_ENV: dict[str, dict[str, Any]] = {
 #: at x = 966/5 - 45 (d = 966/(x+45)).
 PRECISION = {"RotaryServo": 2.0 * math.pi / 2048, "AltinoDistance": 5.0**2 / 966.0}
 
+#: Discount per device: a horizon ``1 / (1 - gamma)`` of 200 steps = 0.4 s on the servo (500
+#: Hz), long enough to see a stuck disk's offset after a step's transient (SB3's 0.99 sees
+#: 0.2 s), and SB3's 0.99 on the Altino (20 Hz): 100 steps = 5 s, a set-point of the
+#: training episodes.
+GAMMA = {"RotaryServo": 0.995, "AltinoDistance": 0.99}
+
 #: Training rewards: the env's own, or ResidualEnv's logarithmic one at ``PRECISION``.
 REWARDS = ("env", "precision")
 
@@ -100,9 +106,10 @@ class TrainSettings:
     n_envs: int = 1
     checkpoint_every: int = 50_000
     scale: float | None = None  # fraction of the action limit; the device's default if None
-    reward: str = "env"  # "env" or "precision" (ResidualEnv's logarithmic tracking reward)
+    reward: str = "precision"  # or "env" (ResidualEnv's logarithmic tracking reward, or none)
     residual_cost: float = 0.0
-    validate_every: int | None = 20_000  # env-steps between validations; None: no validation
+    threads: int = 1  # torch threads
+    validate_every: int | None = 10_000  # env-steps between validations; None: no validation
     validation_plants: int = VALIDATION_PLANTS
     quiet: bool = False
     command_line: str = ""
@@ -124,7 +131,9 @@ def check_settings(settings: TrainSettings) -> None:
         )
     if not (math.isfinite(settings.residual_cost) and settings.residual_cost >= 0.0):
         raise TrainingError(f"--residual-cost must be >= 0, got {settings.residual_cost}")
-    for name in ("steps", "n_envs", "checkpoint_every", "validate_every", "validation_plants"):
+    for name in (
+        "steps", "n_envs", "checkpoint_every", "validate_every", "validation_plants", "threads"
+    ):  # fmt: skip
         value = getattr(settings, name)
         if value is not None and value < 1:
             raise TrainingError(
@@ -147,21 +156,31 @@ def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
     return kwargs
 
 
-def hyperparameters(algo: str, steps: int, n_envs: int, quick: bool) -> dict[str, Any]:
+def hyperparameters(
+    algo: str, steps: int, n_envs: int, quick: bool, device: str = "RotaryServo"
+) -> dict[str, Any]:
     """SB3 constructor arguments: the library's defaults except as commented here.
 
-    PPO: rollouts of about 2048 env-steps over all envs (512 with ``quick``, so a smoke run
-    still makes several updates) and an initial action std of ``exp(-1) = 0.37`` instead of
-    1, so the untrained policy perturbs the base controller by about a third of the bound,
-    not mostly at the bound. SAC and TD3: a replay buffer no larger than the run, learning
-    from step 1000 (100 with ``quick``).
+    All: the discount :data:`GAMMA` of the device. PPO: rollouts of about 2048 env-steps
+    over all envs (512 with ``quick``, so a smoke run still makes several updates) and an
+    initial action std of ``exp(-2) = 0.14`` of the bound instead of 1: the exploration
+    noise of an untrained policy is then below the servo's break-away voltage (0.14 V
+    against 0.21 V), where a std of 1 dithers the disk loose and the policy learns under
+    noise what it cannot do without (docs/residual.md). SAC and TD3: a replay buffer no
+    larger than the run, learning from step 1000 (100 with ``quick``).
     """
     if algo == "ppo":
         n_steps = max(64, (512 if quick else 2048) // n_envs)
-        return {"n_steps": n_steps, "batch_size": 64, "policy_kwargs": {"log_std_init": -1.0}}
+        return {
+            "n_steps": n_steps,
+            "batch_size": 64,
+            "gamma": GAMMA[device],
+            "policy_kwargs": {"log_std_init": -2.0},
+        }
     return {
         "buffer_size": int(min(steps, 1_000_000)),
         "learning_starts": 100 if quick else 1000,
+        "gamma": GAMMA[device],
     }
 
 
@@ -234,6 +253,31 @@ def _progress_callback(total: int, disable: bool) -> Any:
             self.bar.close()
 
     return ProgressBar()
+
+
+def _threads_callback(threads: int) -> Any:
+    """Return an SB3 callback that holds torch at ``threads`` threads before every update.
+
+    The envs' numba kernels start numba's OpenMP threading layer at their first step, and
+    that sets the process's OpenMP thread count (shared with torch) to numba's, overriding
+    ``torch.set_num_threads`` and ``OMP_NUM_THREADS``. On the residual's small networks two
+    threads made PPO's updates 3-4 times slower than one on this 2-core machine, and ten
+    times slower with two trainings side by side (docs/residual.md).
+    """
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+
+    class Threads(BaseCallback):
+        def _on_training_start(self) -> None:
+            torch.set_num_threads(threads)
+
+        def _on_rollout_end(self) -> None:
+            torch.set_num_threads(threads)
+
+        def _on_step(self) -> bool:
+            return True
+
+    return Threads()
 
 
 def _validation_callback(
@@ -389,7 +433,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         say(f"resuming from {resumed_from} at {model.num_timesteps} steps")
     else:
         params = {
-            **hyperparameters(algo, steps, settings.n_envs, settings.quick),
+            **hyperparameters(algo, steps, settings.n_envs, settings.quick, device),
             **settings.hyperparameters,
         }
         model = algorithm("MlpPolicy", vec, seed=settings.seed, device="cpu", verbose=0, **params)
@@ -417,7 +461,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         every, str(out / "checkpoints"), CHECKPOINT_PREFIX, save_replay_buffer=algo != "ppo"
     )
     bar = _progress_callback(remaining, settings.quiet)
-    callbacks = [checkpoints, bar]
+    callbacks = [_threads_callback(settings.threads), checkpoints, bar]
     validate = None
     if settings.validate_every is not None:
         validation = Validation(
@@ -448,6 +492,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         "steps_this_run": trained,
         "seed": settings.seed,
         "n_envs": settings.n_envs,
+        "threads": settings.threads,
         "randomize": settings.randomize,
         "env_kwargs": kwargs,
         "scale": config.scale,
