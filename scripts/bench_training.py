@@ -7,9 +7,10 @@ sets torch's threads again before every update (``--threads``, default 1). This 
 shows why: it collects one 2048-step rollout of PPO on the servo's residual env, then times
 ``PPO.train()`` (10 epochs of batch 64 on that rollout) from the same saved weights,
 alternating 1 and 2 threads, in one process. It also reports what numba's first step did to
-torch's thread count.
+torch's thread count. ``--busy 1`` runs the timings while another process spins on one core,
+as a second training side by side would.
 
-Usage: python scripts/bench_training.py [--repeats 4]
+Usage: python scripts/bench_training.py [--repeats 4] [--busy 0]
 """
 
 from __future__ import annotations
@@ -17,6 +18,8 @@ from __future__ import annotations
 import argparse
 import copy
 import statistics
+import subprocess
+import sys
 import time
 
 import gymnasium as gym
@@ -30,8 +33,21 @@ from frictiongym.residual import ResidualEnv
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=4, help="timings per thread count")
+    parser.add_argument("--busy", type=int, default=0, help="spinning processes alongside")
     args = parser.parse_args()
+    spinners = [
+        subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(args.busy)
+    ]
+    try:
+        measure(args.repeats)
+    finally:
+        for spinner in spinners:
+            spinner.kill()
+            spinner.wait()
 
+
+def measure(repeats: int) -> None:
+    """Print torch's threads after the first env step and the PPO update timings."""
     torch.set_num_threads(1)
     env = ResidualEnv(gym.make("frictiongym/RotaryServo-v0", reference="random_steps"))
     before = torch.get_num_threads()
@@ -45,7 +61,7 @@ def main() -> None:
     weights = copy.deepcopy(model.policy.state_dict())
     optimizer = copy.deepcopy(model.policy.optimizer.state_dict())
     times: dict[int, list[float]] = {1: [], 2: []}
-    for _ in range(args.repeats):
+    for _ in range(repeats):
         for threads in times:
             torch.set_num_threads(threads)
             model.policy.load_state_dict(weights)
@@ -54,7 +70,7 @@ def main() -> None:
             model.train()
             times[threads].append(time.perf_counter() - start)
     one, two = statistics.median(times[1]), statistics.median(times[2])
-    print(f"PPO.train() median over {args.repeats}: 1 thread {one:.2f} s, 2 threads {two:.2f} s")
+    print(f"PPO.train() median over {repeats}: 1 thread {one:.2f} s, 2 threads {two:.2f} s")
     print(f"ratio 2 threads / 1 thread: {two / one:.2f}")
 
 

@@ -115,3 +115,19 @@ def test_bad_training_choices_exit_2(tmp_path, capsys):
     assert "--residual-cost must be >= 0" in capsys.readouterr().err
     assert main(["train", "--env", SERVO, "--validate-every", "-5", "--out", out]) == 2
     assert "--validate-every must be a positive number" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("device", ["rotary", "altino"])
+def test_the_shipped_policy_beats_the_compensated_pid_on_the_nominal_plant(device):
+    pytest.importorskip("stable_baselines3")
+    from pathlib import Path
+
+    from frictiongym.benchmark.run import run_scenario
+    from frictiongym.benchmark.scenarios import residual_scenarios
+
+    model = Path(__file__).parents[1] / "models" / "residual" / f"{device}.zip"
+    nominal = [s for s in residual_scenarios(device, str(model), plants=1) if "nominal" in s.name]
+    base, residual = (run_scenario(s)[0] for s in nominal)
+    assert not residual.terminated
+    assert residual.metrics.itae < base.metrics.itae
+    assert residual.metrics.steady_state_error < base.metrics.steady_state_error

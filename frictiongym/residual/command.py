@@ -31,7 +31,7 @@ Every --validate-every steps the policy runs the benchmark's step on validation 
 best-scoring policy is saved as best.zip and every score goes to validation.csv.
 
 Needs the rl extra: pip install "frictiongym[rl]". On this kind of 2-core CPU, PPO runs
-about 900 env-steps/s and SAC about 50 (docs/residual.md).
+about 1 700 env-steps/s and SAC about 90 (docs/residual.md).
 
 Smoke run (under a minute):  frictiongym train --env frictiongym/RotaryServo-v0 --quick
 (--quick: {QUICK_STEPS["ppo"]} PPO steps or {QUICK_STEPS["sac"]} SAC/TD3 steps unless --steps says).
@@ -158,10 +158,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--threads",
         type=_positive,
-        default=1,
         metavar="N",
-        help="torch threads (default 1: the residual's networks are too small to gain from "
-        "more; run several trainings side by side instead)",
+        help="torch threads (default 1 for PPO, whose networks are too small to gain from "
+        "more; every core for SAC and TD3). Give 1 to run trainings side by side",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar; only errors")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import math
+import os
 import platform
 import re
 import sys
@@ -108,7 +109,7 @@ class TrainSettings:
     scale: float | None = None  # fraction of the action limit; the device's default if None
     reward: str = "precision"  # or "env" (ResidualEnv's logarithmic tracking reward, or none)
     residual_cost: float = 0.0
-    threads: int = 1  # torch threads
+    threads: int | None = None  # torch threads; default_threads(algo) if None
     validate_every: int | None = 10_000  # env-steps between validations; None: no validation
     validation_plants: int = VALIDATION_PLANTS
     quiet: bool = False
@@ -255,14 +256,24 @@ def _progress_callback(total: int, disable: bool) -> Any:
     return ProgressBar()
 
 
+def default_threads(algo: str) -> int:
+    """Return the torch threads of ``algo`` when ``--threads`` is not given.
+
+    PPO: 1. Its updates (batch 64 through two layers of 64) are too small to gain from a
+    second thread: one is 1.13x faster alone and 4.6x faster with another process on a core
+    (``scripts/bench_training.py``, docs/benchmarks.md). SAC and TD3 (batch 256 through two
+    layers of 256): every core, 1.3x faster than one alone on this 2-core machine
+    (docs/residual.md). Give ``--threads 1`` to run trainings side by side.
+    """
+    return 1 if algo == "ppo" else max(os.cpu_count() or 1, 1)
+
+
 def _threads_callback(threads: int) -> Any:
     """Return an SB3 callback that holds torch at ``threads`` threads before every update.
 
     The envs' numba kernels start numba's OpenMP threading layer at their first step, and
     that sets the process's OpenMP thread count (shared with torch) to numba's, overriding
-    ``torch.set_num_threads`` and ``OMP_NUM_THREADS``. On the residual's small networks two
-    threads made PPO's updates 3-4 times slower than one on this 2-core machine, and ten
-    times slower with two trainings side by side (docs/residual.md).
+    ``torch.set_num_threads`` and ``OMP_NUM_THREADS`` (docs/benchmarks.md).
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -461,7 +472,8 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         every, str(out / "checkpoints"), CHECKPOINT_PREFIX, save_replay_buffer=algo != "ppo"
     )
     bar = _progress_callback(remaining, settings.quiet)
-    callbacks = [_threads_callback(settings.threads), checkpoints, bar]
+    threads = settings.threads or default_threads(algo)
+    callbacks = [_threads_callback(threads), checkpoints, bar]
     validate = None
     if settings.validate_every is not None:
         validation = Validation(
@@ -492,7 +504,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         "steps_this_run": trained,
         "seed": settings.seed,
         "n_envs": settings.n_envs,
-        "threads": settings.threads,
+        "threads": threads,
         "randomize": settings.randomize,
         "env_kwargs": kwargs,
         "scale": config.scale,
