@@ -15,6 +15,8 @@ DOCS = (
         ROOT / "docs" / name
         for name in ("controllers.md", "identification.md", "tuning.md", "hardware.md")
     ),
+    ROOT / "docs" / "residual.md",
+    ROOT / "models" / "residual" / "README.md",
 )
 BLOCKS = [
     (path, block)
