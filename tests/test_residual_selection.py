@@ -71,7 +71,7 @@ def test_validation_scores_the_base_as_one_and_a_biased_policy_as_worse(env_id):
     assert biased.score > 1.2
 
 
-def test_training_keeps_the_best_validated_policy(tmp_path):
+def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     pytest.importorskip("stable_baselines3")
     torch = pytest.importorskip("torch")
     torch.set_num_threads(2)  # numba's OpenMP layer would also leave it at 2 (bench_training.py)
@@ -98,6 +98,11 @@ def test_training_keeps_the_best_validated_policy(tmp_path):
     validation = Validation("AltinoDistance", RANDOMIZATION["AltinoDistance"], config, plants=1)
     assert validation(controller.model).score == pytest.approx(best, rel=1e-5)
     assert not list(out.glob(".*partial*"))
+    # Continuing it with another objective would change what the policy optimises.
+    status = main(["train", "--env", ALTINO, "--steps", "2048", "--out", str(out), "--resume",
+                   "--reward", "env", "--quiet"])  # fmt: skip
+    assert status == 2
+    assert "trained with --reward precision" in capsys.readouterr().err
 
 
 def test_bad_training_choices_exit_2(tmp_path, capsys):

@@ -107,7 +107,7 @@ class TrainSettings:
     n_envs: int = 1
     checkpoint_every: int = 50_000
     scale: float | None = None  # fraction of the action limit; the device's default if None
-    reward: str = "precision"  # or "env" (ResidualEnv's logarithmic tracking reward, or none)
+    reward: str = "precision"  # ResidualEnv's logarithmic tracking reward; "env": the env's
     residual_cost: float = 0.0
     threads: int | None = None  # torch threads; default_threads(algo) if None
     validate_every: int | None = 10_000  # env-steps between validations; None: no validation
@@ -398,6 +398,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         "config": config.to_dict(),
         "base": {"kind": "compensated", "gains": base_gains(device)},
         "env_kwargs": kwargs,
+        "objective": {"reward": settings.reward, "residual_cost": settings.residual_cost},
     }
 
     resumed_from: Path | None = None
@@ -418,6 +419,12 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
             raise TrainingError(
                 f"--resume: {resumed_from} is {saved['algo']} on {saved['env_id']}; give "
                 f"--env {saved['env_id']} --algo {saved['algo']}"
+            )
+        objective = saved.get("objective", meta["objective"])  # older models: not recorded
+        if objective != meta["objective"]:
+            raise TrainingError(
+                f"--resume: {resumed_from} was trained with --reward {objective['reward']} "
+                f"--residual-cost {objective['residual_cost']:g}; give the same to continue it"
             )
         config = ResidualConfig.from_dict(saved["config"])  # the policy's own inputs
         meta = {**saved, "env_kwargs": kwargs}
@@ -524,7 +531,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
             "every": settings.validate_every,
             "plants": settings.validation_plants,
             "first_seed": VALIDATION_SEED,
-            "best_score": validate.best,
+            "best_score": validate.best if math.isfinite(validate.best) else None,
             "seconds": round(validate.seconds, 3),
         },
         "resumed_from": None if resumed_from is None else str(resumed_from),
