@@ -138,6 +138,48 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
     return _save(fig, path)
 
 
+def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
+    """Per-plant ITAE and SSE of the residual against the compensated PID (held-out plants).
+
+    One point per plant, log-log, with the diagonal: below it the residual is better. The
+    means hide how a stuck body's resting place scatters from plant to plant; this shows it.
+    """
+    runs = [r for r in results if r.scenario.group == "residual"]
+    pairs: dict[str, dict[str, dict[int, Result]]] = {}
+    for r in runs:
+        plants = r.scenario.name.split("-")[2]
+        if plants == "heldout":
+            pairs.setdefault(r.scenario.device, {}).setdefault(r.scenario.controller_name, {})[
+                r.seed
+            ] = r
+    devices = [d for d in ("rotary", "altino") if len(pairs.get(d, {})) == 2]
+    if not devices:
+        return None
+    plt = _pyplot()
+    fig, axes = plt.subplots(len(devices), 2, figsize=(9, 4.2 * len(devices)), squeeze=False)
+    for row, device in enumerate(devices):
+        base, resid = pairs[device]["compensated-pid"], pairs[device]["residual"]
+        seeds = sorted(set(base) & set(resid))
+        unit = "rad" if device == "rotary" else "cm"
+        for col, (metric, label) in enumerate(
+            (("itae", f"ITAE [{unit}·s²]"), ("steady_state_error", f"SSE [{unit}]"))
+        ):
+            x = np.array([getattr(base[s].metrics, metric) for s in seeds])
+            y = np.array([getattr(resid[s].metrics, metric) for s in seeds])
+            floor = max(min(np.min(x[x > 0], initial=1.0), np.min(y[y > 0], initial=1.0)), 1e-9)
+            x, y = np.maximum(x, floor), np.maximum(y, floor)
+            ax = axes[row, col]
+            wins = int(np.sum(y < x))
+            ax.loglog(x, y, "o", ms=4, alpha=0.7, label=f"residual better on {wins}/{len(x)}")
+            span = [min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5]
+            ax.loglog(span, span, "k--", lw=0.8, label="equal")
+            ax.set(title=f"{device}: {len(seeds)} held-out plants",
+                   xlabel=f"compensated PID {label}", ylabel=f"residual {label}")  # fmt: skip
+            ax.legend(fontsize="small", loc="upper left")
+    fig.tight_layout()
+    return _save(fig, path)
+
+
 def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
     """Write every figure the results allow into ``out``; return the paths written."""
     written = [
@@ -153,6 +195,17 @@ def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
                    "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)", ("cm", "units"),
                    zoom=2.0),
         plot_mismatch(results, out / "compensator_mismatch.png"),
+        _responses(results, {"residual-rotary-nominal-compensated": "PID + compensator",
+                             "residual-rotary-nominal-residual": "PID + compensator + residual"},
+                   out / "residual_rotary_response.png",
+                   "QUBE-Servo 2, 1 rad step, nominal plant: residual policy", ("rad", "V"),
+                   zoom=0.02),
+        _responses(results, {"residual-altino-nominal-compensated": "PID + compensator",
+                             "residual-altino-nominal-residual": "PID + compensator + residual"},
+                   out / "residual_altino_response.png",
+                   "Altino, 30 → 5 cm, nominal plant: residual policy", ("cm", "units"),
+                   zoom=1.0),
+        plot_residual_plants(results, out / "residual_plants.png"),
         plot_friction_curves(out / "friction_curves.png"),
     ]  # fmt: skip
     return [p for p in written if p is not None]
