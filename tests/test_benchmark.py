@@ -202,3 +202,13 @@ def test_residual_options_are_checked(residual_model, tmp_path, capsys):
     assert "(seeds 2000..2001)" in capsys.readouterr().out
     assert main(["benchmark", "--list", "--group", "residual"]) == 2  # no model given
     assert "no scenario matches" in capsys.readouterr().err
+
+
+def test_residual_runs_get_their_figures(residual_model, tmp_path):
+    status = main(["benchmark", "--group", "residual", "--heldout", "3", "--quiet",
+                   "--residual", f"rotary={residual_model}", "--out", str(tmp_path)])  # fmt: skip
+    assert status == 0
+    pngs = {p.name for p in tmp_path.glob("*.png")}
+    assert {"residual_rotary_response.png", "residual_plants.png"} <= pngs
+    assert "residual_altino_response.png" not in pngs  # no Altino model given
+    assert "rotary_response.png" not in pngs  # the paper's group did not run
