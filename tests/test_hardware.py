@@ -75,8 +75,10 @@ def test_other_uris_and_objects():
     [
         ("ftp://host", ValueError, "unknown backend 'ftp://host'"),
         ("serial://", ValueError, "names no port"),
-        ("serial:///dev/x?speed=3", ValueError, r"unknown option\(s\) \['speed'\]"),
-        ("serial:///dev/x?baud=fast", ValueError, "not a number"),
+        ("serial:///dev/x?speed=3", ValueError, r"unknown option\(s\) speed.*accepted: baud"),
+        ("serial:///dev/x?baud=fast", ValueError, "baud must be an integer, got 'fast'"),
+        ("serial:///dev/x?timeout=-1", ValueError, "timeout must be a positive number"),
+        ("emulator://rotary?seed=x", ValueError, "seed must be an integer"),
         ("emulator://segway", ValueError, "unknown device kind"),
         ("emulator://rotary?lockstep=maybe", ValueError, "must be 1 or 0"),
         (3.5, TypeError, "URI string or a Backend"),

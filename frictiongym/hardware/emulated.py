@@ -9,24 +9,16 @@ backend="emulator://")`` is the quickest way to try the hardware path without ha
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from typing import Any
 
 from frictiongym.hardware.base import KINDS, DeviceInfo
 from frictiongym.hardware.serial_backend import SerialBackend
+from frictiongym.hardware.uri import flag, integer, uri_options
 
 #: Watchdog of a lock-step emulator, ms of wall time: its clock only moves when the host sends,
 #: so a pause of the host (a compile, a garbage collection) is not a fault; a vanished host is.
 LOCKSTEP_WATCHDOG_MS = 1000
-_TRUE = ("1", "true", "yes", "on")
-_FALSE = ("0", "false", "no", "off", "")
-
-
-def _flag(key: str, text: str) -> bool:
-    if text.lower() in _TRUE:
-        return True
-    if text.lower() in _FALSE:
-        return False
-    raise ValueError(f"{key}={text!r} in the emulator URI must be 1 or 0")
 
 
 class EmulatedBackend(SerialBackend):
@@ -65,27 +57,14 @@ class EmulatedBackend(SerialBackend):
     @classmethod
     def from_uri(cls, path: str, query: dict[str, str]) -> EmulatedBackend:
         """Build from ``emulator://KIND?lockstep=1&params=PATH&friction=LAW&noise=1&seed=N``."""
-        accepted = ("lockstep", "params", "friction", "noise", "seed", "watchdog_ms")
-        unknown = sorted(set(query) - set(accepted))
-        if unknown:
-            raise ValueError(
-                f"unknown option(s) {unknown} in the emulator URI; accepted: {list(accepted)} "
-                "(e.g. emulator://rotary?lockstep=1)"
-            )
-        settings: dict[str, Any] = {}
-        if "params" in query:
-            settings["params"] = os.fspath(query["params"])
-        if "friction" in query:
-            settings["friction"] = query["friction"]
-        if "noise" in query:
-            settings["sensor_noise"] = _flag("noise", query["noise"])
-        for key in ("seed", "watchdog_ms"):
-            if key in query:
-                try:
-                    settings[key] = int(query[key])
-                except ValueError:
-                    raise ValueError(f"{key}={query[key]!r} must be an integer") from None
-        lockstep = _flag("lockstep", query.get("lockstep", "0"))
+        parsers: dict[str, Callable[[str], Any]] = {
+            "lockstep": flag("lockstep"), "params": os.fspath, "friction": str,
+            "noise": flag("noise"), "seed": integer("seed"), "watchdog_ms": integer("watchdog_ms"),
+        }  # fmt: skip
+        settings = uri_options(query, parsers, f"emulator://{path}")
+        lockstep = settings.pop("lockstep", False)
+        if "noise" in settings:
+            settings["sensor_noise"] = settings.pop("noise")
         return cls(path.strip("/") or "rotary", lockstep=lockstep, **settings)
 
     def _open(self) -> DeviceInfo:

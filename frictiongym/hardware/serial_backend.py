@@ -23,6 +23,7 @@ from frictiongym.hardware.errors import (
     HardwareError,
     ProtocolError,
 )
+from frictiongym.hardware.uri import integer, positive, uri_options
 
 #: Default line rate: the QUBE bridge's (research/hardware.md §3.4: exact on 16 MHz AVRs, room
 #: for 500 Hz frames both ways). Ignored by USB CDC boards, ptys and sockets.
@@ -93,21 +94,8 @@ class SerialBackend(Backend):
     @classmethod
     def from_uri(cls, path: str, query: dict[str, str]) -> SerialBackend:
         """Build from ``serial://PATH?baud=N&timeout=S`` (or a pyserial URL and its query)."""
-        accepted = {"baud": int, "timeout": float}
-        unknown = set(query) - set(accepted)
-        if unknown:
-            raise ValueError(
-                f"unknown option(s) {sorted(unknown)} in the serial backend URI; accepted: "
-                f"{sorted(accepted)} (e.g. serial:///dev/ttyACM0?baud=1000000)"
-            )
-        kwargs: dict[str, Any] = {}
-        for key, kind in accepted.items():
-            if key in query:
-                try:
-                    kwargs[key] = kind(query[key])
-                except ValueError:
-                    raise ValueError(f"{key}={query[key]!r} in the URI is not a number") from None
-        return cls(path, **kwargs)
+        parsers = {"baud": integer("baud"), "timeout": positive("timeout")}
+        return cls(path, **uri_options(query, parsers, f"serial://{path}"))
 
     # -- link -------------------------------------------------------------------------------------
 

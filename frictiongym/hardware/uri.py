@@ -19,6 +19,35 @@ def positive(name: str) -> Callable[[str], float]:
     return parse
 
 
+def integer(name: str) -> Callable[[str], int]:
+    """Parser of an integer option."""
+
+    def parse(text: str) -> int:
+        try:
+            return int(text)
+        except ValueError:
+            raise ValueError(f"{name} must be an integer, got {text!r}") from None
+
+    return parse
+
+
+_TRUE = ("1", "true", "yes", "on")
+_FALSE = ("0", "false", "no", "off", "")
+
+
+def flag(name: str) -> Callable[[str], bool]:
+    """Parser of an on/off option: 1, true, yes, on, or 0, false, no, off, empty."""
+
+    def parse(text: str) -> bool:
+        if text.lower() in _TRUE:
+            return True
+        if text.lower() in _FALSE:
+            return False
+        raise ValueError(f"{name} must be 1 or 0, got {text!r}")
+
+    return parse
+
+
 def uri_options(
     query: Mapping[str, str], parsers: Mapping[str, Callable[[str], Any]], uri: str
 ) -> dict[str, Any]:
