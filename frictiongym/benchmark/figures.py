@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
 from frictiongym.friction import (
     ALTINO_LUGRE,
@@ -144,36 +145,29 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
     One point per plant, log-log, with the diagonal: below it the residual is better. The
     means hide how a stuck body's resting place scatters from plant to plant; this shows it.
     """
-    runs = [r for r in results if r.scenario.group == "residual"]
-    pairs: dict[str, dict[str, dict[int, Result]]] = {}
-    for r in runs:
-        plants = r.scenario.name.split("-")[2]
-        if plants == "heldout":
-            pairs.setdefault(r.scenario.device, {}).setdefault(r.scenario.controller_name, {})[
-                r.seed
-            ] = r
-    devices = [d for d in ("rotary", "altino") if len(pairs.get(d, {})) == 2]
+    heldout = {device: pairs for (device, plants), pairs in residual_pairs(results).items()
+               if plants == "heldout"}  # fmt: skip
+    devices = [d for d in ("rotary", "altino") if d in heldout]
     if not devices:
         return None
     plt = _pyplot()
     fig, axes = plt.subplots(len(devices), 2, figsize=(9, 4.2 * len(devices)), squeeze=False)
     for row, device in enumerate(devices):
-        base, resid = pairs[device]["compensated-pid"], pairs[device]["residual"]
-        seeds = sorted(set(base) & set(resid))
+        pairs = heldout[device]
         unit = "rad" if device == "rotary" else "cm"
         for col, (metric, label) in enumerate(
             (("itae", f"ITAE [{unit}·s²]"), ("steady_state_error", f"SSE [{unit}]"))
         ):
-            x = np.array([getattr(base[s].metrics, metric) for s in seeds])
-            y = np.array([getattr(resid[s].metrics, metric) for s in seeds])
+            x = np.array([getattr(base.metrics, metric) for base, _ in pairs])
+            y = np.array([getattr(resid.metrics, metric) for _, resid in pairs])
+            wins = int(np.sum(y < x))  # before the floor, as in the results table
             floor = max(min(np.min(x[x > 0], initial=1.0), np.min(y[y > 0], initial=1.0)), 1e-9)
             x, y = np.maximum(x, floor), np.maximum(y, floor)
             ax = axes[row, col]
-            wins = int(np.sum(y < x))
             ax.loglog(x, y, "o", ms=4, alpha=0.7, label=f"residual better on {wins}/{len(x)}")
             span = [min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5]
             ax.loglog(span, span, "k--", lw=0.8, label="equal")
-            ax.set(title=f"{device}: {len(seeds)} held-out plants",
+            ax.set(title=f"{device}: {len(pairs)} held-out plants",
                    xlabel=f"compensated PID {label}", ylabel=f"residual {label}")  # fmt: skip
             ax.legend(fontsize="small", loc="upper left")
     fig.tight_layout()

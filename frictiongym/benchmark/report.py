@@ -155,23 +155,37 @@ class Comparison:
     cycles: tuple[int, int]  # runs with a sustained limit cycle: compensated, residual
 
 
-def residual_comparisons(results: Sequence[Result]) -> list[Comparison]:
-    """Pair the ``residual`` group's runs by device, plant set and seed."""
+#: Paired runs of one device and plant set: ``(compensated, residual)`` on the same seed.
+Pairs = list[tuple[Result, Result]]
+
+
+def residual_pairs(results: Sequence[Result]) -> dict[tuple[str, str], Pairs]:
+    """Pair the ``residual`` group's runs: ``(device, plants) -> [(compensated, residual)]``.
+
+    ``plants`` is ``nominal`` or ``heldout``; the pairs share a seed (the same plant), in
+    seed order. A device and plant set without both controllers is left out.
+    """
     runs: dict[tuple[str, str], dict[str, dict[int, Result]]] = {}
     for r in results:
         if r.scenario.group != "residual":
             continue
         _, device, plants, kind = r.scenario.name.split("-", 3)
         runs.setdefault((device, plants), {}).setdefault(kind, {})[r.seed] = r
-    out = []
-    for (device, plants), kinds in runs.items():
+    out: dict[tuple[str, str], Pairs] = {}
+    for key, kinds in runs.items():
         comp, res = kinds.get("compensated", {}), kinds.get("residual", {})
         seeds = sorted(set(comp) & set(res))
-        if not seeds:
-            continue
-        pairs = [(comp[s], res[s]) for s in seeds]
+        if seeds:
+            out[key] = [(comp[s], res[s]) for s in seeds]
+    return out
 
-        def mean(field: str, i: int, pairs: list[tuple[Result, Result]] = pairs) -> float:
+
+def residual_comparisons(results: Sequence[Result]) -> list[Comparison]:
+    """Compare the ``residual`` group's paired runs by device and plant set."""
+    out = []
+    for (device, plants), pairs in residual_pairs(results).items():
+
+        def mean(field: str, i: int, pairs: Pairs = pairs) -> float:
             return sum(getattr(p[i].metrics, field) for p in pairs) / len(pairs)
 
         def both(field: str) -> tuple[float, float]:

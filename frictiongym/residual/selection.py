@@ -16,8 +16,6 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
 from frictiongym.residual.core import ResidualConfig, make_base
 
 #: First seed of the validation plants: below the benchmark's held-out seeds (1000 and up,
@@ -51,6 +49,9 @@ class Score:
 class Validation:
     """Run a residual policy on validation plants and score it against the compensated PID.
 
+    The residual runs on the compensated PID with the paper's gains, the base
+    ``frictiongym train`` trains on.
+
     Parameters
     ----------
     device : str
@@ -62,8 +63,6 @@ class Validation:
         The policy's observation config and bound.
     plants : int
         Randomised validation plants, seeds ``VALIDATION_SEED...``.
-    base_kind : str
-        The base controller (:func:`~frictiongym.residual.core.make_base`).
     """
 
     def __init__(
@@ -72,8 +71,8 @@ class Validation:
         randomize: dict[str, Any],
         config: ResidualConfig,
         plants: int = VALIDATION_PLANTS,
-        base_kind: str = "compensated",
     ) -> None:
+        from frictiongym.benchmark.run import run_scenario
         from frictiongym.benchmark.scenarios import residual_scenarios
 
         key = {"RotaryServo": "rotary", "AltinoDistance": "altino"}[device]
@@ -81,32 +80,24 @@ class Validation:
             key, "(in training)", plants, randomize, first_seed=VALIDATION_SEED
         )
         self.config = config
-        self.base_kind = base_kind
-        #: (plant set, compensated-PID scenario, residual scenario)
-        self.pairs = [
-            (pair[0].name.split("-")[2].replace("heldout", "randomised"), pair[0], pair[1])
-            for pair in zip(scenarios[::2], scenarios[1::2], strict=True)
-        ]
-        self.reference = {name: self._means(base) for name, base, _ in self.pairs}
+        self.candidates = [s for s in scenarios if s.residual is not None]
+        #: The compensated PID's runs, which do not depend on the policy: run once.
+        self.reference = [r for s in scenarios if s.residual is None for r in run_scenario(s)]
 
-    def _means(self, scenario: Any, model: Any = None) -> tuple[dict[str, float], int]:
+    def __call__(self, model: Any) -> Score:
+        """Score ``model`` (anything with SB3's ``predict``) on the base the training used."""
+        from frictiongym.benchmark.report import residual_comparisons
         from frictiongym.benchmark.run import run_scenario
         from frictiongym.controllers.residual import ResidualController
 
-        def build(env: Any) -> Any:
-            return ResidualController(make_base(env, self.base_kind), model, self.config)
+        def build(env: Any) -> ResidualController:
+            return ResidualController(make_base(env), model, self.config)
 
-        results = run_scenario(scenario, build if model is not None else None)
-        means = {m: float(np.mean([getattr(r.metrics, m) for r in results])) for m in METRICS}
-        return means, sum(r.terminated for r in results)
-
-    def __call__(self, model: Any) -> Score:
-        """Score ``model`` (anything with SB3's ``predict``)."""
+        runs = [r for s in self.candidates for r in run_scenario(s, build)]
         ratios, terminated = {}, 0
-        for name, _, scenario in self.pairs:
-            means, stopped = self._means(scenario, model)
-            terminated += stopped
-            base = self.reference[name][0]
-            for metric in METRICS:
-                ratios[f"{name}/{metric}"] = means[metric] / max(base[metric], 1e-12)
+        for c in residual_comparisons(self.reference + runs):
+            name = "randomised" if c.plants == "heldout" else c.plants
+            terminated += c.terminated[1]
+            for metric, (base, residual) in zip(METRICS, (c.itae, c.sse), strict=True):
+                ratios[f"{name}/{metric}"] = residual / max(base, 1e-12)
         return Score(ratios, terminated)
