@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from frictiongym.residual.selection import VALIDATION_PLANTS
-from frictiongym.residual.train import QUICK_STEPS, TrainingError, TrainSettings, train
+from frictiongym.residual.train import QUICK_STEPS, REWARDS, TrainingError, TrainSettings, train
 
 DESCRIPTION = f"""\
 Train a residual policy with Stable-Baselines3 (SAC, TD3 or PPO): the applied command is
@@ -118,7 +118,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--reward",
-        choices=("env", "precision"),
+        choices=REWARDS,
         default="precision",
         help="training reward: precision (default): the env's linear tracking term replaced "
         "by -log(1 + |e| / one sensor step), which weighs the few counts friction leaves "

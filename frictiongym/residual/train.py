@@ -157,9 +157,7 @@ def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
     return kwargs
 
 
-def hyperparameters(
-    algo: str, steps: int, n_envs: int, quick: bool, device: str = "RotaryServo"
-) -> dict[str, Any]:
+def hyperparameters(algo: str, steps: int, n_envs: int, quick: bool, device: str) -> dict[str, Any]:
     """SB3 constructor arguments: the library's defaults except as commented here.
 
     All: the discount :data:`GAMMA` of the device. PPO: rollouts of about 2048 env-steps
