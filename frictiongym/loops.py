@@ -30,6 +30,7 @@ from frictiongym.plants.presets import (
 )
 from frictiongym.plants.sensors import (
     IR_MAX_READOUT,
+    QUBE_ENCODER_STEP,
     FilteredDerivative,
     ir_distance,
     ir_readout,
@@ -75,7 +76,7 @@ def rotary_step(
     gains = gains or PIDGains(**ROTARY_PAPER_GAINS)
     sim = Plant(plant, friction, dt)
     pid = PID(LoopSpec(dt, plant.command_limit), gains)
-    tach = FilteredDerivative(ROTARY_VELOCITY_CUTOFF, dt)
+    tach = FilteredDerivative(ROTARY_VELOCITY_CUTOFF, dt, resolution=QUBE_ENCODER_STEP)
     n = round(duration / dt) + 1
     t = np.arange(n, dtype=np.float64) * dt
     y, measured, command = np.empty(n), np.empty(n), np.empty(n)

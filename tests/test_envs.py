@@ -20,6 +20,7 @@ from frictiongym.friction import ROTARY_PAPER, NoFriction
 from frictiongym.plants import Plant
 from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_DT, ROTARY_PLANT
 from frictiongym.plants.sensors import (
+    QUBE_ENCODER_STEP,
     FilteredDerivative,
     ir_distance,
     ir_readout,
@@ -113,7 +114,7 @@ def test_servo_follows_the_plant_and_its_sensors_exactly():
     env = gym.make(SERVO).unwrapped
     obs, info = env.reset(seed=0)
     plant = Plant(ROTARY_PLANT, ROTARY_PAPER, ROTARY_DT)
-    tach = FilteredDerivative(50.0, ROTARY_DT)
+    tach = FilteredDerivative(50.0, ROTARY_DT, resolution=QUBE_ENCODER_STEP)
     tach.update(quantize_angle(0.0))
     for u in commands(SERVO, 400, seed=3)[:, 0] * 4:
         obs, reward, _, _, info = env.step([u])

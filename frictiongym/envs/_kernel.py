@@ -64,7 +64,8 @@ C_EFFORT_WEIGHT = 6
 C_PENALTY = 7
 C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, cm
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
-CONFIG_SIZE = 10
+C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
+CONFIG_SIZE = 11
 
 # Outputs.
 O_REWARD = 0
@@ -141,7 +142,7 @@ def _env_element(
         if config[C_QUANTIZE] != 0.0:
             measured = encoder_angle(measured, config[C_ENCODER_STEP])
     else:  # IR: the plant moves toward the wall, so the distance is -x
-        position, velocity = -x, -state[i, pk.S_V]
+        position, velocity = 0.0 - x, 0.0 - state[i, pk.S_V]  # not -0.0 at the wall
         if position <= 0.0:  # touching the wall: the nearest reading
             measured = float(IR_MAX_READOUT)
         else:
@@ -187,7 +188,12 @@ def _observe(
         estimated_velocity = 0.0
     else:
         estimated_velocity = derivative_update(
-            state[i, E_VELOCITY], estimate, state[i, E_ESTIMATE], config[C_POLE], dt
+            state[i, E_VELOCITY],
+            estimate,
+            state[i, E_ESTIMATE],
+            config[C_POLE],
+            dt,
+            config[C_VELOCITY_FLOOR],
         )
     if measured_only:
         position, velocity = estimate, estimated_velocity
@@ -212,12 +218,12 @@ def _observe(
             reward -= config[C_PENALTY]
         truncated = 0.0 < config[C_MAX_STEPS] <= state[i, E_STEPS]
 
+    # Adding 0.0 turns a -0.0 (an ideal sensor at -0.0, a reference of -0.0) into 0.0.
     if config[C_SENSOR] == SENSOR_ENCODER:
-        obs[i, 0], obs[i, 1], obs[i, 2] = measured, estimated_velocity, reference
+        obs[i, 0], obs[i, 1], obs[i, 2] = measured + 0.0, estimated_velocity, reference + 0.0
     else:
-        obs[i, 0], obs[i, 1], obs[i, 2], obs[i, 3] = (
-            measured, estimate, estimated_velocity, reference
-        )  # fmt: skip
+        obs[i, 0], obs[i, 1] = measured + 0.0, estimate
+        obs[i, 2], obs[i, 3] = estimated_velocity, reference + 0.0
     out[O_REWARD, i] = reward
     out[O_POSITION, i] = position
     out[O_VELOCITY, i] = velocity

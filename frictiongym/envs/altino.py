@@ -46,6 +46,7 @@ ALTINO_DEVICE = Device(
     # Assumed: at rest the noiseless backward difference is exactly 0, and one IR count at
     # 5 cm per period is 0.52 cm/s; half of it separates the two (docs/controllers.md).
     rest_speed=0.25,
+    end_stop=0.0,  # the wall: the plant's position is minus the distance to it
 )
 
 

@@ -25,7 +25,7 @@ from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
 from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
 from frictiongym.plants.plant import PARALLEL_MIN_PLANTS, PlantParams, default_substeps, plant_row
-from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
+from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -57,6 +57,8 @@ class Device:
     direction: float  #: +1 if a positive command increases ``output``, -1 if it decreases it
     #: speed (plant units) below which a friction compensator treats the body as at rest
     rest_speed: float
+    #: plant position of a rigid end stop (the Altino's wall), whatever plant is simulated
+    end_stop: float = math.inf
 
 
 def _number(name: str, value: object, rule: str = "finite") -> float:
@@ -203,7 +205,11 @@ class Simulation:
             raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
         if delay is None:  # the device's dead time, in whole periods of this dt
             delay = round(nominal.dead_time / self.dt) * self.dt
-        self.plant = replace(nominal, dead_time=_number("delay", delay, ">= 0"))
+        self.plant = replace(
+            nominal,
+            dead_time=_number("delay", delay, ">= 0"),
+            end_stop=min(nominal.end_stop, device.end_stop),
+        )
         self.delay_steps = self.plant.delay_steps(self.dt)
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)
@@ -228,9 +234,12 @@ class Simulation:
         self.config[ek.C_SENSOR] = device.sensor
         self.config[ek.C_QUANTIZE] = float(quantize)
         self.config[ek.C_NOISE] = noise
-        self.config[ek.C_ENCODER_STEP] = 2.0 * math.pi / QUBE_COUNTS_PER_REV
+        self.config[ek.C_ENCODER_STEP] = QUBE_ENCODER_STEP
         cutoff = device.velocity_cutoff
-        self.config[ek.C_POLE] = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
+        pole = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
+        self.config[ek.C_POLE] = pole
+        quantum = QUBE_ENCODER_STEP if device.sensor == ek.SENSOR_ENCODER else ir_quantum()
+        self.config[ek.C_VELOCITY_FLOOR] = velocity_floor(quantum, pole, self.dt)
         self.config[ek.C_ERROR_SCALE] = device.error_scale
         self.config[ek.C_EFFORT_WEIGHT] = (
             device.effort_weight

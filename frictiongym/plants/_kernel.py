@@ -21,6 +21,12 @@ Integrators (research/friction.md §4):
 
 The input is held over the step (ZOH). An optional first-order actuator lag is applied per
 substep by holding the lag output at its exact substep average.
+
+An optional rigid **end stop** (the Altino's wall) bounds the position from above. Contact is
+inelastic: the body stops at the stop (``x`` lands on it exactly, ``v = 0.0``) and stays
+there while the input pushes it on, its friction at the break-away level and the stop taking
+the rest. The exact integrator locates the contact inside the step like any other event; the
+sub-stepped ones by linear interpolation inside the substep, as they locate stops.
 """
 
 from __future__ import annotations
@@ -48,12 +54,13 @@ warnings.filterwarnings(
 )
 
 
-# Plant row: [J, B, u_max, lag] followed by the friction row.
+# Plant row: [J, B, u_max, lag, end stop] followed by the friction row.
 I_J = 0
 I_B = 1
 I_UMAX = 2
 I_LAG = 3
-F0 = 4  #: offset of the friction row inside a plant row
+I_STOP = 4  #: position of the rigid end stop ahead (inf: none)
+F0 = 5  #: offset of the friction row inside a plant row
 ROW_SIZE = F0 + fc.ROW_SIZE
 if fc.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
     raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
@@ -128,6 +135,44 @@ def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> flo
 
 
 @njit(cache=True)
+def affine_time_to_position(
+    x: float, v: float, a: float, b: float, j: float, target: float, t_max: float
+) -> float:
+    """First time in ``[0, t_max]`` at which ``j v' = a - b v`` carries ``x`` up to ``target``.
+
+    The caller guarantees that ``x`` rises monotonically over the interval (``v >= 0`` on it)
+    and reaches ``target`` by ``t_max``. Safeguarded Newton on the closed form; returns the
+    smallest bracketing time found at which ``x >= target``.
+    """
+    if x >= target:
+        return 0.0
+    lo, hi = 0.0, t_max
+    x_end, _ = affine_advance(x, v, a, b, j, t_max)
+    t = t_max * (target - x) / (x_end - x)  # secant guess
+    for _ in range(64):
+        xt, vt = affine_advance(x, v, a, b, j, t)
+        if xt >= target:
+            hi = t
+        else:
+            lo = t
+        if xt == target or hi - lo <= 4e-16 * hi:
+            break
+        t_next = t - (xt - target) / vt if vt > 0.0 else -1.0
+        if not lo < t_next < hi:
+            t_next = 0.5 * (lo + hi)
+        if t_next == t:
+            break
+        t = t_next
+    return hi
+
+
+@njit(cache=True)
+def held_at_stop(x: float, s: float, stop: float) -> bool:
+    """Whether a body at rest at ``x`` that would break away toward ``s`` is held by the stop."""
+    return s > 0.0 and x >= stop
+
+
+@njit(cache=True)
 def breakaway_direction(u: float, p: Row) -> float:
     """Direction a body at rest moves under input ``u``: +1.0, -1.0, or 0.0 if it stays put.
 
@@ -143,7 +188,7 @@ def breakaway_direction(u: float, p: Row) -> float:
 
 @njit(cache=True)
 def exact_static(
-    x: float, v: float, u: float, h: float, j: float, b_total: float, p: Row
+    x: float, v: float, u: float, h: float, j: float, b_total: float, p: Row, stop: float
 ) -> tuple[float, float, float]:
     """Event-exact step of a static law with a ``step`` or ``linear`` decay.
 
@@ -159,6 +204,8 @@ def exact_static(
         Inertia and total viscous damping (plant ``B`` plus the law's viscous slope).
     p : tuple of float
         Packed friction row.
+    stop : float
+        Position of the end stop ahead (``inf``: none).
 
     Returns
     -------
@@ -175,6 +222,10 @@ def exact_static(
             s = breakaway_direction(u, p)
             if s == 0.0:  # held: static friction balances the input exactly
                 impulse += u * t_left
+                t_left = 0.0
+                break
+            if held_at_stop(x, s, stop):  # pressed on the stop: friction at break-away
+                impulse += p[fc.I_US_POS] * t_left
                 t_left = 0.0
                 break
         else:
@@ -220,6 +271,9 @@ def exact_static(
                 dt = t_event
                 x_new, v_new = affine_advance(x, v, a, bb, j, dt)
             v_new = target  # land exactly on the event: 0.0 means stuck-test next
+        if x_new > stop:  # x rises through this phase: the contact comes first
+            dt = affine_time_to_position(x, v, a, bb, j, stop, dt)
+            x_new, v_new = stop, 0.0
         if inner:
             impulse += s * us * dt - k * (x_new - x)
         else:
@@ -238,8 +292,9 @@ def split_static(
     j: float,
     b_total: float,
     p: Row,
+    stop: float,
 ) -> tuple[float, float, float]:
-    """One substep of the split scheme for any static decay shape (research/friction.md §4.4).
+    """One substep of the split scheme for any static decay shape (docs/physics.md).
 
     Returns the new ``x, v`` and the impulse of the nonlinear friction force.
     """
@@ -247,6 +302,8 @@ def split_static(
         s = breakaway_direction(u, p)
         if s == 0.0:
             return x, 0.0, u * h
+        if held_at_stop(x, s, stop):
+            return x, 0.0, p[fc.I_US_POS] * h
     else:
         s = 1.0 if v > 0.0 else -1.0
     f = s * fc.sliding_level(abs(v), s, p)
@@ -321,7 +378,7 @@ def advance(
     n_sub : int
         Substeps.
     plant, friction : tuple of float
-        ``(J, B, u_max, lag)`` and the packed friction row.
+        ``(J, B, u_max, lag, end stop)`` and the packed friction row.
 
     Returns
     -------
@@ -331,6 +388,7 @@ def advance(
     j = plant[I_J]
     b_total = plant[I_B] + friction[fc.I_VISCOUS]
     lag = plant[I_LAG]
+    stop = plant[I_STOP]
     law = friction[fc.I_LAW]
     exact = law == fc.LAW_STATIC and (
         friction[fc.I_SHAPE] == fc.SHAPE_STEP or friction[fc.I_SHAPE] == fc.SHAPE_LINEAR
@@ -350,11 +408,14 @@ def advance(
         if v != 0.0 or breakaway_direction(force, friction) != 0.0:
             held = False
         if exact:
-            x, v, imp = exact_static(x, v, force, hs, j, b_total, friction)
-        elif law == fc.LAW_STATIC:
-            x, v, imp = split_static(x, v, force, hs, j, b_total, friction)
+            x, v, imp = exact_static(x, v, force, hs, j, b_total, friction, stop)
         else:
-            x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
+            if law == fc.LAW_STATIC:
+                x, v, imp = split_static(x, v, force, hs, j, b_total, friction, stop)
+            else:
+                x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
+            if x > stop:  # contact inside the substep (first order, as its stops are)
+                x, v = stop, 0.0
         impulse += imp
     if held:
         return x, v, z, y, u
@@ -386,7 +447,7 @@ def step_plant(
 ) -> None:
     """Saturate, delay and apply the command of plant ``i`` (inlined into every batch loop)."""
     r = 0 if one_row else i
-    plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG])
+    plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG], params[r, I_STOP])
     friction = (
         params[r, F0 + 0], params[r, F0 + 1], params[r, F0 + 2], params[r, F0 + 3],
         params[r, F0 + 4], params[r, F0 + 5], params[r, F0 + 6], params[r, F0 + 7],

@@ -48,6 +48,10 @@ class PlantParams:
         Time constant of a first-order actuator lag, s (0: none).
     dead_time : float, default 0.0
         Transport delay of the command, s; must be a whole number of control periods.
+    end_stop : float, default inf
+        Position of a rigid end stop ahead (position units): the body cannot pass it, and
+        hitting it stops it dead (inelastic contact, located inside the step). ``inf``: none.
+        The Altino env sets it to the wall.
     """
 
     inertia: float
@@ -55,11 +59,16 @@ class PlantParams:
     command_limit: float
     lag: float = 0.0
     dead_time: float = 0.0
+    end_stop: float = math.inf
 
     def __post_init__(self) -> None:
         check_finite(self, "inertia", "damping", "command_limit", "lag", "dead_time")
         check_positive(self, "inertia", "command_limit")
         check_nonnegative(self, "damping", "lag", "dead_time")
+        if not (isinstance(self.end_stop, numbers.Real) and not math.isnan(self.end_stop)):
+            raise ValueError(
+                f"PlantParams.end_stop must be a position or inf (no stop), got {self.end_stop!r}"
+            )
 
     def delay_steps(self, dt: float) -> int:
         """Dead time in whole control periods of length ``dt``; raises if it is not whole."""
@@ -79,6 +88,7 @@ def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     row[k.I_B] = params.damping
     row[k.I_UMAX] = params.command_limit
     row[k.I_LAG] = params.lag
+    row[k.I_STOP] = params.end_stop
     row[k.F0 :] = friction.row()
     return row
 
@@ -235,6 +245,13 @@ class Plant:
         vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), selected.shape[:1])
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset position and velocity must be finite")
+        stops = self.rows[:, k.I_STOP] if self.rows.shape[0] > 1 else self.rows[0, k.I_STOP]
+        beyond = pos > np.broadcast_to(stops, self.state.shape[:1])[idx]
+        if np.any(beyond):
+            raise ValueError(
+                f"reset position {pos[beyond][0]!r} lies beyond the plant's end stop; "
+                "start at or before it"
+            )
         selected[:] = 0.0
         selected[:, k.S_X] = pos
         selected[:, k.S_V] = vel

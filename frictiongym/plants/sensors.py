@@ -20,11 +20,16 @@ FloatArray = npt.NDArray[np.float64]
 #: QUBE-Servo 2 encoder resolution in quadrature, counts per revolution (Quanser datasheet;
 #: the paper's testbed, and gym_brt's ``2*pi/2048``).
 QUBE_COUNTS_PER_REV = 2048
+#: One encoder count, rad.
+QUBE_ENCODER_STEP = 2.0 * math.pi / QUBE_COUNTS_PER_REV
 
 #: Altino IR sensor (paper Eq. (1)): distance d = 966 / (x + 45) cm from the readout x.
 IR_NUMERATOR = 966.0
 IR_OFFSET = 45.0
 IR_MAX_READOUT = 800
+
+#: Relative precision of a float32 observation (its unit roundoff, 2**-24).
+FLOAT32_ROUNDOFF = 2.0**-24
 
 
 @njit(cache=True)
@@ -44,7 +49,9 @@ def ir_count(
     raw = gain * IR_NUMERATOR / distance - IR_OFFSET + offset + noise
     if quantize:
         raw = np.rint(raw)
-    return min(max(raw, 0.0), float(IR_MAX_READOUT))
+    if not raw > 0.0:  # also maps rint's -0.0 (a readout just below 0.5) to 0.0
+        return 0.0
+    return min(raw, float(IR_MAX_READOUT))
 
 
 @njit(cache=True)
@@ -53,12 +60,50 @@ def ir_estimate(readout: float) -> float:
     return IR_NUMERATOR / (readout + IR_OFFSET)
 
 
+def ir_quantum() -> float:
+    """Finest step of the IR distance estimate, cm: one readout count at the nearest reading."""
+    return float(ir_estimate(IR_MAX_READOUT - 1) - ir_estimate(IR_MAX_READOUT))
+
+
+def velocity_floor(quantum: float, pole: float, dt: float) -> float:
+    """Smallest velocity estimate worth reporting; smaller ones are reported as exactly 0.0.
+
+    One sensor step (``quantum``: an encoder count, or the finest IR distance step) within one
+    period moves the estimate by ``(1 - pole) * quantum / dt``, its resolution. After the body
+    stops, the estimate only decays geometrically (``pole**k``) and would shrink through the
+    float32 subnormals to ``-0.0``. Below ``2**-24`` of the resolution, the relative precision
+    of a float32 observation, a remainder is lost beside any new count: it carries no
+    information, so it is zeroed (and never signed).
+
+    Parameters
+    ----------
+    quantum : float
+        Position resolution of the sensor, position units.
+    pole : float
+        Filter pole ``exp(-w dt)`` (0.0: backward difference).
+    dt : float
+        Sample period, s.
+
+    Returns
+    -------
+    float
+        The floor, velocity units.
+    """
+    return (1.0 - pole) * quantum / dt * FLOAT32_ROUNDOFF
+
+
 @njit(cache=True)
 def derivative_update(
-    estimate: float, position: float, previous: float, pole: float, dt: float
+    estimate: float, position: float, previous: float, pole: float, dt: float, floor: float
 ) -> float:
-    """One step of the filtered derivative (see :class:`FilteredDerivative`)."""
-    return pole * estimate + (1.0 - pole) * (position - previous) / dt
+    """One step of the filtered derivative (see :class:`FilteredDerivative`).
+
+    Estimates smaller than ``floor`` in magnitude are exactly ``0.0`` (:func:`velocity_floor`).
+    """
+    rate = pole * estimate + (1.0 - pole) * (position - previous) / dt
+    if abs(rate) < floor or rate == 0.0:  # rate == 0.0 also turns -0.0 into 0.0
+        return 0.0
+    return rate
 
 
 @vectorize([float64(float64, float64)], cache=True)
@@ -76,11 +121,11 @@ def _ir_estimate_ufunc(readout: float) -> float:
     return ir_estimate(readout)
 
 
-@vectorize([float64(float64, float64, float64, float64, float64)], cache=True)
+@vectorize([float64(float64, float64, float64, float64, float64, float64)], cache=True)
 def _derivative_ufunc(
-    estimate: float, position: float, previous: float, pole: float, dt: float
+    estimate: float, position: float, previous: float, pole: float, dt: float, floor: float
 ) -> float:
-    return derivative_update(estimate, position, previous, pole, dt)
+    return derivative_update(estimate, position, previous, pole, dt, floor)
 
 
 def quantize_angle(angle: npt.ArrayLike, counts_per_rev: int = QUBE_COUNTS_PER_REV) -> FloatArray:
@@ -109,27 +154,37 @@ class FilteredDerivative:
 
     The continuous filter is discretised ramp-invariantly (exact when the position moves
     linearly between samples): ``v_k = a v_(k-1) + (1 - a) (y_k - y_(k-1)) / dt`` with
-    ``a = exp(-w dt)``. It is stable for every ``dt`` and has unit gain on a ramp.
+    ``a = exp(-w dt)``. It is stable for every ``dt`` and has unit gain on a ramp. Given the
+    sensor's ``resolution``, estimates below :func:`velocity_floor` are exactly 0.0, as the
+    envs observe them.
 
     Parameters
     ----------
     cutoff : float
-        Filter bandwidth ``w``, rad/s (50 on the QUBE-Servo 2: Quanser's ``50s/(s+50)``,
-        shared/research/hardware.md).
+        Filter bandwidth ``w``, rad/s (50 on the QUBE-Servo 2: the ``50s/(s+50)`` of Quanser's
+        QUBE-Servo 2 tachometer).
     dt : float
         Sample period, s.
     shape : tuple of int, default ()
         Batch shape.
+    resolution : float, default 0.0
+        Position resolution of the sensor (the QUBE's encoder: ``QUBE_ENCODER_STEP``); 0.0
+        keeps every estimate, down to the float64 subnormals.
     """
 
-    def __init__(self, cutoff: float, dt: float, shape: tuple[int, ...] = ()) -> None:
+    def __init__(
+        self, cutoff: float, dt: float, shape: tuple[int, ...] = (), resolution: float = 0.0
+    ) -> None:
         if not (math.isfinite(cutoff) and cutoff > 0.0):
             raise ValueError(f"cutoff must be a positive frequency in rad/s, got {cutoff!r}")
         if not (math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
         self.cutoff = float(cutoff)
         self.dt = float(dt)
+        if not (math.isfinite(resolution) and resolution >= 0.0):
+            raise ValueError(f"resolution must be a finite length >= 0, got {resolution!r}")
         self.pole = math.exp(-self.cutoff * self.dt)
+        self.floor = velocity_floor(resolution, self.pole, self.dt)
         self._previous: FloatArray = np.zeros(shape)
         self._estimate: FloatArray = np.zeros(shape)
 
@@ -146,7 +201,7 @@ class FilteredDerivative:
         """Feed the newest position sample; return the velocity estimate."""
         y = np.asarray(position, dtype=np.float64)
         self._estimate = np.asarray(
-            _derivative_ufunc(self._estimate, y, self._previous, self.pole, self.dt)
+            _derivative_ufunc(self._estimate, y, self._previous, self.pole, self.dt, self.floor)
         )
         self._previous = y.copy()
         return self._estimate
