@@ -9,6 +9,8 @@ trajectories for the same actions.
 
 from __future__ import annotations
 
+import difflib
+import inspect
 from dataclasses import replace
 from typing import Any, ClassVar
 
@@ -33,6 +35,36 @@ ActArray = npt.NDArray[np.float32]
 INFO_KEYS = ("position", "velocity", "command", "reference", "time")
 _OUT_ROWS = (ek.O_POSITION, ek.O_VELOCITY, ek.O_COMMAND, ek.O_REFERENCE, ek.O_TIME)
 _RENDER_FPS = 50
+
+
+#: The task's settings, as the simulation takes them (after ``device`` and ``num_envs``).
+_TASK_ARGUMENTS = tuple(inspect.signature(Simulation).parameters)[2:]
+_VECTOR_ONLY = ("max_episode_steps", "parallel")  #: the single env's TimeLimit, one env
+#: Settings of device runs only (``backend=`` other than ``"sim"``).
+_DEVICE_ARGUMENTS = ("log", "run_metadata")
+_SINGLE_ARGUMENTS = (
+    "render_mode",
+    "backend",
+    *(name for name in _TASK_ARGUMENTS if name not in _VECTOR_ONLY),
+    *_DEVICE_ARGUMENTS,
+)
+_VECTOR_ARGUMENTS = ("num_envs", "render_mode", *_TASK_ARGUMENTS)
+
+
+def _check_arguments(env: object, given: Any, valid: tuple[str, ...]) -> None:
+    """Raise a TypeError naming the env, any unknown keyword and the valid ones."""
+    unknown = sorted(set(given) - set(valid))
+    if not unknown:
+        return
+    hints = []
+    for name in unknown:
+        close = [v for v in valid if name in v] or difflib.get_close_matches(name, valid, n=1)
+        hints.append(f"{name!r}" + (f" (did you mean {close[0]!r}?)" if close else ""))
+    raise TypeError(
+        f"{type(env).__name__} got unknown argument{'s' if len(unknown) > 1 else ''} "
+        f"{', '.join(hints)}; its arguments are {', '.join(sorted(valid))} "
+        f"(help(frictiongym.envs.{type(env).__name__}) explains each)"
+    )
 
 
 def _spaces(device: Device, sim: Simulation) -> tuple[spaces.Space[Any], spaces.Space[Any]]:
@@ -63,13 +95,18 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
                 f"render_mode must be one of {self.metadata['render_modes']} or None, "
                 f"got {render_mode!r}"
             )
+        _check_arguments(self, kwargs, _SINGLE_ARGUMENTS)
         self.render_mode = render_mode
         self._spec: EnvSpec | None = None
         self.sim: Simulation
         if backend is None or backend in SIM:
-            device_only = sorted({"log", "run_metadata"} & set(kwargs))
+            device_only = sorted(set(_DEVICE_ARGUMENTS) & set(kwargs))
             if device_only:
-                raise ValueError(f"{device_only} are settings of device runs (backend=...)")
+                raise ValueError(
+                    f"{' and '.join(device_only)}: settings of device runs; they apply with a "
+                    "device backend (backend='serial://...' or 'emulator://...'), not with the "
+                    "simulator"
+                )
             self.sim = Simulation(self.device, 1, **kwargs)
         else:
             from frictiongym.envs.device import DeviceSession
@@ -86,6 +123,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
         self._window: Any = None
         self._render_every = max(1, round(1.0 / (_RENDER_FPS * self.dt)))
+        self._needs_reset = True
 
     @property
     def spec(self) -> EnvSpec | None:
@@ -118,16 +156,19 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         self.sim.prepare_reset(self._fresh, lambda _: self.np_random, options)
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
         self._fresh[0] = False
+        self._needs_reset = False
         if self.render_mode == "human":
             self.render()
         return self._obs[0].copy(), self._info()
 
     def step(self, action: ActArray) -> tuple[ObsArray, float, bool, bool, dict[str, Any]]:
         """Hold ``action`` (saturated at the command limit) over one control period."""
-        try:
-            self._command[:] = action
-        except (ValueError, TypeError):
-            raise ValueError(f"action must be one number (shape (1,)), got {action!r}") from None
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
+        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+            self._command[0] = action[0]  # the common case, without a conversion
+        else:
+            self._command[0] = _one_number(action)
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
         if self.render_mode == "human" and self.sim.state[0, ek.E_STEPS] % self._render_every == 0:
             self.render()
@@ -172,6 +213,23 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         return state
 
 
+def _one_number(action: object) -> float:
+    """Return the single env's action as a float, or raise a ValueError saying what is wrong."""
+    array = np.asarray(action) if not isinstance(action, str | bytes) else None
+    if array is None or array.dtype.kind not in "fiu":
+        kind = type(action).__name__ if array is None or array.ndim == 0 else array.dtype
+        raise ValueError(
+            f"action must be one number (shape (1,)) in command units, got {action!r} ({kind}); "
+            "e.g. env.step(np.array([0.5]))"
+        )
+    if array.shape != (1,):
+        hint = f" (wrap it: env.step([{action!r}]))" if array.shape == () else ""
+        raise ValueError(
+            f"action must be one number (shape (1,)), got shape {array.shape}: {action!r}{hint}"
+        )
+    return float(array[0])
+
+
 def _frame(sim: Simulation, i: int) -> npt.NDArray[np.uint8]:
     from frictiongym.envs import rendering
 
@@ -208,6 +266,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"the vector env renders 'rgb_array' only, got {render_mode!r}")
         backend = kwargs.pop("backend", "sim")
+        _check_arguments(self, kwargs, _VECTOR_ARGUMENTS)
         if backend is not None and backend not in SIM:
             raise ValueError(
                 f"backend={backend!r}: a device is one env; make it with gym.make (the vector "
@@ -226,8 +285,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         self._seeds: list[int | None] = [None] * self.num_envs
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
         self._done = np.zeros(self.num_envs, dtype=bool)
-        self._all = np.ones(self.num_envs, dtype=bool)
-        self._all.flags.writeable = False
+        self._needs_reset = True
 
     def _rng(self, i: int) -> np.random.Generator:
         """Env ``i``'s generator, created on first use (most tasks draw nothing)."""
@@ -250,8 +308,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             key: out[row] for key, row in zip(INFO_KEYS, _OUT_ROWS, strict=True)
         }
         info["stuck"] = flags[ek.F_STUCK]
-        for key in (*INFO_KEYS, "stuck"):
-            info["_" + key] = self._all
+        for key in (*INFO_KEYS, "stuck"):  # every env reports every key; new masks each call
+            info["_" + key] = np.ones(self.num_envs, dtype=bool)
         return info
 
     def reset(
@@ -260,20 +318,28 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         seed: int | list[int | None] | None = None,
         options: dict[str, Any] | None = None,
     ) -> tuple[ObsArray, dict[str, Any]]:
-        """Reset every env; env ``i`` is seeded ``seed + i`` (or ``seed[i]`` for a list)."""
+        """Reset every env; env ``i`` is seeded ``seed + i`` (or ``seed[i]`` for a list).
+
+        Without a seed (or for a ``None`` entry of the list) an env continues its generator,
+        as :class:`~gymnasium.vector.SyncVectorEnv`'s envs do: a run seeded once is
+        reproducible through later unseeded resets.
+        """
         super().reset(seed=seed if isinstance(seed, int) else None)
-        if seed is None or isinstance(seed, int):
-            self._seeds = [None if seed is None else seed + i for i in range(self.num_envs)]
-        else:
-            if len(seed) != self.num_envs:
-                raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
-            self._seeds = list(seed)
-        self._rngs = [None] * self.num_envs
+        if isinstance(seed, int):
+            seed = [seed + i for i in range(self.num_envs)]
+        elif seed is None:
+            seed = [None] * self.num_envs
+        elif len(seed) != self.num_envs:
+            raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
+        for i, env_seed in enumerate(seed):
+            if env_seed is not None:
+                self._seeds[i], self._rngs[i] = env_seed, None
         fresh = np.ones(self.num_envs, dtype=bool)
         self.sim.prepare_reset(fresh, self._rng, options)
         obs, out, flags = self._outputs()
         self.sim.run(np.zeros(self.num_envs), fresh, obs, out, flags)
         self._done[:] = False
+        self._needs_reset = False
         return obs, self._info(out, flags)
 
     def step(
@@ -281,8 +347,15 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
     ) -> tuple[ObsArray, npt.NDArray[np.float64], npt.NDArray[np.bool_], npt.NDArray[np.bool_],
                dict[str, Any]]:  # fmt: skip
         """Step every env; envs whose episode ended on the last step are reset instead."""
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
         command = np.asarray(actions)
         if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
+            if command.dtype.kind not in "iu":
+                raise ValueError(
+                    f"actions must be numbers in command units, one per env, got dtype "
+                    f"{command.dtype}"
+                )
             command = command.astype(np.float64)
         if command.size != self.num_envs:
             raise ValueError(
