@@ -4,6 +4,7 @@ import math
 import pickle
 import sys
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.error import DependencyNotInstalled
@@ -82,8 +83,57 @@ def test_extreme_distances_draw_part_of_the_car(distance):
 
 
 def test_touching_and_far_clip_to_the_view():
-    assert np.array_equal(draw_altino(-3.0, 5.0), draw_altino(0.0, 5.0))
-    assert np.array_equal(draw_altino(80.0, 5.0), draw_altino(1e9, 5.0))
+    below_captions = slice(50, None)  # the captions print the distance itself
+    assert np.array_equal(draw_altino(-3.0, 5.0)[below_captions], draw_altino(0.0, 5.0)[50:])
+    assert np.array_equal(draw_altino(80.0, 5.0)[below_captions], draw_altino(1e9, 5.0)[50:])
+
+
+def test_captions_print_time_and_command_in_their_corner():
+    a = draw_servo(0.5, 1.0, time=1.0, command=0.2)
+    b = draw_servo(0.5, 1.0, time=2.0, command=0.2)
+    rows, cols = np.nonzero(np.any(a != b, axis=2))
+    assert rows.size
+    assert rows.max() < 40
+    assert cols.max() < 200
+    c = draw_servo(0.5, 1.0, time=1.0, command=-0.2)
+    rows, cols = np.nonzero(np.any(a != c, axis=2))
+    assert rows.min() > 360
+    assert cols.min() > 200
+    plain = draw_servo(0.5, 1.0)
+    assert np.any(a != plain)  # no time and command: no captions for them
+    car = draw_altino(10.0, 5.0, time=0.5, command=300.0)
+    assert np.any(car != draw_altino(10.0, 5.0, time=0.5, command=-300.0))
+
+
+def test_env_frames_carry_their_captions():
+    env = gym.make("frictiongym/AltinoDistance-v0", render_mode="rgb_array")
+    env.reset(seed=0)
+    first = env.render()
+    env.step(np.array([0.0], np.float32))
+    assert np.any(first[:50] != env.render()[:50])  # the time moved on, nothing else did
+
+
+def test_window_without_a_display_warns_once_and_skips_pacing(monkeypatch):
+    pytest.importorskip("pygame")
+    monkeypatch.delenv("SDL_VIDEODRIVER", raising=False)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    window = Window("servo", fps=1.0)  # paced, this would take a second per frame
+    try:
+        with pytest.warns(UserWarning, match="no display is available"):
+            window.show(draw_servo(0.0, 0.0, size=32))
+        assert not window.shown
+        ticks = []
+
+        class Clock:
+            def tick(self, fps: float) -> None:
+                ticks.append(fps)
+
+        window._clock = Clock()
+        window.show(draw_servo(0.0, 0.0, size=32))
+        assert ticks == []  # not paced
+    finally:
+        window.close()
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])

@@ -189,6 +189,8 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
                 "render_mode='rgb_array'))"
             )
             return None
+        if self._window is not None and not self._window.shown:
+            return None  # no display (the window warned once): skip drawing unseen frames
         frame = _frame(self.sim, 0)
         if self.render_mode == "rgb_array":
             return frame
@@ -239,9 +241,11 @@ def _frame(sim: Simulation, i: int) -> npt.NDArray[np.uint8]:
         x = estimate if sim.device.sensor == ek.SENSOR_ENCODER else -estimate
     reference = float(sim.state[i, ek.E_REFERENCE])
     stuck = bool(sim.state[i, pk.S_STUCK] != 0.0)
+    time = float(sim.state[i, ek.E_STEPS]) * sim.dt
+    command = float(sim.state[i, pk.S_COMMAND])
     if sim.device.sensor == ek.SENSOR_ENCODER:
-        return rendering.draw_servo(x, reference, stuck=stuck)
-    return rendering.draw_altino(-x, reference, stuck=stuck)
+        return rendering.draw_servo(x, reference, stuck=stuck, time=time, command=command)
+    return rendering.draw_altino(0.0 - x, reference, stuck=stuck, time=time, command=command)
 
 
 class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):

@@ -3,8 +3,10 @@
 Frames need numpy alone: each shape is a signed-distance field (in pixels, negative inside)
 evaluated on a cached pixel grid, turned into anti-aliased coverage ``clip(0.5 - sdf, 0, 1)`` and
 alpha-blended in painter's order onto a white background. Each shape is evaluated only inside its
-bounding box, which keeps a default-size frame at a few milliseconds. Only :class:`Window`
-(``render_mode="human"``) needs pygame, and imports it on first use.
+bounding box, which keeps a default-size frame at a few milliseconds. Captions (time, position,
+reference, command) use a 5x7 bitmap font (:mod:`frictiongym.envs._font`) and a scale is drawn
+on each frame: ticks every 30 degrees around the servo's disk, a ruler in cm under the car.
+Only :class:`Window` (``render_mode="human"``) needs pygame, and imports it on first use.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ import functools
 import importlib
 import math
 import os
+import warnings
 from collections.abc import Callable
 from types import ModuleType
 from typing import Any
@@ -20,6 +23,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 from gymnasium.error import DependencyNotInstalled
+
+from frictiongym.envs._font import GLYPH_HEIGHT, text_mask
 
 __all__ = ["CAR_LENGTH_CM", "Window", "draw_altino", "draw_servo"]
 
@@ -125,6 +130,24 @@ def _line(
     _paint(canvas, box, colour, lambda y, x: _segment_sdf(y, x, a, b, r, dash), alpha)
 
 
+def _text(canvas: _F, x: float, y: float, text: str, scale: int, align: str = "left") -> None:
+    """Write ``text`` in :data:`INK` with its top-left (``align="left"``) or top-right at x, y."""
+    mask = text_mask(text, scale)
+    h, w = canvas.shape[:2]
+    x0 = round(x - mask.shape[1] if align == "right" else x)
+    y0 = round(y)
+    r0, c0 = max(y0, 0), max(x0, 0)
+    r1, c1 = min(y0 + mask.shape[0], h), min(x0 + mask.shape[1], w)
+    if r0 < r1 and c0 < c1:
+        region = canvas[r0:r1, c0:c1]
+        region[mask[r0 - y0 : r1 - y0, c0 - x0 : c1 - x0]] = INK
+
+
+def _scale_of(pixels: float) -> int:
+    """Integer size of the captions' pixels: one per ``pixels`` of the frame, at least 1."""
+    return max(1, int(pixels))
+
+
 def _new_canvas(height: int, width: int) -> _F:
     return np.broadcast_to(np.asarray(BACKGROUND, np.float32), (height, width, 3)).copy()
 
@@ -143,9 +166,17 @@ def _check(sizes: dict[str, int], **values: float) -> None:
 
 
 def draw_servo(
-    angle: float, reference: float, *, stuck: bool = False, size: int = 400
+    angle: float,
+    reference: float,
+    *,
+    stuck: bool = False,
+    size: int = 400,
+    time: float | None = None,
+    command: float | None = None,
 ) -> npt.NDArray[np.uint8]:
-    """Draw the QUBE-Servo 2 seen from above.
+    """Draw the QUBE-Servo 2 seen from above, with ticks every 30 degrees around the disk.
+
+    Captions give the angle and the reference, and the time and command when given.
 
     Parameters
     ----------
@@ -157,6 +188,10 @@ def draw_servo(
         Whether the disk is stuck in stiction; the rim turns red.
     size : int
         Side of the square frame in pixels.
+    time : float, optional
+        Time since the episode's start, s.
+    command : float, optional
+        Applied command, V.
 
     Returns
     -------
@@ -182,6 +217,14 @@ def draw_servo(
     apex, (bx, by) = polar(reference, radius + rim), polar(reference, radius + rim + 0.075 * s)
     ux, uy = math.cos(reference) * half, -math.sin(reference) * half  # tangent to the rim
     _triangle(canvas, apex, (bx + ux, by + uy), (bx - ux, by - uy), TARGET)
+    scale = _scale_of(s / 200.0)  # 2 on the default 400-pixel frame
+    pad, bottom = 0.05 * s, s - 0.05 * s - GLYPH_HEIGHT * scale
+    _text(canvas, pad, bottom, f"angle {angle:+.3f} rad", scale)
+    _text(canvas, s - pad, pad, f"ref {reference:+.3f} rad", scale, "right")
+    if time is not None:
+        _text(canvas, pad, pad, f"t {time:.3f} s", scale)
+    if command is not None:
+        _text(canvas, s - pad, bottom, f"u {command:+.2f} V", scale, "right")
     return _to_frame(canvas)
 
 
@@ -195,6 +238,13 @@ def _servo_base(size: int, stuck: bool) -> _F:
     disk = (c - radius - rim, c - radius - rim, c + radius + rim, c + radius + rim)
     ring: _Sdf = lambda y, x: np.abs(_circle_sdf(y, x, c, c, radius)) - np.float32(rim / 2)  # noqa: E731
     _paint(canvas, disk, STUCK if stuck else INK, ring)
+    for k in range(12):  # the scale: a tick every 30 degrees, longer every 90
+        theta = k * math.pi / 6.0
+        inner = radius + rim + 0.01 * s
+        outer = inner + (0.04 if k % 3 == 0 else 0.022) * s
+        a = (c - inner * math.sin(theta), c - inner * math.cos(theta))
+        b = (c - outer * math.sin(theta), c - outer * math.cos(theta))
+        _line(canvas, a, b, 0.004 * s, INK)
     canvas.flags.writeable = False
     return canvas
 
@@ -207,8 +257,13 @@ def draw_altino(
     view_cm: float = 35.0,
     width: int = 600,
     height: int = 200,
+    time: float | None = None,
+    command: float | None = None,
 ) -> npt.NDArray[np.uint8]:
     """Draw the Altino car seen from the side, driving at a wall on the right.
+
+    A ruler under the ground gives the distance to the wall in cm; captions give the distance
+    and the target, and the time and command when given.
 
     Parameters
     ----------
@@ -225,6 +280,10 @@ def draw_altino(
         :data:`CAR_LENGTH_CM` long at this scale.
     width, height : int
         Frame size in pixels.
+    time : float, optional
+        Time since the episode's start, s.
+    command : float, optional
+        Applied command, motor units.
 
     Returns
     -------
@@ -244,7 +303,10 @@ def draw_altino(
     )
     if view_cm <= 0:
         raise ValueError(f"view_cm must be > 0, got {view_cm!r}")
-    canvas, (wall_x, ground, line) = _altino_base(width, height).copy(), _layout(width, height)
+    canvas, (wall_x, ground, line) = (
+        _altino_base(width, height, view_cm).copy(),
+        _layout(width, height),
+    )
     cm, h = wall_x / view_cm, float(height)  # pixels per cm
     xt, top = wall_x - target_cm * cm, 0.12 * h
     if xt <= wall_x:  # a target behind the wall face is hidden
@@ -268,6 +330,15 @@ def draw_altino(
     if distance_cm > view_cm - 0.4 * CAR_LENGTH_CM:  # held at the edge: point off-screen
         ym, hw, x0 = (body[1] + body[3]) / 2, 0.35 * (body[3] - body[1]), 0.4 * cm
         _triangle(canvas, (x0, ym), (x0 + 1.5 * hw, ym - hw), (x0 + 1.5 * hw, ym + hw), INDICATOR)
+    scale = _scale_of(h / 100.0)  # 2 on the default 200-pixel-tall frame
+    pad, step = 0.03 * h, (GLYPH_HEIGHT + 3) * scale
+    first = f"dist {distance_cm:.2f} cm  target {target_cm:.2f} cm"
+    _text(canvas, pad, pad, first, scale)
+    second = [] if time is None else [f"t {time:.2f} s"]
+    if command is not None:
+        second.append(f"u {command:+.0f}")
+    if second:
+        _text(canvas, pad, pad + step, "  ".join(second), scale)
     return _to_frame(canvas)
 
 
@@ -277,8 +348,8 @@ def _layout(width: int, height: int) -> tuple[float, float, float]:
 
 
 @functools.lru_cache(maxsize=8)
-def _altino_base(width: int, height: int) -> _F:
-    """Draw what never moves: the ground and the hatched wall."""
+def _altino_base(width: int, height: int, view_cm: float) -> _F:
+    """Draw what never moves: the ground, its ruler in cm and the hatched wall."""
     canvas, (wall_x, ground, line) = _new_canvas(height, width), _layout(width, height)
     w, h = float(width), float(height)
     _box(canvas, (-9, ground, w + 9, h + 9), PANEL)
@@ -290,6 +361,14 @@ def _altino_base(width: int, height: int) -> _F:
     _box(canvas, wall, PANEL)
     _paint(canvas, wall, INK, hatch)
     _box(canvas, (wall_x - line, -9, wall_x + line, h + 9), INK)
+    cm, scale = wall_x / view_cm, _scale_of(h / 100.0)
+    every = 5.0 if view_cm <= 60.0 else 10.0 ** math.floor(math.log10(view_cm / 6.0))
+    for k in range(int(view_cm / every) + 1):  # the ruler: distance to the wall, cm
+        x = wall_x - k * every * cm
+        _line(canvas, (x, ground + line), (x, ground + 0.06 * h), 0.5 * line, INK)
+        label = f"{k * every:g}" + (" cm" if k == 1 else "")
+        width_px = 6 * scale * len(f"{k * every:g}")  # centre the number on its tick
+        _text(canvas, x - width_px / 2, ground + 0.08 * h, label, scale)
     canvas.flags.writeable = False
     return canvas
 
@@ -306,6 +385,13 @@ class Window:
         Window caption.
     fps : float
         Frames per second that :meth:`show` paces to; ``<= 0`` disables pacing.
+
+    Notes
+    -----
+    Without a display (no ``$DISPLAY`` on Linux, e.g. a server or CI), SDL falls back to an
+    off-screen driver: the window then warns once that nothing is shown and stops pacing, so a
+    headless run is not slowed down for frames nobody sees. Setting ``SDL_VIDEODRIVER``
+    yourself (``dummy`` in tests) keeps it quiet and paced.
     """
 
     def __init__(self, title: str, fps: float) -> None:
@@ -314,9 +400,15 @@ class Window:
         self._pygame: ModuleType | None = None
         self._screen: Any = None
         self._clock: Any = None
+        self._shown = True
 
     def __getstate__(self) -> dict[str, Any]:
         return {**self.__dict__, "_pygame": None, "_screen": None, "_clock": None}
+
+    @property
+    def shown(self) -> bool:
+        """False once :meth:`show` found no display to show frames on (see Notes)."""
+        return self._shown
 
     def show(self, frame: npt.NDArray[np.uint8]) -> None:
         """Show ``frame`` (``(height, width, 3)`` uint8), opening the window if needed.
@@ -339,11 +431,21 @@ class Window:
             pygame.display.set_caption(self.title)
             self._screen = pygame.display.set_mode(size)
             self._clock = pygame.time.Clock()
+            headless = pygame.display.get_driver() in ("offscreen", "dummy")
+            if headless and "SDL_VIDEODRIVER" not in os.environ and self._shown:
+                warnings.warn(
+                    f"render_mode='human' ({self.title}): no display is available (SDL "
+                    f"driver {pygame.display.get_driver()!r}), so frames are not shown and "
+                    "steps are not paced; use render_mode='rgb_array' to record frames",
+                    UserWarning,
+                    stacklevel=3,
+                )
+                self._shown = False
         surface = pygame.surfarray.make_surface(np.ascontiguousarray(frame.transpose(1, 0, 2)))
         self._screen.blit(surface, (0, 0))
         pygame.event.pump()  # keeps the OS from flagging the window as unresponsive
         pygame.display.flip()
-        if self.fps > 0:
+        if self.fps > 0 and self._shown:
             self._clock.tick(self.fps)
 
     def close(self) -> None:
