@@ -8,9 +8,11 @@ import os
 import shlex
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 from frictiongym import __version__
+from frictiongym._io import OutputError, check_file_target, write_file_atomic
 
 
 def _format(value: float, unit: str) -> str:
@@ -19,7 +21,44 @@ def _format(value: float, unit: str) -> str:
     return f"{value:.3f} {unit}".rstrip()
 
 
+def _number(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return math.nan  # refused with the option's own message
+
+
+def _positive_seconds(text: str) -> float:
+    value = _number(text)
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"must be a positive number of seconds, got {text}")
+    return value
+
+
+def _nonzero_angle(text: str) -> float:
+    value = _number(text)
+    if not (math.isfinite(value) and value):
+        raise argparse.ArgumentTypeError(f"must be a nonzero finite angle in rad, got {text}")
+    return value
+
+
+def _check_plot(path: Path) -> str:
+    """Check ``--plot PATH`` before the simulation; return its image format."""
+    check_file_target(path, "--plot")
+    image_format = path.suffix[1:].lower() or "png"
+    try:
+        from matplotlib.backend_bases import FigureCanvasBase
+    except ImportError:  # said after the metrics, which are complete without it
+        return image_format
+    formats = FigureCanvasBase.get_supported_filetypes()
+    if image_format not in formats:
+        raise OutputError(f"--plot {path}: matplotlib cannot write .{image_format} files; "
+                          f"end the name with one of .{', .'.join(sorted(formats))}")  # fmt: skip
+    return image_format
+
+
 def _demo(args: argparse.Namespace) -> int:
+    image_format = None if args.plot is None else _check_plot(args.plot)
     from frictiongym.controllers.pid import PIDGains
     from frictiongym.friction import FrictionModel, NoFriction, friction_from_name
     from frictiongym.friction.presets import ROTARY_LUGRE, ROTARY_PAPER
@@ -87,7 +126,7 @@ def _demo(args: argparse.Namespace) -> int:
         ax_err.set(xlabel="time [s]", ylabel="error [% of step]", ylim=(-4.0, 4.0))
         ax_err.legend(loc="upper right", fontsize="small")
         fig.tight_layout()
-        fig.savefig(args.plot, dpi=120)
+        write_file_atomic(args.plot, lambda tmp: fig.savefig(tmp, format=image_format, dpi=120))
         print(f"figure written to {args.plot}")
     return 0
 
@@ -122,6 +161,32 @@ def tool_main(name: str, argv: Sequence[str] | None = None) -> int:
     The ``scripts/`` wrappers and each command module's ``main`` call this.
     """
     return main([name, *(sys.argv[1:] if argv is None else argv)])
+
+
+def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents: str) -> None:
+    """Add ``--out DIR`` and ``--overwrite``, the output options every tool shares.
+
+    ``contents`` says what the tool writes there, e.g. ``"results.json and the figures"``.
+    """
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(default),
+        metavar="DIR",
+        help=f"directory for {contents}, created if needed (default: ./{default})",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of an earlier run in --out, all of them (without it, an "
+        "--out holding them is refused, so two runs' files never mix); other files stay",
+    )
+
+
+def check_seed(value: int, option: str = "--seed") -> None:
+    """Raise ``ValueError`` unless ``value`` can seed numpy and gymnasium (a whole number >= 0)."""
+    if value < 0:
+        raise ValueError(f"{option} must be a whole number >= 0, got {value}")
 
 
 #: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).
@@ -176,10 +241,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="friction law added to the nominal plant (default: paper)",
     )
     demo.add_argument(
-        "--reference", type=float, default=1.0, help="step size in rad (default: 1.0)"
+        "--reference", type=_nonzero_angle, default=1.0, help="step size in rad (default: 1.0)"
     )
     demo.add_argument(
-        "--duration", type=float, default=5.0, help="simulated time in s (default: 5.0)"
+        "--duration",
+        type=_positive_seconds,
+        default=5.0,
+        help="simulated time in s (default: 5.0)",
     )
     demo.add_argument(
         "--no-encoder",
@@ -187,7 +255,13 @@ def build_parser() -> argparse.ArgumentParser:
         action="store_false",
         help="feed the PID the true angle instead of 2048-count encoder readings",
     )
-    demo.add_argument("--plot", metavar="PNG", help="also write the responses to this PNG file")
+    demo.add_argument(
+        "--plot",
+        type=Path,
+        metavar="PNG",
+        help="also write the responses to this PNG file (its folder must exist; an existing "
+        "file is replaced)",
+    )
     demo.set_defaults(func=_demo)
 
     for name, (_, summary) in TOOLS.items():
@@ -204,21 +278,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the command line; return the exit status."""
-    parser = build_parser()
+    """Run the command line; return the exit status.
+
+    A Ctrl-C ends a command with one line on stderr and status 130; the command's own
+    cleanup (``frictiongym._io.OutputDir``) has by then removed its partial outputs.
+    """
     words = list(sys.argv[1:] if argv is None else argv)
-    args = parser.parse_args(words)
-    args.command_line = shlex.join(["frictiongym", *words])
-    if args.command is None:
-        parser.print_help()
-        return 0
-    if args.command == "demo":
-        if not (math.isfinite(args.duration) and args.duration > 0):
-            parser.error(f"--duration must be a positive number of seconds, got {args.duration}")
-        if not (math.isfinite(args.reference) and args.reference):
-            parser.error(f"--reference must be a nonzero finite angle in rad, got {args.reference}")
+    prog = "frictiongym"
     try:
+        parser = build_parser()
+        args = parser.parse_args(words)
+        args.command_line = shlex.join(["frictiongym", *words])
+        if args.command is None:
+            parser.print_help()
+            return 0
+        prog = f"frictiongym {args.command}"
         status: int = args.func(args)
+    except KeyboardInterrupt as interrupt:
+        detail = f"; {interrupt}" if interrupt.args else ""
+        print(f"{prog}: interrupted{detail}", file=sys.stderr, flush=True)
+        return 130
+    except OutputError as error:  # an --out or --plot that cannot be written, found up front
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     except BrokenPipeError:  # output piped into e.g. `head`, which closed early: not an error
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())  # keep Python's exit flush from failing again

@@ -6,6 +6,7 @@ import math
 
 import pytest
 
+from frictiongym.benchmark.command import OUTPUTS
 from frictiongym.benchmark.scenarios import all_scenarios
 from frictiongym.cli import main
 
@@ -43,7 +44,8 @@ def test_quick_run_writes_every_file(quick):
     out, records, _ = quick
     for name in ("results.json", "results.csv", "results.md", *FIGURES):
         assert (out / name).stat().st_size > 500, name
-    assert not list(out.glob(".*tmp*"))  # no temporary file left behind
+    assert not list(out.glob(".*"))  # no temporary file or staging folder left behind
+    assert {p.name for p in out.iterdir()} <= set(OUTPUTS)  # --overwrite replaces them all
     with (out / "results.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert [r["scenario"] for r in rows] == [r["scenario"] for r in records]
@@ -210,5 +212,6 @@ def test_residual_runs_get_their_figures(residual_model, tmp_path):
     assert status == 0
     pngs = {p.name for p in tmp_path.glob("*.png")}
     assert {"residual_rotary_response.png", "residual_plants.png"} <= pngs
+    assert pngs <= set(OUTPUTS)  # a rerun with --overwrite replaces them all
     assert "residual_altino_response.png" not in pngs  # no Altino model given
     assert "rotary_response.png" not in pngs  # the paper's group did not run

@@ -25,7 +25,9 @@ def test_bad_arguments_exit_with_a_message(capsys):
     with pytest.raises(SystemExit) as info:
         main(["demo", "--duration", "-1"])
     assert info.value.code == 2
-    assert "--duration must be a positive number" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.startswith("usage: frictiongym demo")  # the demo's usage, not the top level's
+    assert "argument --duration: must be a positive number" in err
     with pytest.raises(SystemExit):
         main(["demo", "--friction", "sandpaper"])
     assert "invalid choice" in capsys.readouterr().err

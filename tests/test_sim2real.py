@@ -77,8 +77,11 @@ def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     assert (out / "report.md").exists()
     (log,) = (out / "device-logs").iterdir()
     assert (log / "steps.csv").exists()
-    assert main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-                 "--repeats", "1", "--steps", "10", "--out", str(out), "--quiet"]) == 0  # fmt: skip
+    rerun = ["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+             "--repeats", "1", "--steps", "10", "--out", str(out), "--quiet"]  # fmt: skip
+    assert main(rerun) == 2  # the earlier report is not replaced without --overwrite
+    assert "give --overwrite" in capsys.readouterr().err
+    assert main([*rerun, "--overwrite"]) == 0
     assert len(list((out / "device-logs").iterdir())) == 2  # a rerun keeps the first log
     file = tmp_path / "a-file"
     file.write_text("x")

@@ -314,7 +314,7 @@ def test_cli_rejects_a_file_as_out_and_bad_params_files(tmp_path, capsys):
     file = tmp_path / "taken"
     file.write_text("x")
     assert command.main(["--out", str(file), "--quiet"]) == 2
-    assert "is not a directory" in capsys.readouterr().err
+    assert "is a file, not a directory" in capsys.readouterr().err
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
     assert command.main(["--params", str(bad), "--out", str(tmp_path / "o")]) == 2

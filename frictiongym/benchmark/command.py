@@ -8,8 +8,8 @@ import fnmatch
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 
+from frictiongym._io import OutputDir
 from frictiongym.benchmark.figures import write_figures
 from frictiongym.benchmark.report import (
     format_metric,
@@ -32,7 +32,9 @@ DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
 the robustness grids around them on the simulated QUBE-Servo 2 and Altino, then write
 results.json (one record per run), results.csv, results.md (tables and the paper check) and
-PNG figures into --out.
+PNG figures into --out. An --out holding an earlier run's results is refused unless
+--overwrite replaces them (all of them: no figure of the earlier run stays beside the new
+results); an error or a Ctrl-C leaves --out as it was.
 
 Groups: paper (the named scenarios: paper-rotary-pid, paper-rotary-compensated,
 paper-altino-pid-ki10, paper-altino-pid-ki20, paper-altino-compensated, and the servo PID on
@@ -50,16 +52,26 @@ It needs Stable-Baselines3 and torch.
 """
 
 
+#: What a run may write into --out: the results and every figure (write_figures).
+OUTPUTS = (
+    "results.json",
+    "results.csv",
+    "results.md",
+    "rotary_response.png",
+    "altino_response.png",
+    "compensator_mismatch.png",
+    "residual_rotary_response.png",
+    "residual_altino_response.png",
+    "residual_plants.png",
+    "friction_curves.png",
+)
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the benchmark's options to ``parser``."""
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("benchmark-results"),
-        metavar="DIR",
-        help="directory for results.json/.csv/.md and the figures, created if needed "
-        "(default: ./benchmark-results)",
-    )
+    from frictiongym.cli import add_output_arguments
+
+    add_output_arguments(parser, "benchmark-results", "results.json/.csv/.md and the figures")
     parser.add_argument(
         "--quick",
         action="store_true",
@@ -141,6 +153,7 @@ def select(args: argparse.Namespace) -> list[Scenario]:
 
 def _residual(args: argparse.Namespace) -> list[Scenario]:
     """Return the residual scenarios of ``--residual DEVICE=MODEL`` (ValueError if malformed)."""
+    from frictiongym.cli import check_seed
     from frictiongym.controllers.residual import read_metadata
 
     plants = args.heldout if args.heldout is not None else (4 if args.quick else HELDOUT_PLANTS)
@@ -163,6 +176,7 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
                              f"{meta['config']['device']}, not for {device}")  # fmt: skip
         randomize = meta.get("env_kwargs", {}).get("randomize")
         seed = getattr(args, "heldout_seed", HELDOUT_SEED)
+        check_seed(seed, "--heldout-seed")
         out += residual_scenarios(device, path, plants, randomize, seed)
     return out
 
@@ -197,17 +211,15 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
             seeds = f" (seeds {s.seeds[0]}..{s.seeds[-1]})" if len(s.seeds) > 1 else ""
             print(f"{s.name:<36} {s.group:<9} {s.description}{seeds}")
         return 0
-    if args.out.exists() and not args.out.is_dir():
-        print(f"error: --out {args.out} exists and is not a directory", file=sys.stderr)
-        return 2
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
     start = time.perf_counter()
-    with tqdm(total=len(scenarios), desc="benchmark", unit="scenario", disable=args.quiet,
-              file=sys.stderr) as bar:  # fmt: skip
-        results = run_benchmark(scenarios, progress=lambda s: bar.update())
-    written = write_reports(results, args.out, command,
-                            None if args.no_figures else write_figures)  # fmt: skip
+    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
+        with tqdm(total=len(scenarios), desc="benchmark", unit="scenario",
+                  disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
+            results = run_benchmark(scenarios, progress=lambda s: bar.update())
+        write_reports(results, out.path, command, None if args.no_figures else write_figures)
+        written = out.commit()
     if not args.quiet:
         _summary(results)
         print(f"\n{len(results)} runs of {len(scenarios)} scenarios in "

@@ -117,6 +117,7 @@ def _status_line(emu: Any) -> str:
 
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
+    from frictiongym.cli import check_seed
     from frictiongym.hardware.emulator import Emulator, Faults
 
     if args.run_for is not None and not (math.isfinite(args.run_for) and args.run_for > 0):
@@ -124,6 +125,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
               file=sys.stderr)  # fmt: skip
         return 2
     try:
+        check_seed(args.seed)
         faults = Faults(
             drop=args.drop, corrupt=args.corrupt, delay=args.delay, jitter=args.jitter,
             unplug_after=args.unplug_after, freeze_after=args.freeze_after,

@@ -6,9 +6,9 @@ import argparse
 import math
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
+from frictiongym._io import OutputDir
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.fit import LAWS
@@ -27,11 +27,16 @@ Writes to --out:
   friction_map.png  the measured map with the fitted laws and residuals (paper Fig. 8)
   summary.md      the table printed at the end
 
+An --out holding an earlier run's results is refused unless --overwrite replaces them (all
+three; other files there stay); an error or a Ctrl-C leaves --out as it was.
+
 On the simulator the table also shows the simulated truth. Every experiment runs through
 the env's observations only, so a device backend (--backend) runs the same procedure.
 """
 
 UNITS = {"RotaryServo": ("rad/s", "V"), "AltinoDistance": ("cm/s", "motor units")}
+#: What a run may write into --out.
+OUTPUTS = ("friction.json", "friction_map.png", "summary.md")
 KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous", "J", "B")
 
 
@@ -42,11 +47,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="env id of the device, e.g. frictiongym/RotaryServo-v0 or "
         "frictiongym/AltinoDistance-v0",
     )  # fmt: skip
-    parser.add_argument(
-        "--out", default="identify-results", metavar="DIR",
-        help="directory for friction.json, friction_map.png and summary.md "
-        "(default: ./identify-results)",
-    )  # fmt: skip
+    from frictiongym.cli import add_output_arguments
+
+    add_output_arguments(parser, "identify-results", "friction.json, friction_map.png and "
+                         "summary.md")  # fmt: skip
     parser.add_argument(
         "--backend", default="sim", metavar="URI",
         help="where the env runs: sim (default) or a device backend URI",
@@ -119,10 +123,8 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
 
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        print(f"error: --out {out} is a file; give a directory", file=sys.stderr)
-        return 2
+    from frictiongym.cli import check_seed
+
     sim = args.backend in ("sim", "sim://")
     kwargs: dict[str, Any] = {"backend": args.backend}
     if sim:
@@ -131,7 +133,30 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         print("error: --noise and --friction apply to the simulator only", file=sys.stderr)
         return 2
     try:
+        check_seed(args.seed)
         plan = plan_for(args.env)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:  # before the device
+        status = _identify(args, plan, kwargs, sim, command_line, out)
+        if status == 0:
+            written = out.commit()
+    if status == 0:
+        print(f"wrote {', '.join(str(p) for p in written)}")
+    return status
+
+
+def _identify(
+    args: argparse.Namespace,
+    plan: Any,
+    kwargs: dict[str, Any],
+    sim: bool,
+    command_line: str,
+    out: OutputDir,
+) -> int:
+    """Open the env, identify and write the outputs into ``out.path``; return the status."""
+    try:
         env = make_env(args.env, plan, **kwargs)
     except (ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -161,22 +186,21 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         if bar is not None:
             bar.close()
         env.close()
-    from frictiongym.params import save_params
-
-    out.mkdir(parents=True, exist_ok=True)
-    params = result.params(args.law)
-    metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
     from dataclasses import replace
 
-    path = save_params(out / "friction.json", replace(params, metadata=metadata))
+    from frictiongym.params import save_params
+
+    params = result.params(args.law)
+    metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
+    save_params(out.path / "friction.json", replace(params, metadata=metadata))
     table = summary(result, args.law, _truth(env) if sim else None)
-    (out / "summary.md").write_text(table)
+    (out.path / "summary.md").write_text(table)
     if not args.no_figures:
         from frictiongym.identification.figures import plot_map
 
-        plot_map(result, out / "friction_map.png", UNITS.get(result.device, ("units/s", "units")))
+        units = UNITS.get(result.device, ("units/s", "units"))
+        plot_map(result, out.path / "friction_map.png", units)
     print(table)
-    print(f"wrote {path}" + ("" if args.no_figures else f" and {out / 'friction_map.png'}"))
     return 0
 
 

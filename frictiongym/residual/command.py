@@ -6,7 +6,6 @@ import argparse
 import json
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from frictiongym.residual.selection import VALIDATION_PLANTS
@@ -24,7 +23,9 @@ frictiongym.controllers.ResidualController.load(PATH, env)), train.json (setting
 time, steps/s, versions), checkpoints/ every --checkpoint-every steps, TensorBoard logs in
 tb/ (tensorboard --logdir DIR/tb; CSV in logs/ without tensorboard), and for SAC and TD3
 the replay buffer. --resume continues from the newest checkpoint, or from a given zip, up
-to --steps in total.
+to --steps in total, in place. Otherwise an --out holding an earlier run's outputs is
+refused unless --overwrite replaces them (all of them: no old validation.csv row or best.zip
+stays). Ctrl-C saves a checkpoint of the steps so far, which --resume continues.
 
 Every --validate-every steps the policy runs the benchmark's step on validation plants
 (seeds 500 and up; the benchmark holds out 1000 and up) next to the compensated PID; the
@@ -62,6 +63,8 @@ def _hyperparameter(text: str) -> tuple[str, Any]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
+    from frictiongym.cli import add_output_arguments
+
     parser.add_argument(
         "--env",
         required=True,
@@ -78,13 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="total env-steps of the model (default 200000; with --quick see above)",
     )
     parser.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default 0)")
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("residual-results"),
-        metavar="DIR",
-        help="directory for the model, logs and checkpoints (default ./residual-results)",
-    )
+    add_output_arguments(parser, "residual-results", "the model, logs and checkpoints")
     parser.add_argument(
         "--randomize",
         choices=("none", "default"),
@@ -173,7 +170,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         checkpoint_every=args.checkpoint_every, scale=args.scale, quiet=args.quiet,
         reward=args.reward, residual_cost=args.residual_cost, hyperparameters=dict(args.sb3),
         validate_every=args.validate_every or None, validation_plants=args.validation_plants,
-        threads=args.threads,
+        threads=args.threads, overwrite=args.overwrite,
         command_line=command_line,
     )  # fmt: skip
     say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))

@@ -7,6 +7,7 @@ are imported inside :func:`train` only.
 from __future__ import annotations
 
 import importlib.util
+import inspect
 import json
 import math
 import os
@@ -22,6 +23,7 @@ from typing import Any
 
 import gymnasium as gym
 
+from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
 from frictiongym.residual.core import ResidualConfig, base_gains, device_name
 from frictiongym.residual.env import ResidualEnv
@@ -81,6 +83,20 @@ QUICK_STEPS = {"ppo": 2048, "sac": 300, "td3": 300}
 #: Checkpoint file names: ``checkpoints/model_<steps>_steps.zip`` (SB3's CheckpointCallback).
 CHECKPOINT_PREFIX = "model"
 _CHECKPOINT = re.compile(rf"{CHECKPOINT_PREFIX}_(\d+)_steps\.zip")
+#: What a run may write into ``out``: an earlier run's are refused, or replaced with
+#: ``overwrite``, all of them (a new run never appends to an old validation.csv).
+OUTPUTS = (
+    "model.zip",
+    "train.json",
+    "replay_buffer.pkl",
+    "best.zip",
+    "validation.csv",
+    "checkpoints",
+    "tb",
+    "logs",
+)
+#: SB3 constructor arguments that ``train`` sets itself (``--sb3`` may not).
+_OWN_ARGUMENTS = {"policy": None, "env": "--env", "seed": "--seed", "device": None, "verbose": None}
 
 
 class TrainingError(Exception):
@@ -93,7 +109,9 @@ class TrainSettings:
 
     ``steps`` is the total number of env-steps of the model; a resumed run trains what is
     missing to reach it. ``resume`` is ``None``, ``"latest"`` (the most trained of
-    ``out/checkpoints/*`` and ``out/model.zip``) or the path of a model zip.
+    ``out/checkpoints/*`` and ``out/model.zip``) or the path of a model zip; it continues
+    the run in ``out`` in place. Otherwise ``out`` must hold no earlier run's outputs
+    (:data:`OUTPUTS`), unless ``overwrite`` replaces them.
     """
 
     env_id: str
@@ -113,6 +131,7 @@ class TrainSettings:
     validate_every: int | None = 10_000  # env-steps between validations; None: no validation
     validation_plants: int = VALIDATION_PLANTS
     quiet: bool = False
+    overwrite: bool = False
     command_line: str = ""
     hyperparameters: dict[str, Any] = field(default_factory=dict)
 
@@ -124,6 +143,12 @@ def check_settings(settings: TrainSettings) -> None:
     ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
     if settings.env_id not in ids:
         raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
+    if settings.seed < 0:
+        raise TrainingError(f"--seed must be a whole number >= 0, got {settings.seed}")
+    if settings.overwrite and settings.resume is not None:
+        raise TrainingError(
+            "--overwrite replaces an earlier run and --resume continues it: give one of them"
+        )
     if settings.randomize not in ("none", "default"):
         raise TrainingError(f"--randomize must be 'none' or 'default', got {settings.randomize!r}")
     if settings.reward not in REWARDS:
@@ -144,8 +169,12 @@ def check_settings(settings: TrainSettings) -> None:
         raise TrainingError(
             f"--scale is a fraction of the action limit in (0, 1], got {settings.scale}"
         )
-    if settings.out.exists() and not settings.out.is_dir():
-        raise TrainingError(f"--out {settings.out} is a file; give a directory")
+    own = sorted(set(settings.hyperparameters) & set(_OWN_ARGUMENTS))
+    if own:
+        raise TrainingError(
+            f"--sb3 {own[0]}: frictiongym train sets it"
+            + (f"; use {_OWN_ARGUMENTS[own[0]]}" if _OWN_ARGUMENTS[own[0]] else "")
+        )
 
 
 def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
@@ -249,7 +278,11 @@ def _progress_callback(total: int, disable: bool) -> Any:
             return True
 
         def _on_training_end(self) -> None:
-            self.bar.close()
+            self.close()
+
+        def close(self) -> None:
+            if hasattr(self, "bar"):
+                self.bar.close()
 
     return ProgressBar()
 
@@ -295,8 +328,8 @@ def _validation_callback(
     """Return an SB3 callback that scores the policy every ``every`` env-steps and at the end.
 
     Appends each score to ``out/validation.csv`` and saves the best-scoring policy so far as
-    ``out/best.zip`` (written to a temporary file first, so a stopped run never leaves half a
-    zip). A resumed run keeps the best score of the CSV it continues.
+    ``out/best.zip`` (whole or not at all: :func:`save_model`). A resumed run keeps the best
+    score of the CSV it continues.
     """
     from stable_baselines3.common.callbacks import BaseCallback
 
@@ -332,12 +365,31 @@ def _validation_callback(
                 file.write(",".join(f"{v:.6g}" for v in row) + f",{result.terminated}\n")
             if result.score < self.best:
                 self.best = result.score
-                partial = out / ".best.partial.zip"
-                self.model.save(str(partial))
-                partial.replace(out / "best.zip")
+                save_model(self.model, out / "best.zip")
                 say(f"validation at {self.num_timesteps} steps: score {result.score:.3f} (best)")
 
     return Validate()
+
+
+def save_model(model: Any, path: Path, replay_buffer: Path | None = None) -> None:
+    """Save an SB3 model (and its replay buffer) whole: an interruption never leaves half."""
+    write_file_atomic(path, model.save)
+    if replay_buffer is not None:
+        write_file_atomic(replay_buffer, model.save_replay_buffer)
+
+
+def _checkpoint_on_interrupt(model: Any, out: Path, algo: str) -> str:
+    """Save the model interrupted at ``model.num_timesteps`` as a checkpoint; say where.
+
+    ``--resume`` picks it up (:func:`latest_checkpoint`). Ctrl-C is held meanwhile.
+    """
+    with sigint_held():
+        steps = int(model.num_timesteps)
+        path = out / "checkpoints" / f"{CHECKPOINT_PREFIX}_{steps}_steps.zip"
+        path.parent.mkdir(exist_ok=True)
+        save_model(model, path, None if algo == "ppo" else _replay_buffer_of(path))
+        model.logger.close()  # flush the TensorBoard/CSV logs
+    return f"checkpoint of {steps} steps saved as {path}; continue with --resume"
 
 
 def _best_score(table: Path) -> float:
@@ -368,6 +420,18 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
     """
     say = say or (lambda _: None)
     check_settings(settings)
+    output = OutputDir(settings.out, OUTPUTS, overwrite=settings.overwrite, staged=False,
+                       continuing=settings.resume is not None, resumable=True)  # fmt: skip
+    with output:  # checked before the work; removed again if the run writes nothing
+        summary = _train(settings, say, output)
+        output.commit()
+    return summary
+
+
+def _train(
+    settings: TrainSettings, say: Callable[[str], None], output: OutputDir
+) -> dict[str, Any]:
+    """:func:`train` once ``output`` is checked."""
     algo, out = settings.algo, settings.out
     try:
         import stable_baselines3
@@ -452,7 +516,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
             **hyperparameters(algo, steps, settings.n_envs, settings.quick, device),
             **settings.hyperparameters,
         }
-        model = algorithm("MlpPolicy", vec, seed=settings.seed, device="cpu", verbose=0, **params)
+        model = _construct(algorithm, vec, settings, params)
     setattr(model, METADATA_ATTRIBUTE, meta)
     done_before = int(model.num_timesteps)
     remaining = steps - done_before
@@ -462,7 +526,7 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
             "give a larger --steps to continue"
         )
 
-    out.mkdir(parents=True, exist_ok=True)
+    output.replace_earlier()  # --overwrite: only now that the new run is set up
     if importlib.util.find_spec("tensorboard") is not None:
         log_dir, formats = out / "tb", ["tensorboard", "csv"]
     else:
@@ -489,16 +553,18 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         callbacks.append(validate)
     say(f"training {algo.upper()} on {settings.env_id} for {remaining} steps -> {out}")
     learn_start = time.perf_counter()
-    model.learn(
-        remaining,
-        callback=CallbackList(callbacks),
-        reset_num_timesteps=resumed_from is None,
-    )
+    try:
+        model.learn(
+            remaining,
+            callback=CallbackList(callbacks),
+            reset_num_timesteps=resumed_from is None,
+        )
+    except KeyboardInterrupt:
+        bar.close()
+        raise KeyboardInterrupt(_checkpoint_on_interrupt(model, out, algo)) from None
     learn_time = time.perf_counter() - learn_start
     training_time = learn_time - (validate.seconds if validate is not None else 0.0)
-    model.save(str(out / "model.zip"))
-    if algo != "ppo":
-        model.save_replay_buffer(str(out / "replay_buffer.pkl"))
+    save_model(model, out / "model.zip", None if algo == "ppo" else out / "replay_buffer.pkl")
     vec.close()
     trained = int(model.num_timesteps) - done_before
     summary = {
@@ -540,8 +606,26 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
         "versions": _versions(),
         "command_line": settings.command_line,
     }
-    (out / "train.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_text_atomic(out / "train.json", json.dumps(summary, indent=2) + "\n")
     return summary
+
+
+def _construct(algorithm: Any, vec: Any, settings: TrainSettings, params: dict[str, Any]) -> Any:
+    """Build a new SB3 model; a ``--sb3`` argument it does not take is a :class:`TrainingError`."""
+    accepted = inspect.signature(algorithm.__init__).parameters
+    unknown = sorted(set(settings.hyperparameters) - set(accepted) - {"self"})
+    if unknown:
+        known = ", ".join(sorted(n for n in accepted if n[0] != "_" and n not in _OWN_ARGUMENTS))
+        raise TrainingError(
+            f"--sb3 {unknown[0]}: {algorithm.__name__} takes no such argument; it takes {known}"
+        )
+    try:
+        return algorithm("MlpPolicy", vec, seed=settings.seed, device="cpu", verbose=0, **params)
+    except (TypeError, ValueError, AssertionError) as exc:
+        if not settings.hyperparameters:
+            raise  # not the user's arguments: a bug to see in full
+        given = " ".join(f"{k}={v!r}" for k, v in settings.hyperparameters.items())
+        raise TrainingError(f"--sb3 {given}: {algorithm.__name__} refused them: {exc}") from None
 
 
 def model_hyperparameters(model: Any, algo: str) -> dict[str, Any]:

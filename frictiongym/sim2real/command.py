@@ -8,7 +8,9 @@ from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
+from frictiongym._io import OutputDir
 from frictiongym.controllers import PIDGains
+from frictiongym.hardware import SIM
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.params import ParamsFileError
 from frictiongym.sim2real.report import summary, write_report
@@ -25,7 +27,9 @@ modelling closes most of the gap; the report says how much.
 
 Writes to --out: report.md, sim2real.json, overlay.png, timing.png; the device run's log
 (steps.csv + meta.json) goes to a new --out/device-logs/<UTC time>/, so a rerun into the
-same --out keeps the earlier logs.
+same --out keeps the earlier logs. An --out holding an earlier report is refused unless
+--overwrite replaces it (the report and its figures; the device logs stay); an error or a
+Ctrl-C leaves the report as it was (the device log of the interrupted run stays).
 
 Try it without hardware:  frictiongym sim2real --env frictiongym/RotaryServo-v0 \\
     --backend emulator://rotary --out sim2real-results
@@ -42,6 +46,10 @@ def _gains(text: str) -> PIDGains:
             f"--gains takes KP,KI,KD (three numbers), got {text!r}"
         ) from None
     return PIDGains(kp, ki, kd)
+
+
+#: What a run may write into --out besides its device log (device-logs/ is never replaced).
+OUTPUTS = ("report.md", "sim2real.json", "overlay.png", "timing.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,13 +102,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="VALUE",
         help="step target, rad or cm (default: the env's step)",
     )
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path("sim2real-results"),
-        metavar="DIR",
-        help="directory for the report (default: ./sim2real-results)",
-    )
+    from frictiongym.cli import add_output_arguments
+
+    add_output_arguments(parser, "sim2real-results", "the report and the device logs")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--quiet", action="store_true", help="print only errors")  # fmt: skip
 
@@ -120,20 +124,24 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     if args.repeats < 1 or (args.steps is not None and args.steps < 1):
         print("error: --repeats and --steps must be positive", file=sys.stderr)
         return 2
-    if args.out.exists() and not args.out.is_dir():
-        print(f"error: --out {args.out} is a file; give a directory", file=sys.stderr)
+    if args.backend in SIM:
+        print(f"error: --backend {args.backend} is the simulator; sim2real compares a device "
+              "with it: give a device URI, e.g. emulator://rotary", file=sys.stderr)  # fmt: skip
         return 2
     say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
-    try:
-        result = run_sim2real(
-            args.env, args.backend, controller=args.controller, gains=args.gains,
-            params=args.params, repeats=args.repeats, steps=args.steps,
-            reference=args.reference, log=_log_directory(args.out), progress=say,
-        )  # fmt: skip
-    except (HardwareError, ParamsFileError, ValueError, FileExistsError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    path = write_report(result, args.out, command_line, figures=not args.no_figures)
+    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:  # before the device
+        try:
+            result = run_sim2real(
+                args.env, args.backend, controller=args.controller, gains=args.gains,
+                params=args.params, repeats=args.repeats, steps=args.steps,
+                reference=args.reference, log=_log_directory(args.out), progress=say,
+            )  # fmt: skip
+        except (HardwareError, ParamsFileError, ValueError, FileExistsError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        path = out.final(write_report(result, out.path, command_line,
+                                      figures=not args.no_figures))  # fmt: skip
+        out.commit()
     if not args.quiet:
         data = summary(result)
         for name in result.models:

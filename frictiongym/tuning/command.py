@@ -10,6 +10,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
+from frictiongym._io import OutputDir, write_text_atomic
 from frictiongym.tuning.evaluate import TuningModel
 from frictiongym.tuning.search import (
     DEFAULT_CHUNK,
@@ -39,22 +40,27 @@ Rules: {"; ".join(f"{k}: {v}" for k, v in RULES.items())}.
 Writes to --out: tune.json (n_samples, n_feasible, every feasible candidate with its metrics,
 the chosen gains and rule, the paper's gains, specs, bounds, model, seed, dt, horizon,
 software version, wall time) and tune.png (the feasible set in the three gain planes and the
-feasible step responses). {DEFAULT_SAMPLES} samples take about a second on 2 cores.
+feasible step responses). {DEFAULT_SAMPLES} samples take about a second on 2 cores. An --out
+holding an earlier run's results is refused unless --overwrite replaces them (both); an error
+or a Ctrl-C leaves --out as it was.
 """
+
+
+#: What a run may write into --out.
+OUTPUTS = ("tune.json", "tune.png")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the tuner's options to ``parser``."""
+    from frictiongym.cli import add_output_arguments
+
     parser.add_argument(
         "--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
         help=f"gain triples to draw (default: {DEFAULT_SAMPLES}, about a second)",
     )  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, metavar="S",
                         help="seed of numpy's default_rng (default: 0)")  # fmt: skip
-    parser.add_argument(
-        "--out", type=Path, default=Path("tune-results"), metavar="DIR",
-        help="directory for tune.json and tune.png, created if needed (default: ./tune-results)",
-    )  # fmt: skip
+    add_output_arguments(parser, "tune-results", "tune.json and tune.png")
     parser.add_argument(
         "--model", choices=("nominal", "friction"), default=None,
         help="nominal: no friction (default without --params); friction: the paper's friction "
@@ -111,10 +117,11 @@ def _model(args: argparse.Namespace) -> TuningModel:
 
 def check_args(args: argparse.Namespace) -> TuningModel:
     """Validate the options and build the model; raise ValueError saying what to change."""
+    from frictiongym.cli import check_seed
+
     if args.samples < 1:
         raise ValueError(f"--samples must be at least 1, got {args.samples}")
-    if args.seed < 0:
-        raise ValueError(f"--seed must be a whole number >= 0, got {args.seed}")
+    check_seed(args.seed)
     if args.chunk < 1:
         raise ValueError(f"--chunk must be at least 1, got {args.chunk}")
     if not (math.isfinite(args.horizon) and args.horizon > 1.5):
@@ -122,8 +129,6 @@ def check_args(args: argparse.Namespace) -> TuningModel:
             f"--horizon must be a number of seconds longer than the 1.5 s settling-time spec "
             f"(so settling can be judged), got {args.horizon}"
         )
-    if args.out.exists() and not args.out.is_dir():
-        raise ValueError(f"--out {args.out} exists and is not a directory; give a directory")
     return dataclasses.replace(_model(args), velocity=args.velocity)
 
 
@@ -169,28 +174,23 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
-    try:
-        args.out.mkdir(parents=True, exist_ok=True)
-    except OSError as error:
-        print(f"error: cannot create --out {args.out}: {error.strerror or error}", file=sys.stderr)
-        return 2
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
-    from frictiongym._io import write_text_atomic
+    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
+        with tqdm(total=args.samples, desc="tune", unit="cand", unit_scale=True,
+                  disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
+            result = random_search(
+                args.samples, args.seed, model, horizon=args.horizon, rule=args.rule,
+                chunk=args.chunk, early_stop=not args.full, progress=bar.update,
+            )  # fmt: skip
+        result.extra["command"] = command_line
+        record = json.dumps(result.record(), indent=1, allow_nan=False) + "\n"
+        write_text_atomic(out.path / "tune.json", record)
+        if not args.no_figures:
+            from frictiongym.tuning.figures import plot_feasible_set
 
-    with tqdm(total=args.samples, desc="tune", unit="cand", unit_scale=True,
-              disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
-        result = random_search(
-            args.samples, args.seed, model, horizon=args.horizon, rule=args.rule,
-            chunk=args.chunk, early_stop=not args.full, progress=bar.update,
-        )  # fmt: skip
-    result.extra["command"] = command_line
-    written = [args.out / "tune.json"]
-    write_text_atomic(written[0], json.dumps(result.record(), indent=1, allow_nan=False) + "\n")
-    if not args.no_figures:
-        from frictiongym.tuning.figures import plot_feasible_set
-
-        written.append(plot_feasible_set(result, args.out / "tune.png"))
+            plot_feasible_set(result, out.path / "tune.png")
+        written = out.commit()
     if not args.quiet:
         print(summary(result))
         print(f"\n{result.n_samples} candidates in {result.wall_time:.1f} s "
