@@ -82,6 +82,7 @@ class AltinoDistanceEnv(FrictionEnv):
     | 3   | reference   | cm      | target distance at this sample                       |
 
     The velocity is the rate of the distance: negative while the car approaches the wall.
+    Observations hold no float32 subnormals and no ``-0.0`` (see the servo's velocity).
 
     ## Rewards
 
@@ -98,7 +99,10 @@ class AltinoDistanceEnv(FrictionEnv):
     ## Episode End
 
     Terminated when the car touches the wall (distance <= ``safety_limit``, 0 cm); truncated
-    after 400 steps (20 s at 50 ms) by the registered time limit.
+    after 400 steps (20 s at 50 ms) by the registered time limit. The wall is a rigid stop:
+    the contact is located inside the step and stops the car dead at 0 cm, so the terminal
+    step's ``info`` (distance 0, velocity 0), observation (the nearest readout, 800) and
+    reward describe the contact.
 
     ## Arguments
 

@@ -76,6 +76,11 @@ class RotaryServoEnv(FrictionEnv):
     | 1   | velocity    | rad/s | filtered derivative ``50 s/(s + 50)`` of the angle   |
     | 2   | reference   | rad   | the reference at this sample                        |
 
+    After the disk stops, the filtered estimate decays geometrically; once it is below
+    ``2**-24`` of its resolution (one count in one period through the filter, 0.146 rad/s)
+    it is exactly 0.0, so observations hold no float32 subnormals and no ``-0.0``
+    (:func:`~frictiongym.plants.sensors.velocity_floor`).
+
     ## Rewards
 
     ``-|r - θ| / 1 rad - effort_weight * (u / 10 V)²`` per step, with the true angle θ and the
@@ -123,6 +128,10 @@ class RotaryServoEnv(FrictionEnv):
 
     ``info`` of every step: ``position`` (true angle, rad), ``velocity`` (true, rad/s),
     ``command`` (applied voltage), ``reference``, ``time`` (s since reset), ``stuck``.
+
+    An unknown argument raises ``TypeError`` naming the valid ones; ``step`` before the first
+    ``reset`` raises ``gymnasium.error.ResetNeeded``; an action must be one number of shape
+    ``(1,)`` (a list, tuple or array).
 
     ## Version History
 
