@@ -6,6 +6,7 @@ and the tests. `frictiongym.controllers.rollout` runs any controller on the envs
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Literal
 
@@ -142,12 +143,12 @@ def altino_step(
         If the car reaches the wall (true distance <= 0 at a sample) the run stops there:
         the arrays end with that sample, whose distance is recorded as 0 (contact), its
         estimate as the IR's nearest reading (readout 800, 1.14 cm), its command as 0 and its
-        stick flag as True, and ``collided`` is True. A real car would hit the wall; the
-        plant has no contact model, so nothing after the contact is simulated.
+        stick flag as True, and ``collided`` is True. The wall is the plant's end stop (the
+        contact located inside the step, as in the env); the run ends with it.
     """
     if derivative not in ("measurement", "error"):
         raise ValueError(f"derivative must be 'measurement' or 'error', got {derivative!r}")
-    sim = Plant(plant, friction, dt)
+    sim = Plant(dataclasses.replace(plant, end_stop=start_cm), friction, dt)  # the wall
     # Observation layout of the loop: [estimated distance, its rate, target].
     spec = LoopSpec(dt, plant.command_limit, position=0, velocity=1, reference=2, direction=-1.0)
     pid = PID(spec, gains, derivative="difference")
