@@ -17,7 +17,10 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.controllers.policy_file import load_policy
 from frictiongym.residual.core import (
+    OBSERVATION_BOUND,
+    OBSERVATION_SIZE,
     ResidualConfig,
     bounded_residual,
     device_name,
@@ -123,6 +126,11 @@ class ResidualController(Controller):
     ) -> ResidualController:
         """Load a model saved by ``frictiongym train`` (``model.zip`` or a checkpoint).
 
+        Nothing in the file is unpickled: the policy is rebuilt from the file's JSON and its
+        weights loaded as a plain state dict (:mod:`frictiongym.controllers.policy_file`),
+        so a model from a stranger cannot run code here. A file with pickled entries that
+        Stable-Baselines3 does not write gets a warning (they are ignored).
+
         Parameters
         ----------
         path : str or PathLike
@@ -139,6 +147,8 @@ class ResidualController(Controller):
         ------
         ValueError
             If the file is not a residual model, or was trained for another device.
+        UnsafeModelError
+            If the policy could only be built by unpickling (a ``ValueError``).
         ImportError
             If Stable-Baselines3 is not installed (``pip install "frictiongym[rl]"``).
         """
@@ -154,8 +164,8 @@ class ResidualController(Controller):
             spec = meta.get("base", {})
             base = make_base(env, spec.get("kind", "compensated"), spec.get("gains"))
         algorithm = load_algorithm(str(meta.get("algo", "")))
-        model = algorithm.load(str(path), device=device)
-        return cls(base, model, config)
+        policy = load_policy(path, algorithm, OBSERVATION_SIZE, OBSERVATION_BOUND, device)
+        return cls(base, policy, config)
 
     def reset(self, mask: npt.ArrayLike | None = None) -> None:
         """Reset the base controller (the policy is stateless)."""
