@@ -93,6 +93,20 @@ _EXAMPLE = (
 )
 
 
+#: The physically meaningful range of every parameter, in the file's units: twelve orders of
+#: magnitude around both devices' values (servo J = 7.1e-3 V·s²/rad and levels near 0.2 V,
+#: Altino J = 2.2 units·s²/cm and levels near 200 units). Inside it the plant's exact step
+#: stays finite; outside it a value is a typo or a unit mistake (B = 1e308 made every
+#: position NaN).
+PARAM_LIMITS: dict[str, tuple[float, float]] = {
+    "J": (1e-9, 1e6),
+    "B": (0.0, 1e6),
+    "viscous": (0.0, 1e6),
+    **{f"{k}_{d}": (0.0, 1e6) for k in ("us", "uc") for d in ("pos", "neg")},
+    **{f"v0_{d}": (1e-9, 1e6) for d in ("pos", "neg")},
+}
+
+
 class ParamsFileError(ValueError):
     """A params file (or mapping) that cannot be read, is incomplete or is invalid."""
 
@@ -124,6 +138,14 @@ def _real(source: str, key: str, value: object, rule: str = ">= 0") -> float:
     if (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
         hint = " (levels are magnitudes: drop the minus sign)" if key.endswith("_neg") else ""
         raise _fail(source, f"{key!r} must be {rule}, got {value!r}{hint}")
+    low, high = PARAM_LIMITS.get(key, (-math.inf, math.inf))
+    if not low <= v <= high and not (v == 0.0 and rule == ">= 0"):
+        raise _fail(
+            source,
+            f"{key!r} = {value!r} lies outside its physically meaningful range [{low:g}, "
+            f"{high:g}] (in the device's units: V and rad, or motor units and cm); check the "
+            "value and its units",
+        )
     return v
 
 
@@ -357,6 +379,8 @@ class DeviceParams:
             raise
         except (TypeError, ValueError) as err:
             raise _fail(source, str(err)) from None
+        except RecursionError:  # deep-copying absurdly nested metadata
+            raise _fail(source, "its metadata is nested too deeply to be a params file") from None
 
 
 def _file(path: str | os.PathLike[str]) -> Path:
@@ -389,6 +413,8 @@ def load_params(path: str | os.PathLike[str]) -> DeviceParams:
         raise _fail(source, f"not UTF-8 text ({err.reason}); is it a params file?") from None
     except ValueError as err:  # json.JSONDecodeError too
         raise _fail(source, f"not valid JSON: {err}") from None
+    except RecursionError:
+        raise _fail(source, "nested too deeply to be a params file") from None
     return DeviceParams.from_dict(data, source=source)
 
 

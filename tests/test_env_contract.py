@@ -101,3 +101,13 @@ def test_unknown_arguments_name_the_env_and_the_valid_ones(make) -> None:
 def test_device_settings_with_the_simulator_say_so() -> None:
     with pytest.raises(ValueError, match="settings of device runs"):
         gym.make(SERVO, log=False)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_diverged_plant_terminates_instead_of_running_on(env_id: str) -> None:
+    from frictiongym.plants import _kernel as pk
+
+    env = gym.make(env_id).unwrapped
+    env.reset(seed=0)
+    env.sim.state[0, pk.S_X] = np.nan  # what a diverging integration would leave
+    assert env.step(np.array([0.0], np.float32))[2]

@@ -1,5 +1,6 @@
 """Identified parameters: the friction.json format, save/load, gym.make(params=), compensators."""
 
+import itertools
 import json
 import math
 
@@ -375,3 +376,40 @@ def test_package_reexports_lazily():
     assert frictiongym.DeviceParams is DeviceParams
     with pytest.raises(AttributeError):
         _ = frictiongym.not_there
+
+
+@pytest.mark.parametrize(
+    ("key", "value"),
+    [("B", 1e308), ("J", 1e-300), ("J", 1e7), ("us_pos", 1e7), ("v0_neg", 1e-20), ("viscous", 2e6)],
+)
+def test_values_outside_their_physical_range_are_refused(tmp_path, key, value):
+    path = write(tmp_path, {**valid_mapping(), key: value})
+    with pytest.raises(ParamsFileError, match=f"'{key}' = .* physically meaningful range"):
+        load_params(path)
+
+
+def test_deeply_nested_json_is_a_params_file_error(tmp_path):
+    path = tmp_path / "friction.json"
+    path.write_text('{"metadata": ' + "[" * 100_000 + "]" * 100_000 + "}")
+    with pytest.raises(ParamsFileError, match="nested too deeply"):
+        load_params(path)
+
+
+@pytest.mark.parametrize("env_id", [SERVO, ALTINO])
+def test_the_range_s_corners_simulate_finite_values(env_id):
+    """At the extremes of every range the env still returns finite numbers."""
+    amplitude = 10.0 if env_id == SERVO else 1000.0
+    rng = np.random.default_rng(0)
+    for inertia, damping, level in itertools.product((1e-9, 1e6), (0.0, 1e6), (0.0, 1e6)):
+        levels = {k: level for k in ("us_pos", "us_neg", "uc_pos", "uc_neg")}
+        data = {**valid_mapping(), "J": inertia, "B": damping, "viscous": damping, **levels}
+        data["device"] = data["env_id"] = None
+        env = gym.make(env_id, params=DeviceParams.from_dict(data)).unwrapped
+        env.reset(seed=0)
+        for _ in range(100):
+            obs, reward, terminated, _, info = env.step(rng.uniform(-amplitude, amplitude, 1))
+            assert np.all(np.isfinite(obs))
+            assert np.isfinite(reward)
+            assert np.isfinite(info["position"])
+            if terminated:
+                env.reset()

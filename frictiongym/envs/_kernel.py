@@ -197,10 +197,11 @@ def _observe(
         )
     if measured_only:
         position, velocity = estimate, estimated_velocity
+    # Written so that a NaN position (a diverged plant) terminates instead of running on.
     if config[C_SENSOR] == SENSOR_ENCODER:
-        terminated = abs(position) > config[C_LIMIT]
+        terminated = not abs(position) <= config[C_LIMIT]
     else:
-        terminated = position <= config[C_LIMIT]
+        terminated = not position > config[C_LIMIT]
     reference = reference_at(t, rows, i, T_REF)
     state[i, E_ESTIMATE] = estimate
     state[i, E_VELOCITY] = estimated_velocity
