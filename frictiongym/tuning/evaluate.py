@@ -131,7 +131,9 @@ class TuningModel:
         """Return the model as a JSON-ready dict."""
         return {
             "name": self.name,
-            "plant": dataclasses.asdict(self.plant),
+            "plant": {  # an infinite end stop (none) is left out: JSON has no infinity
+                k: v for k, v in dataclasses.asdict(self.plant).items() if v != math.inf
+            },
             "friction": {"law": self.friction.name, **_law_fields(self.friction)},
             "dt": self.dt,
             "velocity": self.velocity,
