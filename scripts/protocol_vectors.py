@@ -50,7 +50,7 @@ ENCODER_24 = (-(2**23), 2**23 - 1)  # the QUBE's 24-bit encoder counter, sign-ex
 # --- messages ---------------------------------------------------------------------------------
 
 ROTARY_HELLO = Hello(
-    1, DeviceKind.ROTARY, Capability.WATCHDOG, 500, 2048, 1000, 10000, 20, FIRMWARE_BUILD
+    1, DeviceKind.ROTARY, Capability.WATCHDOG, 500, 2048, 1000, 10000, 100, FIRMWARE_BUILD
 )
 ALTINO_HELLO = Hello(
     1,
@@ -279,7 +279,7 @@ def tick(at: int, reading: int = 0, *, hw: Sequence[str] = (), **state: Any) -> 
 
 
 def rotary_scenarios() -> list[dict[str, Any]]:
-    """Rotary bridge: 500 Hz (2000 µs), watchdog 20 ms, limit ±10000 mV."""
+    """Rotary bridge: 500 Hz (2000 µs), watchdog 100 ms, limit ±10000 mV."""
     dis, late = ["DISABLED"], ["COMMAND_LATE"]
     # fmt: off
     return [
@@ -312,25 +312,25 @@ def rotary_scenarios() -> list[dict[str, Any]]:
             cmd(4100, 2, 800, "ENABLE"),
             tick(6000, status=[], seq_applied=2, applied=800),
         ]},
-        {"name": "watchdog trips after 20 ms and latches until REARM", "device": "rotary",
+        {"name": "watchdog trips after 100 ms and latches until REARM", "device": "rotary",
          "events": [
             cmd(500, 1, 1000, "REARM", "ENABLE", motor=1000),
             tick(2000, status=[], applied=1000),
-            *[tick(t, status=late, applied=1000, motor=1000) for t in range(4000, 20001, 2000)],
-            tick(22000, status=["WATCHDOG", "DISABLED"], applied=0, motor=0),  # 21.5 ms silent
-            tick(24000, status=["WATCHDOG", "DISABLED"], applied=0),
-            cmd(24500, 2, 1000, "ENABLE", motor=0),  # without REARM: still latched
-            tick(26000, status=["WATCHDOG", "DISABLED"], seq_applied=2, applied=0),
-            cmd(26500, 3, 1000, "REARM", "ENABLE", motor=1000),
-            tick(28000, status=[], seq_applied=3, applied=1000),
+            *[tick(t, status=late, applied=1000, motor=1000) for t in range(4000, 100001, 2000)],
+            tick(102000, status=["WATCHDOG", "DISABLED"], applied=0, motor=0),  # 101.5 ms silent
+            tick(104000, status=["WATCHDOG", "DISABLED"], applied=0),
+            cmd(104500, 2, 1000, "ENABLE", motor=0),  # without REARM: still latched
+            tick(106000, status=["WATCHDOG", "DISABLED"], seq_applied=2, applied=0),
+            cmd(106500, 3, 1000, "REARM", "ENABLE", motor=1000),
+            tick(108000, status=[], seq_applied=3, applied=1000),
         ]},
         {"name": "watchdog across the 32-bit clock wrap", "device": "rotary",
          "firmware_only": "a 32-bit microsecond clock; the emulator's clock does not wrap",
          "events": [
             cmd(2**32 - 1500, 1, 700, "REARM", "ENABLE", motor=700),
             tick(2**32 - 1000, status=[], tick_us=2**32 - 1000, applied=700),
-            *[tick(t, status=late, applied=700) for t in range(1000, 17001, 2000)],  # 18.5 ms
-            tick(19000, status=["WATCHDOG", "DISABLED"], tick_us=19000, applied=0, motor=0),
+            *[tick(t, status=late, applied=700) for t in range(1000, 97001, 2000)],  # 98.5 ms
+            tick(99000, status=["WATCHDOG", "DISABLED"], tick_us=99000, applied=0, motor=0),
         ]},
         {"name": "e-stop latches until REARM, and beats REARM", "device": "rotary", "events": [
             cmd(500, 1, 2000, "REARM", "ENABLE", motor=2000),

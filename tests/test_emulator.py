@@ -8,6 +8,7 @@ import select
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -104,7 +105,7 @@ def serve(request):
 
 
 @pytest.mark.parametrize(("kind", "rate", "cpr", "scale", "limit", "wd", "caps"), [
-    ("rotary", 500, 2048, 1000, 10000, 20, p.Capability.WATCHDOG | p.Capability.PLACE),
+    ("rotary", 500, 2048, 1000, 10000, 100, p.Capability.WATCHDOG | p.Capability.PLACE),
     ("altino", 20, 0, 1, 1000, 150,
      p.Capability.WATCHDOG | p.Capability.PLACE | p.Capability.DISTANCE_LIMIT),
 ])  # fmt: skip
@@ -240,7 +241,8 @@ def test_watchdog_zeroes_the_motor_in_time_and_latches(serve):
     while emu.motor != 0.0 and time.monotonic() - stopped < 1.0:
         time.sleep(0.0005)
     elapsed = time.monotonic() - stopped
-    watchdog, dt = 0.020, emu.dt
+    watchdog, dt = emu.firmware.watchdog_s, emu.dt
+    assert watchdog == 0.1  # the default, max(3 periods, 100 ms)
     assert elapsed < watchdog + dt + 0.05  # loose: a noisy VM may wake us late
     # Exact on the device clock: zeroed on the first tick at or after watchdog_ms.
     ticks = emu.history
@@ -268,6 +270,54 @@ def test_lockstep_watchdog_sends_a_state_when_commands_stop(serve):
     assert state.applied == 0
     assert emu.motor == 0.0
     assert host.collect(0.15) == []  # disarmed: nothing more until a command
+
+
+def _hold_up_once(emu, monkeypatch, seconds, when):
+    """Make the device thread stall ``seconds`` once, after a ``select`` for which ``when(ready)``
+    holds, as a garbage collection or the scheduler would; return an Event set as it stalls."""
+    stalling, original = threading.Event(), emu._wait
+
+    def wait(timeout):
+        ready = original(timeout)
+        if not stalling.is_set() and when(ready):
+            stalling.set()
+            time.sleep(seconds)
+        return ready
+
+    monkeypatch.setattr(emu, "_wait", wait)
+    return stalling
+
+
+def test_a_late_emulator_thread_does_not_blame_the_host(serve, monkeypatch):
+    """The real-time device thread stalls for 2.5 watchdog times after a command came: the ticks
+    it missed are integrated, but their states never went out, so the host could not answer
+    them and the watchdog must not trip."""
+    emu, host = serve("rotary")
+    host.step(2000, ARM)
+    received = emu.firmware.commands
+    seq = host.command(2000)
+    stalling = _hold_up_once(
+        emu, monkeypatch, 2.5 * emu.firmware.watchdog_s,
+        lambda ready: emu.firmware.commands > received,
+    )  # fmt: skip
+    state = host.wait(p.State, lambda s: s.seq_applied == seq, timeout=2.0)
+    states = [state] + [host.step(2000) for _ in range(20)]
+    assert stalling.is_set()
+    assert emu.stats().missed >= 2 * emu.firmware.watchdog_s / emu.dt  # it did stall
+    assert not any(s.status & p.Status.WATCHDOG for s in states)
+    assert emu.motor == 2.0
+
+
+def test_lockstep_watchdog_reads_before_it_trips(serve, monkeypatch):
+    """The lock-step device thread is held up past its watchdog right after a wait that found
+    nothing, while a command arrives: the command counts, the watchdog does not trip."""
+    emu, host = serve("rotary", lockstep=True, watchdog_ms=60)
+    host.step(1000, ARM)
+    stalling = _hold_up_once(emu, monkeypatch, 0.2, lambda ready: not ready)
+    assert stalling.wait(1.0)
+    state = host.step(1000)
+    assert not state.status & p.Status.WATCHDOG
+    assert state.applied == 1000
 
 
 def test_estop_disarms_until_rearm(serve):

@@ -426,7 +426,7 @@ def test_qube_bridge_sketch(sketches: dict[str, Harness]) -> None:
     _, tx = _sim(qube, "run 50")
     (hello,) = p.FrameDecoder().feed(tx[0])
     assert hello == p.Hello(1, p.DeviceKind.ROTARY, p.Capability.WATCHDOG, 500, 2048, 1000,
-                            10000, 20, FIRMWARE_BUILD)  # fmt: skip
+                            10000, 100, FIRMWARE_BUILD)  # fmt: skip
     _, tx = _sim(qube, "run 2000")
     (state,) = _states(tx[0])
     assert state == p.State(p.Status.DISABLED, 1, state.tick_us, 0, 0, -5, 330)
@@ -445,9 +445,9 @@ def test_qube_bridge_sketch(sketches: dict[str, Harness]) -> None:
     spi, _ = _sim(qube, "run 50")
     assert spi[-1][2] & 0x60 == 0x20, "ZERO_POSITION zeroes encoder 0 only"
 
-    spi, tx = _sim(qube, "run 30000")  # no commands: the watchdog trips after 20 ms
+    spi, tx = _sim(qube, "run 110000")  # no commands: the watchdog trips after 100 ms
     states = _states(tx[0])
-    assert len(states) == 15
+    assert len(states) == 55
     assert states[-1].status == p.Status.WATCHDOG | p.Status.DISABLED
     assert _motor_word(spi[-1]) == 0, "watchdog: motor 0, amplifier disabled"
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -92,3 +93,88 @@ def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     assert main(["sim2real", "--env", "frictiongym/Nope-v0", "--backend", "emulator://",
                  "--out", str(tmp_path / "y")]) == 2  # fmt: skip
     assert "unknown env id 'frictiongym/Nope-v0'" in capsys.readouterr().err
+
+
+def test_a_reference_beyond_the_safety_limit_is_refused_up_front(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+                 "--reference", "100", "--out", str(out)]) == 2  # fmt: skip
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1
+    assert "reference 100 rad lies beyond the servo's safety limit of 12.57 rad" in err
+    assert not out.exists()
+    with pytest.raises(ValueError, match="at or behind the safety limit of 0 cm"):
+        run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=-2.0, log=False)
+
+
+def test_runs_the_safety_limit_ends_are_reported_not_compared(tmp_path, capsys):
+    """12.5 rad is inside the 4π limit, but the paper's PID overshoots past it after ~90 steps:
+    every run ends there, so there is nothing to compare, and the report says why."""
+    out = tmp_path / "out"
+    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+                   "--reference", "12.5", "--repeats", "2", "--steps", "300", "--out", str(out),
+                   "--no-figures"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert status == 1
+    assert "error: none of the 2 device runs completed (2 by the safety limit)" in err
+    data = json.loads((out / "sim2real.json").read_text())
+    assert data["complete_runs"] == 0
+    assert [run["ended"] for run in data["runs"]] == ["safety limit"] * 2
+    assert all(80 < run["steps"] < 120 for run in data["runs"])
+    assert data["gap"] is None
+    assert data["gap_closed"] is None
+    assert data["model_stops"]["friction"] is not None
+    text = (out / "report.md").read_text()
+    assert "the safety limit ended it after" in text
+    assert "No device run completed, so there is no gap to report." in text
+    assert "closes" not in text
+
+
+class _StallingController:
+    """The paper's controller, but the host stalls past the watchdog at one step of one run."""
+
+    def __init__(self, controller, run, step, seconds):
+        self.controller, self.run, self.step, self.seconds = controller, run, step, seconds
+        self.runs, self.steps = 0, 0
+
+    def __getattr__(self, name):
+        return getattr(self.controller, name)
+
+    def reset(self):
+        self.runs, self.steps = self.runs + 1, 0
+        self.controller.reset()
+
+    def __call__(self, obs):
+        self.steps += 1
+        if (self.runs, self.steps) == (self.run, self.step):
+            time.sleep(self.seconds)
+        return self.controller(obs)
+
+
+def test_a_watchdog_trip_marks_its_run_and_the_others_go_on(tmp_path, monkeypatch):
+    import frictiongym.sim2real.run as run_module
+
+    original = run_module.build_controller
+    monkeypatch.setattr(
+        run_module, "build_controller",
+        lambda env, kind, gains: _StallingController(original(env, kind, gains), 2, 100, 0.3),
+    )  # fmt: skip
+    result = run_sim2real(
+        SERVO, "emulator://rotary?lockstep=1&watchdog_ms=100", repeats=3, steps=300,
+        log=tmp_path / "log",
+    )  # fmt: skip
+    assert [run.ended for run in result.runs] == ["complete", "watchdog", "complete"]
+    assert result.runs[1].steps == 99
+    assert "watchdog tripped" in result.runs[1].detail
+    assert len(result.device) == 2
+    assert result.gap("friction", "output") < result.gap("nominal", "output")
+    path = write_report(result, tmp_path / "out", "frictiongym sim2real ...", figures=False)
+    text = path.read_text()
+    assert "| 2 | 99 | **watchdog**:" in text
+    assert "1 of 3 runs (2) ended early" in text
+    assert "the 2 complete runs" in text
+    data = json.loads((tmp_path / "out" / "sim2real.json").read_text())
+    assert (data["repeats"], data["complete_runs"]) == (3, 2)
+    assert data["runs"][1]["ended"] == "watchdog"
+    (fault,) = json.loads((tmp_path / "log" / "meta.json").read_text())["faults"]
+    assert (fault["episode"], fault["error"]) == (1, "WatchdogTripError")

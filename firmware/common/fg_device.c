@@ -16,7 +16,7 @@ fg_device_config fg_config_rotary(void)
     cfg.command_scale = 1000u;
     /* +-10 V: the safe envelope of the QUBE's amplifier (research §1.1; presets.py). */
     cfg.command_limit = 10000;
-    cfg.watchdog_ms = 0u; /* default: max(3 periods, 20 ms) = 20 ms */
+    cfg.watchdog_ms = 0u; /* default: max(3 periods, 100 ms) = 100 ms */
     cfg.limit_cm = 0.0f;  /* unused: no FG_CAP_DISTANCE_LIMIT */
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
@@ -32,7 +32,7 @@ fg_device_config fg_config_altino(void)
     cfg.counts_per_rev = 0u;   /* no encoder: the sensor is the front IR readout */
     cfg.command_scale = 1u;    /* motor units, as Go() takes them */
     cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library, research §2.1) */
-    cfg.watchdog_ms = 0u;      /* default: max(3 periods, 20 ms) = 150 ms */
+    cfg.watchdog_ms = 0u;      /* default: max(3 periods, 100 ms) = 150 ms */
     cfg.limit_cm = FG_GUARD_LIMIT_CM; /* guard.LIMIT_CM (assumed; see guard.py) */
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
@@ -44,7 +44,7 @@ uint16_t fg_watchdog_ms(const fg_device_config *cfg)
     if (cfg->watchdog_ms != 0u) {
         return cfg->watchdog_ms;
     }
-    /* ceil(3000 / rate) ms, at least 20 ms */
+    /* ceil(3000 / rate) ms, at least 100 ms */
     periods = (FG_WATCHDOG_PERIODS * 1000UL + cfg->rate_hz - 1u) / cfg->rate_hz;
     return (uint16_t)(periods > FG_WATCHDOG_MIN_MS ? periods : FG_WATCHDOG_MIN_MS);
 }

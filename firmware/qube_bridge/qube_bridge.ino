@@ -7,7 +7,7 @@
  * Command frames from the host set the motor at once (one more SPI transaction), so a command
  * is held from its arrival to the end of the period and echoed by that period's State.
  * Safety (firmware/common/fg_device.c): the motor is off until the host re-arms, clipped to
- * +-10 V, and zeroed with the amplifier disabled when commands stop for 20 ms.
+ * +-10 V, and zeroed with the amplifier disabled when commands stop for 100 ms.
  *
  * Build: arduino-cli compile --fqbn arduino:avr:uno --library firmware/common \
  *            firmware/qube_bridge            (see firmware/README.md; wiring there too)

@@ -7,10 +7,15 @@ whose readings equal the simulator's gives the same observations bit for bit. Th
 knows no true state: ``info["position"]`` and ``info["velocity"]`` are the estimates.
 
 Every run is logged as it goes (:mod:`frictiongym.hardware.runlog`), and the motor is zeroed
-when an episode terminates, at the next ``reset()``, on close and on any error. A time limit
-(Gymnasium's ``TimeLimit`` wrapper) ends an episode outside the env, which cannot see it: the
-motor then holds its last command until the next ``reset()`` or ``close()``, or until the
-device's watchdog stops it (20 ms on the servo) if the host sends nothing more.
+when an episode terminates, at the next ``reset()``, on close and on any error; an error that
+ends a step (a watchdog trip, a timeout) is also written to the log's ``meta.json``. A time
+limit (Gymnasium's ``TimeLimit`` wrapper) ends an episode outside the env, which cannot see it:
+the motor then holds its last command until the next ``reset()`` or ``close()``, or until the
+device's watchdog stops it (100 ms on the servo) if the host sends nothing more.
+
+Each ``reset()`` keeps the objects alive at that moment out of the garbage collector's scans
+until the env closes (:func:`frictiongym.hardware.realtime.freeze_heap`): a full collection of
+a large process stalls a loop for longer than a watchdog allows.
 """
 
 from __future__ import annotations
@@ -29,6 +34,7 @@ from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import HardwareError, ProtocolError
 from frictiongym.hardware.protocol import Status
+from frictiongym.hardware.realtime import freeze_heap, thaw_heap
 from frictiongym.hardware.runlog import RunLog, Timing, default_directory, read_steps
 
 #: Simulator-only settings, refused with a device (what each would need to mean there).
@@ -127,6 +133,8 @@ class DeviceSession(Simulation):
         self._periods: list[float] = []
         self._late = 0
         self._skipped = 0
+        #: Errors that ended a step: episode, step and message (also in the log's meta.json).
+        self.faults: list[dict[str, Any]] = []
 
     def _compile(self) -> None:
         """Compile the observation code now: a first step must not stall while the motor runs."""
@@ -170,6 +178,7 @@ class DeviceSession(Simulation):
                 "servo's encoder is zeroed where the disk is; put the Altino at its start by hand)"
             )
         super().prepare_reset(mask, rng_of, options)
+        freeze_heap(self)
         self._first = self.backend.start(zero_position=True)
         self.episode += 1
 
@@ -189,7 +198,11 @@ class DeviceSession(Simulation):
             sample = self._first
             self._first = None
         else:
-            sample = self.backend.step(requested)
+            try:
+                sample = self.backend.step(requested)
+            except HardwareError as exc:
+                self._record_fault(exc)
+                raise
         ek.observe_device(self.state, self.rows, self.config, sample.measured, sample.applied,
                           self.plant.command_limit, self.dt, fresh, obs, out, flags)  # fmt: skip
         if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
@@ -225,6 +238,17 @@ class DeviceSession(Simulation):
             out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
         ))  # fmt: skip
 
+    def _record_fault(self, error: HardwareError) -> None:
+        fault = {
+            "episode": self.episode,
+            "step": int(self.state[0, ek.E_STEPS]) + 1,
+            "error": type(error).__name__,
+            "message": str(error),
+        }
+        self.faults.append(fault)
+        if self.log is not None:
+            self.log.update(faults=self.faults)
+
     @property
     def periods(self) -> list[float]:
         """Host time between consecutive steps of an episode, s, every step so far."""
@@ -237,6 +261,7 @@ class DeviceSession(Simulation):
     def close(self) -> None:
         """Zero the motor, close the link and finish the log (idempotent)."""
         self.backend.close()
+        thaw_heap(self)
         if self.log is not None and not self.log.closed:
             self.log.close(timing=self.timing() if self._periods else None)
 

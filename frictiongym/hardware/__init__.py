@@ -30,6 +30,7 @@ from frictiongym.hardware.errors import (
     HardwareError,
     ProtocolError,
     SDKNotAvailableError,
+    WatchdogTripError,
 )
 
 __all__ = [
@@ -49,6 +50,7 @@ __all__ = [
     "SDKNotAvailableError",
     "Sample",
     "SerialBackend",
+    "WatchdogTripError",
     "resolve_backend",
 ]
 

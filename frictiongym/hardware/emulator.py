@@ -15,7 +15,12 @@ Two clocks:
 * real time (default): the device thread ticks at absolute deadlines ``t0 + k dt`` (never
   ``sleep(dt)``), reading input without blocking in between; a ``HelloRequest`` is answered at
   once. A tick the thread could not make in time is still integrated (the plant does not wait)
-  but its ``State`` is not sent: ``seq`` jumps and :attr:`EmulatorStats.missed` counts it.
+  but its ``State`` is not sent: ``seq`` jumps and :attr:`EmulatorStats.missed` counts it. The
+  watchdog does not count such a stall of the emulator against the host
+  (:meth:`~frictiongym.hardware.firmware.Firmware.excuse`). The thread runs under
+  ``SCHED_FIFO`` where the system permits it (:mod:`frictiongym.hardware.realtime`;
+  :attr:`Emulator.priority` says what it got), and the objects alive when it starts are kept
+  out of the garbage collector's scans, so a collection does not stall the device either.
 * lock-step (``lockstep=True``, for exact tests): every ``Command`` received is one tick, so
   device time is exactly ``ticks dt`` whatever the host's speed; while armed and silent for
   ``watchdog_ms`` of wall time the watchdog trips and a ``State`` is sent anyway.
@@ -42,6 +47,12 @@ import numpy as np
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.firmware import Firmware, Tick
+from frictiongym.hardware.realtime import (
+    REALTIME_PRIORITY,
+    freeze_heap,
+    raise_priority,
+    thaw_heap,
+)
 from frictiongym.hardware.transport import Faults, Link, PtyLink, TcpLink
 from frictiongym.params import DeviceParams
 
@@ -120,6 +131,8 @@ class Emulator:
         self.faults = faults
         self.url: str | None = None
         self.error: BaseException | None = None  #: what stopped the device thread, if anything
+        #: The device thread's scheduling: ``"SCHED_FIFO N"``, or why it runs as an ordinary one.
+        self.priority = "not started"
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self._link: Link | None = None
         self._thread: threading.Thread | None = None
@@ -156,7 +169,7 @@ class Emulator:
     def history(self) -> list[Tick]:
         """Per-tick records (newest last; the last ``HISTORY_TICKS`` of them)."""
         with self._lock:
-            return list(self.firmware.history)
+            return self.firmware.ticks_history()
 
     @property
     def position(self) -> float:
@@ -208,6 +221,7 @@ class Emulator:
             raise RuntimeError(f"this emulator already serves {self.url}; make another one")
         self._link = link
         self.url = link.url
+        freeze_heap(self)
         loop = self._loop_lockstep if self.lockstep else self._loop_realtime
         self._thread = threading.Thread(
             target=self._run, args=(loop,), name=f"frictiongym-emulator-{self.kind}", daemon=True
@@ -244,6 +258,7 @@ class Emulator:
             self._link.close()
         for fd in (self._wake_r, self._wake_w):
             os.close(fd)
+        thaw_heap(self)
 
     def __enter__(self) -> Emulator:
         return self
@@ -264,6 +279,10 @@ class Emulator:
             pass
 
     def _run(self, loop: Any) -> None:
+        why_not = raise_priority(REALTIME_PRIORITY)
+        self.priority = (
+            f"SCHED_FIFO {REALTIME_PRIORITY}" if why_not is None else f"ordinary ({why_not})"
+        )
         try:
             loop()
         except BaseException as exc:  # reported through .error
@@ -358,11 +377,12 @@ class Emulator:
             if now >= deadline:
                 for message in self._read(self._wait(0.0)):  # what arrived up to the tick
                     self._answer(message, now - t0)
-                due = int((now - t0) / dt) - fw.ticks
+                missed = max(int((now - t0) / dt) - fw.ticks, 1) - 1
                 with self._lock:
-                    for _ in range(max(due, 1)):
+                    fw.excuse(missed * dt)  # the host never got the states of these ticks
+                    for _ in range(missed + 1):
                         state = fw.tick((fw.ticks + 1) * dt)
-                    self._missed += max(due, 1) - 1
+                    self._missed += missed
                     self._wake_late.append(now - deadline)
                     self._after_tick(state, now)
                 self._release()
@@ -379,22 +399,32 @@ class Emulator:
         while not self._stop:
             timeout = min(LOCKSTEP_POLL, self._release())
             watchdog = fw.watchdog_deadline()
-            now = time.perf_counter() - t0
-            if watchdog is not None and now >= watchdog:
-                with self._lock:
-                    self._after_tick(fw.tick(now), time.perf_counter())
-                continue
             if watchdog is not None:
-                timeout = min(timeout, watchdog - now)
+                timeout = min(timeout, max(0.0, watchdog - (time.perf_counter() - t0)))
             ready = self._wait(timeout)
             now = time.perf_counter() - t0
-            for message in self._read(ready):
-                if self._answer(message, now):
+            commanded = self._step_lockstep(ready, now)
+            watchdog = fw.watchdog_deadline()
+            if not commanded and watchdog is not None and now >= watchdog:
+                # One more look first: this thread may have been held up (a garbage collection,
+                # the scheduler) since it last looked, and a command that came is not silence.
+                now = time.perf_counter() - t0
+                if not self._step_lockstep(self._wait(0.0), now):
                     with self._lock:
                         self._after_tick(fw.tick(now), time.perf_counter())
-                elif isinstance(message, p.Place):
-                    fw.apply_pending()
             self._release()
+
+    def _step_lockstep(self, ready: list[int], now: float) -> bool:
+        """Take the input that arrived: one tick per command; return whether one came."""
+        commanded = False
+        for message in self._read(ready):
+            if self._answer(message, now):
+                commanded = True
+                with self._lock:
+                    self._after_tick(self.firmware.tick(now), time.perf_counter())
+            elif isinstance(message, p.Place):
+                self.firmware.apply_pending()
+        return commanded
 
 
 __all__ = ["Emulator", "EmulatorStats", "Faults"]

@@ -32,5 +32,13 @@ class DeviceFaultError(HardwareError):
     """The device reported a fault: amplifier fault, stall error, watchdog trip or limit."""
 
 
+class WatchdogTripError(DeviceFaultError):
+    """The device's watchdog stopped the motor (no command in time) and nothing else failed.
+
+    The host loop stalled or the link lost frames; the device itself is fine, and the next
+    ``start()`` (an env's ``reset()``) re-arms it.
+    """
+
+
 class SDKNotAvailableError(HardwareError, ImportError):
     """A vendor SDK (Quanser's ``quanser.hardware``) is not installed."""

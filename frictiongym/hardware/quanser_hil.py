@@ -25,6 +25,7 @@ from frictiongym.hardware.errors import (
     DeviceTimeoutError,
     HardwareError,
     SDKNotAvailableError,
+    WatchdogTripError,
 )
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.uri import positive, uri_options
@@ -80,9 +81,10 @@ class QuanserHILBackend(Backend):
     deletes the task, writes 0 V again and disables the amplifier, each step tried even if one
     fails. The HIL watchdog, where the board supports it, sets 0 V and disables the amplifier
     when the host stops reloading it (``DeviceInfo.watchdog_s``); its expiry raises
-    :class:`DeviceFaultError`. So do the amplifier-fault and stall-error inputs (read every
-    20 ms); stall detected only sets ``Status.STALL``. :meth:`start` disables and re-enables
-    the amplifier, which clears a latched stall error (Quanser's reset procedure).
+    :class:`WatchdogTripError` (a :class:`DeviceFaultError`), the amplifier-fault and
+    stall-error inputs (read every 20 ms) a :class:`DeviceFaultError`; stall detected only
+    sets ``Status.STALL``. :meth:`start` disables and re-enables the amplifier, which clears a
+    latched stall error (Quanser's reset procedure).
 
     The SDK's blocking read has no timeout argument: a board that stops sampling raises its
     own ``HILError``, mapped to :class:`DeviceDisconnectedError` (or
@@ -200,7 +202,7 @@ class QuanserHILBackend(Backend):
                 "process) has the board open"
             )
         if "watchdog" in lowered:
-            return DeviceFaultError(f"{text}; the watchdog zeroed the motor: call start() again")
+            return WatchdogTripError(f"{text}; the watchdog zeroed the motor: call start() again")
         return DeviceDisconnectedError(
             f"{text}; the board stopped answering: check the USB cable and the QUBE's power, "
             "then open it again"
@@ -352,7 +354,7 @@ class QuanserHILBackend(Backend):
 
     def _exchange(self, command: float) -> Sample:
         if self._watching and not self._call("reloading the watchdog", "watchdog_reload"):
-            raise DeviceFaultError(
+            raise WatchdogTripError(
                 f"the HIL watchdog of {self._where} expired ({self._watchdog} s without a "
                 "reload): it zeroed the motor and disabled the amplifier; the loop was too "
                 "slow; start() again"

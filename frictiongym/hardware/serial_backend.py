@@ -2,9 +2,10 @@
 
 The device's clock paces the loop: it sends one ``State`` per tick, and :meth:`step` writes the
 command and blocks until the ``State`` that echoes it (``seq_applied``), so host jitter adds
-latency but never changes the sampling period (research/hardware.md §0). A command that misses
-its tick is held one period late and reported (``Sample.late``); a device that stays silent for
-``timeout`` raises :class:`~frictiongym.hardware.errors.DeviceTimeoutError`.
+latency but never changes the sampling period. A command that misses its tick is held one
+period late and reported (``Sample.late``); a device that stays silent while the host listens
+for ``timeout`` raises :class:`~frictiongym.hardware.errors.DeviceTimeoutError` (time the host
+itself was stalled, by a garbage collection or the scheduler, is not the device's silence).
 """
 
 from __future__ import annotations
@@ -22,17 +23,21 @@ from frictiongym.hardware.errors import (
     DeviceTimeoutError,
     HardwareError,
     ProtocolError,
+    WatchdogTripError,
 )
 from frictiongym.hardware.uri import integer, positive, uri_options
 
-#: Default line rate: the QUBE bridge's (research/hardware.md §3.4: exact on 16 MHz AVRs, room
-#: for 500 Hz frames both ways). Ignored by USB CDC boards, ptys and sockets.
+#: Default line rate: the QUBE bridge's (exact on 16 MHz AVRs, room for 500 Hz frames both
+#: ways). Ignored by USB CDC boards, ptys and sockets.
 DEFAULT_BAUD = 1_000_000
 #: Time for the device to answer the handshake: an Arduino resets when its port opens and
-#: spends 1-2 s in its bootloader (research/hardware.md §3.5).
+#: spends 1-2 s in its bootloader.
 HANDSHAKE_TIMEOUT = 3.0
 #: A command with no echo after this many periods counts as late (it missed its tick).
 LATE_AFTER_PERIODS = 2.5
+#: Longest single wait for input, s: a wait that returns later than this was stalled on the
+#: host, and counts as this long towards the timeout.
+READ_WAIT = 0.05
 
 _FAULTS = {
     p.Status.WATCHDOG: "its watchdog tripped (no command reached it in time: the host loop "
@@ -63,7 +68,8 @@ class SerialBackend(Backend):
     baud : int, default 1_000_000
         Line rate (ignored by USB CDC boards, ptys and sockets).
     timeout : float, optional
-        Longest wait for a state frame, s (default: five device periods, at least 0.1 s).
+        Longest silence of the device while the host listens for a state frame, s (default:
+        five device periods, at least 0.1 s).
     handshake_timeout : float, default 3.0
         Longest wait for the device's ``Hello`` after opening.
     """
@@ -103,7 +109,7 @@ class SerialBackend(Backend):
         serial = _pyserial()
         try:
             self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baud, timeout=0.05, write_timeout=0.5
+                self.port, baudrate=self.baud, timeout=READ_WAIT, write_timeout=0.5
             )
         except (serial.SerialException, OSError, ValueError) as exc:
             raise DeviceNotFoundError(
@@ -125,7 +131,7 @@ class SerialBackend(Backend):
         period = 1.0 / hello.rate_hz
         if self.timeout is None:
             self.timeout = max(0.1, 5.0 * period)
-        self._serial.timeout = min(self.timeout, 0.05)
+        self._serial.timeout = min(self.timeout, READ_WAIT)
         return DeviceInfo(
             kind=KINDS[hello.kind - 1],
             rate_hz=float(hello.rate_hz),
@@ -218,21 +224,30 @@ class SerialBackend(Backend):
         return states
 
     def _await(self, seq: int) -> Sample:
-        """Block until the state that echoes command ``seq`` (or report the command late)."""
+        """Block until the state that echoes command ``seq`` (or report the command late).
+
+        The timeout counts only time spent listening: each wait for input counts at most
+        its own limit (:data:`READ_WAIT`), so a host stalled inside a wait (a garbage
+        collection, the scheduler) finds the frames that arrived meanwhile instead of
+        blaming the device.
+        """
         period = 1.0 / self._opened().rate_hz
         sent = time.monotonic()
         newest: p.State | None = None
+        listened = 0.0
         while True:
+            started = time.monotonic()
             for state in self._states(wait=True):
                 newest = state
                 if state.seq_applied == seq:
                     return self._sample(state, late=False)
-            waited = time.monotonic() - sent
-            if newest is not None and waited > LATE_AFTER_PERIODS * period:
+            now = time.monotonic()
+            listened += min(now - started, self._serial.timeout)
+            if newest is not None and now - sent > LATE_AFTER_PERIODS * period:
                 return self._sample(newest, late=True)
-            if waited > (self.timeout or 0.0):
+            if listened > (self.timeout or 0.0):
                 raise DeviceTimeoutError(
-                    f"no state frame from {self.port!r} for {waited:.3f} s (the device ticks "
+                    f"no state frame from {self.port!r} for {listened:.3f} s (the device ticks "
                     f"every {period * 1000:.1f} ms): the device stopped or the link is down"
                 )
 
@@ -240,7 +255,10 @@ class SerialBackend(Backend):
         hello = self._opened()
         if state.status & p.FAULT_BITS:
             reasons = "; ".join(text for bit, text in _FAULTS.items() if state.status & bit)
-            raise DeviceFaultError(f"the device at {self.port!r} stopped its motor: {reasons}")
+            message = f"the device at {self.port!r} stopped its motor: {reasons}"
+            if state.status & p.FAULT_BITS == p.Status.WATCHDOG:
+                raise WatchdogTripError(message)
+            raise DeviceFaultError(message)
         skipped = 0
         if self._last is not None:
             skipped = max(0, ((state.seq - self._last.seq) & 0xFFFF) - 1)

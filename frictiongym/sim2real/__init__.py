@@ -5,9 +5,18 @@ and the figures; ``frictiongym sim2real`` does both from the command line.
 """
 
 from frictiongym.sim2real.report import summary, write_report
-from frictiongym.sim2real.run import Sim2RealResult, Trace, fit_percent, record, rmse, run_sim2real
+from frictiongym.sim2real.run import (
+    DeviceRun,
+    Sim2RealResult,
+    Trace,
+    fit_percent,
+    record,
+    rmse,
+    run_sim2real,
+)
 
 __all__ = [
+    "DeviceRun",
     "Sim2RealResult",
     "Trace",
     "fit_percent",

@@ -14,7 +14,16 @@ import numpy as np
 
 from frictiongym._io import write_text_atomic
 from frictiongym.hardware.runlog import write_json_atomic
-from frictiongym.sim2real.run import SIGNALS, Sim2RealResult, differences
+from frictiongym.sim2real.run import (
+    COMPLETE,
+    DEVICE_LIMIT,
+    SAFETY_LIMIT,
+    SIGNALS,
+    WATCHDOG,
+    DeviceRun,
+    Sim2RealResult,
+    differences,
+)
 
 #: Step metrics compared, with their units (output units for errors).
 METRICS = {
@@ -37,14 +46,54 @@ def _num(value: float, digits: int = 4) -> str:
     return f"{value:.{digits}g}"
 
 
+def _runs(result: Sim2RealResult) -> list[DeviceRun]:
+    """Return every device run (a result built by hand may list only its complete traces)."""
+    if result.runs:
+        return result.runs
+    return [DeviceRun(i + 1, t.t.size - 1, COMPLETE, "", t) for i, t in enumerate(result.device)]
+
+
 def summary(result: Sim2RealResult) -> dict[str, Any]:
-    """Return the report's numbers as plain data (``sim2real.json``)."""
+    """Return the report's numbers as plain data (``sim2real.json``).
+
+    The gap, spread and metric figures come from the complete device runs only; with none
+    they are ``null``. ``runs`` says how each device run ended; ``model_stops`` the step at
+    which the safety limit ended a simulated model's run (``null``: it ran its full length).
+    """
+    runs = _runs(result)
+    timing = result.timing
+    data: dict[str, Any] = {
+        "env_id": result.env_id,
+        "backend": result.backend,
+        "controller": result.controller,
+        "gains": result.gains,
+        "repeats": len(runs),
+        "complete_runs": len(result.device),
+        "runs": [{"run": r.run, "steps": r.steps, "ended": r.ended, "detail": r.detail}
+                 for r in runs],
+        "steps": int(min(t.t.size for t in result.device)) - 1 if result.device else None,
+        "models": result.model_descriptions,
+        "model_stops": {n: t.t.size - 1 if t.terminated else None
+                        for n, t in result.models.items()},
+        "gap": None,
+        "gap_closed": None,
+        "device_spread": None,
+        "device_metrics": [m.as_dict() for m in result.device_metrics()],
+        "model_metrics": {n: t.metrics().as_dict() for n, t in result.models.items()},
+        "metric_differences": None,
+        "timing": None if timing is None else timing.__dict__,
+        "priority": result.priority or None,
+        "device_log": result.log_dir,
+    }  # fmt: skip
+    if not result.device:
+        return data
     gaps = {
         name: {s: {"rmse": result.gap(name, s), "fit_pct": result.fit(name, s)} for s in SIGNALS}
         for name in result.models
     }
     nominal = next(iter(result.models))
-    closed = {
+    data["gap"] = gaps
+    data["gap_closed"] = {
         name: {
             s: 1.0 - gaps[name][s]["rmse"] / gaps[nominal][s]["rmse"]
             if gaps[nominal][s]["rmse"] > 0
@@ -54,46 +103,107 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         for name in result.models
         if name != nominal
     }
-    timing = result.timing
-    return {
-        "env_id": result.env_id,
-        "backend": result.backend,
-        "controller": result.controller,
-        "gains": result.gains,
-        "repeats": len(result.device),
-        "steps": int(min(trace.t.size for trace in result.device)) - 1,
-        "models": result.model_descriptions,
-        "gap": gaps,
-        "gap_closed": closed,
-        "device_spread": {s: result.spread(s) for s in SIGNALS},
-        "device_metrics": [m.as_dict() for m in result.device_metrics()],
-        "model_metrics": {n: t.metrics().as_dict() for n, t in result.models.items()},
-        "metric_differences": differences(result, list(METRICS)),
-        "timing": None if timing is None else timing.__dict__,
-        "device_log": result.log_dir,
-    }
+    data["device_spread"] = {s: result.spread(s) for s in SIGNALS}
+    data["metric_differences"] = differences(result, list(METRICS))
+    return data
+
+
+def stops(result: Sim2RealResult) -> str:
+    """Return how many device runs ended early and by what, e.g. "2 by the watchdog"."""
+    counts: dict[str, int] = {}
+    for run in result.stopped:
+        counts[run.ended] = counts.get(run.ended, 0) + 1
+    return ", ".join(f"{n} by the {ended}" for ended, n in counts.items()) or "none"
+
+
+def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
+    """Return the device runs' table and what the stopped ones mean for the figures."""
+    lines = ["## Device runs", "", "| run | steps | ended |", "|---:|---:|---|"]
+    for run in data["runs"]:
+        how = run["ended"] if run["ended"] == COMPLETE else f"**{run['ended']}**: {run['detail']}"
+        lines.append(f"| {run['run']} | {run['steps']} | {how} |")
+    stopped = result.stopped
+    if stopped:
+        names = ", ".join(str(run.run) for run in stopped)
+        lines += ["", f"{len(stopped)} of {data['repeats']} runs ({names}) ended early and are "
+                  "left out of the comparison" + (f": the figures below use the "
+                  f"{data['complete_runs']} complete runs." if result.device else ".")]  # fmt: skip
+        if any(run.ended == WATCHDOG for run in stopped):
+            lines += ["", "A watchdog trip means the host loop sent no command for the "
+                      "device's watchdog time (a stalled host, or lost frames): the device "
+                      "zeroed its motor, and the next run re-armed it (docs/hardware.md, "
+                      '"Timing and the watchdog").']  # fmt: skip
+        if any(run.ended in (SAFETY_LIMIT, DEVICE_LIMIT) for run in stopped):
+            lines += ["", "A run ended by a limit went where the limit forbids: a reference "
+                      "near it, or a controller that overshoots."]  # fmt: skip
+    return lines
 
 
 def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool = True) -> Path:
-    """Write ``report.md``, ``sim2real.json`` and (optionally) the figures; return report.md."""
+    """Write ``report.md``, ``sim2real.json`` and (optionally) the figures; return report.md.
+
+    With no complete device run there is no gap to report: the report says how each run ended,
+    and ``overlay.png`` is not drawn.
+    """
     out.mkdir(parents=True, exist_ok=True)
     data = summary(result)
     write_json_atomic(out / "sim2real.json", {"command": command, **data})
     if figures:
         write_figures(result, out)
     units = UNITS.get(result.env_id, {s: "" for s in SIGNALS})
+    steps = data["steps"] if data["steps"] is not None else max(r["steps"] for r in data["runs"])
     lines = [
         f"# Sim-to-real: {result.env_id}, {result.controller}",
         "",
         f"Reproduce: `{command}`",
         "",
-        f"Device: `{result.backend}`, {data['repeats']} runs of {data['steps']} steps "
-        f"(log: `{result.log_dir}`). Gains: Kp={result.gains['kp']:g}, Ki={result.gains['ki']:g}, "
-        f"Kd={result.gains['kd']:g}.",
+        f"Device: `{result.backend}`, {data['repeats']} runs of {steps} steps, "
+        f"{data['complete_runs']} complete (log: `{result.log_dir}`). Gains: "
+        f"Kp={result.gains['kp']:g}, Ki={result.gains['ki']:g}, Kd={result.gains['kd']:g}.",
         "",
         "Models: " + "; ".join(f"**{n}**: {d}" for n, d in result.model_descriptions.items()),
         "",
-        "## Gap to the device (RMSE against the mean of the device runs)",
+        *_run_lines(result, data),
+        "",
+    ]
+    if result.device:
+        lines += _gap_lines(result, data, units)
+    else:
+        lines += ["No device run completed, so there is no gap to report."]
+    timing = data["timing"]
+    if timing is not None and timing["steps"]:
+        lines += [
+            "", "## Timing of the device loop", "",
+            f"{timing['steps']} timed steps at {_num(timing['rate_hz'])} Hz achieved; period "
+            f"error |T - dt| p50 {1e3 * timing['period_p50']:.3f} ms, p99 "
+            f"{1e3 * timing['period_p99']:.3f} ms, max {1e3 * timing['period_max']:.3f} ms; "
+            f"{timing['late']} late commands, {timing['skipped']} skipped ticks. Host loop "
+            f"scheduling: {result.priority or 'not recorded'}.",
+        ]  # fmt: skip
+        rate = 1.0 / _period(result)
+        if timing["rate_hz"] > 1.5 * rate:
+            lines += ["", f"The loop ran faster than the device's {rate:g} Hz: its clock did not "
+                      "pace it (a lock-step emulator), so these figures show the host's speed "
+                      "only; see docs/benchmarks.md for a real-time run."]  # fmt: skip
+    if figures:
+        lines += ["", "## Figures", ""]
+        lines += ["![overlay](overlay.png)", ""] if result.device else []
+        lines += ["![timing](timing.png)"]
+    path = out / "report.md"
+    write_text_atomic(path, "\n".join(lines) + "\n")
+    return path
+
+
+def _period(result: Sim2RealResult) -> float:
+    """Return the control period, s (from a simulated model's trace: every run has it)."""
+    trace = next(iter(result.models.values()))
+    return float(trace.t[1]) if trace.t.size > 1 else math.nan
+
+
+def _gap_lines(result: Sim2RealResult, data: dict[str, Any], units: dict[str, str]) -> list[str]:
+    """Return the gap table, what each model closes and the step metrics (complete runs)."""
+    lines = [
+        "## Gap to the device (RMSE against the mean of the complete device runs)",
         "",
         "| signal | "
         + " | ".join(f"{n} RMSE | {n} fit %" for n in result.models)
@@ -106,13 +216,19 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
         lines.append(f"| {s} | " + " | ".join(cells) + f" | {_num(data['device_spread'][s])} |")
     lines += ["", "The device spread is each device run's RMSE against the mean of the others:",
               "the noise floor no model can beat.", ""]  # fmt: skip
+    for name, stop in data["model_stops"].items():
+        if stop is not None:
+            lines.append(f"The safety limit ended the **{name}** model's run after {stop} steps: "
+                         "its figures cover those steps only.")  # fmt: skip
+    if any(stop is not None for stop in data["model_stops"].values()):
+        lines.append("")
     for name, closed in data["gap_closed"].items():
         lines.append(
             f"**{name}** closes {_num(100 * closed['output'], 3)} % of the nominal model's output "
             f"gap and {_num(100 * closed['command'], 3)} % of its command gap"
             + (" (negative: farther than the nominal model)." if min(closed.values()) < 0 else ".")
         )
-    lines += ["", "## Step metrics (model minus device mean)", "",
+    lines += ["", "## Step metrics (model minus the complete device runs' mean)", "",
               "| metric | device mean | device std | "
               + " | ".join(f"{n} - device" for n in result.models) + " |",
               "|---|---:|---:|" + "---:|" * len(result.models)]  # fmt: skip
@@ -125,34 +241,33 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
         unit = units["output"] if unit == "out" else unit
         diffs = [_num(data["metric_differences"][n][key]) for n in result.models]
         lines.append(f"| {key} ({unit}) | {_num(mean)} | {_num(std)} | " + " | ".join(diffs) + " |")
-    timing = data["timing"]
-    if timing is not None:
-        lines += [
-            "", "## Timing of the device loop", "",
-            f"{timing['steps']} timed steps at {_num(timing['rate_hz'])} Hz achieved; period "
-            f"error |T - dt| p50 {1e3 * timing['period_p50']:.3f} ms, p99 "
-            f"{1e3 * timing['period_p99']:.3f} ms, max {1e3 * timing['period_max']:.3f} ms; "
-            f"{timing['late']} late commands, {timing['skipped']} skipped ticks.",
-        ]  # fmt: skip
-        rate = 1.0 / float(result.device[0].t[1])
-        if timing["rate_hz"] > 1.5 * rate:
-            lines += ["", f"The loop ran faster than the device's {rate:g} Hz: its clock did not "
-                      "pace it (a lock-step emulator), so these figures show the host's speed "
-                      "only; see docs/benchmarks.md for a real-time run."]  # fmt: skip
-    if figures:
-        lines += ["", "## Figures", "", "![overlay](overlay.png)", "", "![timing](timing.png)"]
-    path = out / "report.md"
-    write_text_atomic(path, "\n".join(lines) + "\n")
-    return path
+    return lines
 
 
 def write_figures(result: Sim2RealResult, out: Path) -> None:
-    """``overlay.png`` (signals and errors over time) and ``timing.png`` (host periods)."""
+    """Draw ``overlay.png`` (signals and errors over time) and ``timing.png`` (host periods).
+
+    ``overlay.png`` needs a complete device run, and is not drawn without one.
+    """
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    if result.device:
+        _write_overlay(result, out, plt)
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    if result.periods.size:
+        ax.hist(1e3 * result.periods, bins=60, color="C0")
+    ax.axvline(1e3 * _period(result), color="k", ls="--", lw=0.8, label="device period")
+    ax.set(xlabel="host period between steps [ms]", ylabel="steps", yscale="log")
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(out / "timing.png", dpi=110)
+    plt.close(fig)
+
+
+def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
     units = UNITS.get(result.env_id, {s: "" for s in SIGNALS})
     fig, axes = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
     for k, s in enumerate(SIGNALS):
@@ -176,17 +291,6 @@ def write_figures(result: Sim2RealResult, out: Path) -> None:
     fig.suptitle(f"{result.env_id}: {result.controller} on the device and in simulation")
     fig.tight_layout()
     fig.savefig(out / "overlay.png", dpi=110)
-    plt.close(fig)
-
-    fig, ax = plt.subplots(figsize=(7, 3.5))
-    if result.periods.size:
-        ax.hist(1e3 * result.periods, bins=60, color="C0")
-    dt = result.device[0].t[1] if result.device[0].t.size > 1 else math.nan
-    ax.axvline(1e3 * dt, color="k", ls="--", lw=0.8, label="device period")
-    ax.set(xlabel="host period between steps [ms]", ylabel="steps", yscale="log")
-    ax.legend()
-    fig.tight_layout()
-    fig.savefig(out / "timing.png", dpi=110)
     plt.close(fig)
 
 

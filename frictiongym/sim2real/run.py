@@ -4,6 +4,12 @@
 noise floor), once on each simulated model (the nominal plant without friction, and the
 friction-augmented or identified one), and compares what the controller saw: the measured
 output, the estimated velocity and the applied command.
+
+A device run can end early: the env's safety limit (or the Altino's distance guard) ends it, or
+the device's watchdog stops the motor because the host loop stalled. Such a run is recorded
+with how and when it ended (:class:`DeviceRun`), left out of the comparison, and the remaining
+runs go on: a watchdog trip is a hiccup of the host, not of the device, and the next run
+re-arms it. The comparison uses the complete runs only.
 """
 
 from __future__ import annotations
@@ -19,6 +25,10 @@ import numpy.typing as npt
 
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
 from frictiongym.envs import ENV_IDS
+from frictiongym.envs import _kernel as ek
+from frictiongym.hardware.errors import WatchdogTripError
+from frictiongym.hardware.protocol import Status
+from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
 from frictiongym.metrics import ResponseMetrics, response_metrics
 from frictiongym.plants.presets import (
@@ -39,6 +49,12 @@ PAPER_GAINS = {
 CONTROLLERS = ("pid", "compensated")
 #: Signals compared, as (name, unit key): the controller's view of the loop.
 SIGNALS = ("output", "velocity", "command")
+#: How a device run ended (:attr:`DeviceRun.ended`): its full length; the env's safety limit;
+#: the device's own limit (the Altino's distance guard); the device's watchdog.
+COMPLETE = "complete"
+SAFETY_LIMIT = "safety limit"
+DEVICE_LIMIT = "device limit"
+WATCHDOG = "watchdog"
 
 
 @dataclass(frozen=True)
@@ -63,6 +79,22 @@ class Trace:
             self.t, self.output, float(self.reference[-1]), command=self.command,
             y0=float(self.output[0]),
         )  # fmt: skip
+
+
+@dataclass(frozen=True)
+class DeviceRun:
+    """One run on the device: how it ended and its trace (None if the device stopped it)."""
+
+    run: int  #: 1 for the first
+    steps: int  #: steps done
+    ended: str  #: ``"complete"``, ``"safety limit"``, ``"device limit"`` or ``"watchdog"``
+    detail: str  #: one line: what ended it
+    trace: Trace | None
+
+    @property
+    def complete(self) -> bool:
+        """Whether the run lasted its full length."""
+        return self.ended == COMPLETE
 
 
 def record(env: Any, controller: Controller, steps: int) -> Trace:
@@ -107,6 +139,17 @@ class Sim2RealResult:
     timing: Timing | None
     periods: FloatArray = field(default_factory=lambda: np.zeros(0))
     log_dir: str | None = None
+    #: Every device run in order, complete or not (:attr:`device` holds the complete ones).
+    runs: list[DeviceRun] = field(default_factory=list)
+    #: The host loop's scheduling during the device runs (``realtime_priority``).
+    priority: str = ""
+    #: The env's safety limit: |angle| in rad (servo), least distance to the wall in cm (Altino).
+    safety_limit: float = math.nan
+
+    @property
+    def stopped(self) -> list[DeviceRun]:
+        """The device runs that ended early."""
+        return [run for run in self.runs if not run.complete]
 
     def device_mean(self, name: str) -> FloatArray:
         """Mean over the device runs of a signal (over their common length)."""
@@ -144,6 +187,43 @@ def build_controller(env: Any, controller: str, gains: PIDGains) -> Controller:
     return pid if controller == "pid" else FrictionCompensator(pid)
 
 
+def check_reference(env_id: str, reference: float) -> float:
+    """Return the env's safety limit; refuse a ``reference`` that lies beyond it.
+
+    A step to such a target would end every run at the limit (the servo's ``|angle| >
+    4π``, the Altino's wall), with nothing to compare.
+    """
+    env = gym.make(env_id)
+    try:
+        sim: Any = env.unwrapped.sim  # type: ignore[attr-defined]
+        limit, encoder = float(sim.limit), sim.device.sensor == ek.SENSOR_ENCODER
+    finally:
+        env.close()
+    if not math.isfinite(reference):
+        raise ValueError(f"the reference must be a finite number, got {reference!r}")
+    if encoder and abs(reference) >= limit:
+        raise ValueError(
+            f"reference {reference:g} rad lies beyond the servo's safety limit of {limit:.4g} rad, "
+            f"which ends a run when |angle| passes it: give a reference within ±{limit:.4g} rad"
+        )
+    if not encoder and reference <= limit:
+        raise ValueError(
+            f"reference {reference:g} cm is at or behind the safety limit of {limit:g} cm from "
+            f"the wall, which ends a run: give a distance above {limit:g} cm"
+        )
+    return limit
+
+
+def _ended_early(session: Any, trace: Trace, limit: float, encoder: bool) -> tuple[str, str]:
+    """How a terminated run ended: by the device's distance guard or the env's safety limit."""
+    steps = trace.t.size - 1
+    sample = session.last_sample
+    if sample is not None and sample.status & Status.LIMIT:
+        return DEVICE_LIMIT, f"the device's distance guard stopped it after {steps} steps"
+    where = f"|angle| passed {limit:.4g} rad" if encoder else f"the car reached {limit:g} cm"
+    return SAFETY_LIMIT, f"the safety limit ended it after {steps} steps ({where})"
+
+
 def run_sim2real(
     env_id: str,
     backend: object,
@@ -158,6 +238,11 @@ def run_sim2real(
     progress: Callable[[str], None] | None = None,
 ) -> Sim2RealResult:
     """Run ``controller`` on the device ``repeats`` times and once on each simulated model.
+
+    A run that the safety limit ends, or that the device's watchdog stops, is recorded as such
+    (:attr:`Sim2RealResult.runs`) and left out of the comparison; the other runs go on. The
+    device runs hold the host loop at real-time priority where the system permits it
+    (:func:`frictiongym.hardware.realtime.realtime_priority`).
 
     Parameters
     ----------
@@ -178,11 +263,11 @@ def run_sim2real(
     steps : int, optional
         Steps per run (default: the env's episode length).
     reference : float, optional
-        Step target (default: the env's step).
+        Step target (default: the env's step); refused beyond the env's safety limit.
     log : bool or path
         The device run log (see :class:`~frictiongym.envs.device.DeviceSession`).
     progress : callable, optional
-        Called with a short text before each run.
+        Called with a short text before each run, and when a run ends early.
     """
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; use one of {sorted(ENV_IDS)}")
@@ -195,6 +280,8 @@ def run_sim2real(
             raise ValueError(f"no paper gains for {env_id!r}; pass gains")
         gains = PIDGains(**PAPER_GAINS[env_id, controller])
     task: dict[str, Any] = {} if reference is None else {"reference": float(reference)}
+    if reference is not None:
+        check_reference(env_id, float(reference))
     if params is not None:
         task["params"] = params
     models: dict[str, tuple[dict[str, Any], str]] = {
@@ -211,11 +298,27 @@ def run_sim2real(
         n = int(steps or getattr(device_env.spec, "max_episode_steps", 0) or 0)
         if n < 1:
             raise ValueError("give steps: the env has no registered episode length")
-        runs = []
-        for r in range(repeats):
-            say(f"device run {r + 1}/{repeats}")
-            runs.append(record(device_env, ctrl, n))
         session: Any = device_env.unwrapped.sim  # type: ignore[attr-defined]
+        limit, encoder = float(session.limit), session.device.sensor == ek.SENSOR_ENCODER
+        runs: list[DeviceRun] = []
+        with realtime_priority() as priority:
+            for r in range(1, repeats + 1):
+                say(f"device run {r}/{repeats}")
+                try:
+                    trace = record(device_env, ctrl, n)
+                except WatchdogTripError as exc:  # the host stalled: this run only
+                    done = int(session.faults[-1]["step"]) - 1 if session.faults else 0
+                    runs.append(DeviceRun(r, done, WATCHDOG, str(exc), None))
+                    say(f"device run {r} stopped by the device's watchdog after {done} steps")
+                    continue
+                if trace.terminated:
+                    ended, detail = _ended_early(session, trace, limit, encoder)
+                    say(f"device run {r}: {detail}")
+                else:
+                    ended, detail = COMPLETE, f"{trace.t.size - 1} steps"
+                runs.append(DeviceRun(r, trace.t.size - 1, ended, detail, trace))
+        if session.log is not None:
+            session.log.update(priority=priority)
         timing, periods = session.timing(), np.asarray(session.periods)
         log_dir = None if session.log is None else str(session.log.directory)
     finally:
@@ -232,9 +335,10 @@ def run_sim2real(
     return Sim2RealResult(
         env_id=env_id, backend=str(backend), controller=controller,
         gains={"kp": float(gains.kp), "ki": float(gains.ki), "kd": float(gains.kd)},
-        device=runs, models=traces,
-        model_descriptions={name: text for name, (_, text) in models.items()},
-        timing=timing, periods=periods, log_dir=log_dir,
+        device=[run.trace for run in runs if run.complete and run.trace is not None],
+        models=traces, model_descriptions={name: text for name, (_, text) in models.items()},
+        timing=timing, periods=periods, log_dir=log_dir, runs=runs, priority=priority,
+        safety_limit=limit,
     )  # fmt: skip
 
 
