@@ -1,68 +1,176 @@
-"""Timing of the device path against the emulator, and the protocol decoder's throughput.
+"""Timing of the device path against the emulator, quiet and with a core busy; the decoder.
 
 1. Loop: the paper's PID drives ``frictiongym emulate --device rotary`` (a separate process on
    a pseudo-terminal, paced by its own 500 Hz clock) through ``gym.make(..., backend=PORT)``
-   for ``--seconds`` (default 10 s); we report the achieved rate, the period error
-   |host period - 2 ms| p50/p99/max, late commands and skipped device ticks.
-2. Decoder: ``FrameDecoder`` on a stream of State frames fed in 4 KiB reads, in frames per
+   for ``--seconds`` (default 10 s), as ``frictiongym sim2real`` does (its loop under
+   ``realtime_priority``). Each case is run ``--rounds`` times, the cases interleaved:
+
+   * ``quiet``: nothing else started by the script;
+   * ``busy``: a third process spinning on one core (``while True: pass``) for the whole run;
+   * ``busy-ordinary``: the same, with the host loop and the emulator's device thread left
+     ordinary threads (``--no-realtime``), as on a system that does not permit ``SCHED_FIFO``.
+
+   We report the achieved rate, the period error |host period - 2 ms| p50/p99/max, late
+   commands, device ticks the host missed ("skipped"), watchdog trips, the scheduling the
+   host loop and the device thread got, and the emulator's own missed ticks.
+2. Garbage collection: a full collection of a fresh process that imported what ``frictiongym
+   sim2real`` imports, and of one that also imported torch and stable-baselines3 (as
+   ``frictiongym train`` and a test run do), and the same after ``gc.freeze()``, as a device
+   episode runs it.
+3. Watchdog: what a dead host's last command does in the watchdog time: the model's disk
+   from rest at the 10 V limit (simulated).
+4. Decoder: ``FrameDecoder`` on a stream of State frames fed in 4 KiB reads, in frames per
    second, and as a ratio to a bare ``struct.unpack`` of the same payloads (no COBS, no CRC)
    in the same process.
 
-Usage: python scripts/bench_hardware.py [--seconds 10] [--frames 50000]
+Usage: python scripts/bench_hardware.py [--seconds 10] [--rounds 1] [--cases quiet,busy]
+       [--frames 50000]
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import json
 import os
 import signal
 import struct
 import subprocess
 import sys
+import tempfile
 import time
+from collections.abc import Iterator
 
 import gymnasium as gym
 import numpy as np
 
 import frictiongym  # noqa: F401
 from frictiongym.controllers import PID, PIDGains
+from frictiongym.hardware import WatchdogTripError
 from frictiongym.hardware import protocol as p
-from frictiongym.plants.presets import ROTARY_PAPER_GAINS
+from frictiongym.hardware.firmware import default_watchdog_ms
+from frictiongym.hardware.realtime import realtime_priority
+from frictiongym.plants.presets import ROTARY_DT, ROTARY_PAPER_GAINS, ROTARY_PLANT
+
+CASES = {
+    "quiet": (False, True),
+    "busy": (True, True),
+    "busy-ordinary": (True, False),
+}  #: case -> (a core busy, real-time priority asked for)
 
 
-def loop_timing(seconds: float) -> dict[str, float]:
-    emulator = subprocess.Popen(
-        [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", "rotary", "--quiet"],
-        stdout=subprocess.PIPE,
-        text=True,
-    )
+@contextlib.contextmanager
+def busy_core(busy: bool) -> Iterator[None]:
+    """Keep one core busy with a spinning process for the block (if ``busy``)."""
+    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy else None
     try:
-        assert emulator.stdout is not None
-        port = emulator.stdout.readline().strip()
-        env = gym.make(
-            "frictiongym/RotaryServo-v0", backend=port, log=False, max_episode_steps=-1,
-            reference="step_sequence",
-        )  # fmt: skip
-        pid = PID.for_env(env, PIDGains(**ROTARY_PAPER_GAINS))
-        obs, _ = env.reset(seed=0)
-        steps = round(seconds / env.unwrapped.dt)
-        for _ in range(steps):
-            obs, *_ = env.step(pid(obs))
-        timing = env.unwrapped.sim.timing()
-        env.close()
+        yield
     finally:
-        emulator.send_signal(signal.SIGINT)
-        emulator.wait(timeout=10)
+        if spinner is not None:
+            spinner.kill()
+            spinner.wait()
+
+
+@contextlib.contextmanager
+def maybe_priority(realtime: bool) -> Iterator[str]:
+    """``realtime_priority()`` if ``realtime``, else an ordinary thread."""
+    if realtime:
+        with realtime_priority() as got:
+            yield got
+    else:
+        yield "ordinary, SCHED_FIFO not asked for"
+
+
+def loop_timing(seconds: float, busy: bool, realtime: bool) -> dict[str, object]:
+    """Run the PID against the emulator in another process for ``seconds``; time the loop."""
+    command = [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", "rotary"]
+    with busy_core(busy), tempfile.TemporaryFile("w+") as status:
+        emulator = subprocess.Popen(
+            command + ([] if realtime else ["--no-realtime"]),
+            stdout=subprocess.PIPE, stderr=status, text=True,
+        )  # fmt: skip
+        trips = 0
+        try:
+            assert emulator.stdout is not None
+            port = emulator.stdout.readline().strip()
+            env = gym.make(
+                "frictiongym/RotaryServo-v0", backend=port, log=False, max_episode_steps=-1,
+                reference="step_sequence",
+            )  # fmt: skip
+            pid = PID.for_env(env, PIDGains(**ROTARY_PAPER_GAINS))
+            steps = round(seconds / env.unwrapped.dt)
+            with maybe_priority(realtime) as host:
+                obs, _ = env.reset(seed=0)
+                for _ in range(steps):
+                    try:
+                        obs, *_ = env.step(pid(obs))
+                    except WatchdogTripError:  # counted; the reset re-arms the device
+                        trips += 1
+                        obs, _ = env.reset()
+            timing = env.unwrapped.sim.timing()
+            env.close()
+        finally:
+            emulator.send_signal(signal.SIGINT)
+            emulator.wait(timeout=10)
+        status.seek(0)
+        lines = status.read().splitlines()
+    device = next((line for line in lines if line.startswith("# device thread:")), "?")
+    last = next((line for line in reversed(lines) if line.startswith("ticks")), "")
+    missed = last.split("(missed ")[1].split(")")[0] if "(missed " in last else "?"
     return {
-        "steps": timing.steps,
-        "duration_s": timing.duration,
-        "rate_hz": timing.rate_hz,
-        "p50_ms": 1e3 * timing.period_p50,
-        "p99_ms": 1e3 * timing.period_p99,
-        "max_ms": 1e3 * timing.period_max,
-        "late": timing.late,
-        "skipped": timing.skipped,
-    }
+        "steps": timing.steps, "duration_s": timing.duration, "rate_hz": timing.rate_hz,
+        "p50_ms": 1e3 * timing.period_p50, "p99_ms": 1e3 * timing.period_p99,
+        "max_ms": 1e3 * timing.period_max, "late": timing.late, "skipped": timing.skipped,
+        "trips": trips, "host": host, "device": device.split(": ", 1)[-1],
+        "emulator_missed": missed,
+    }  # fmt: skip
+
+
+#: Timing of a full collection, run in a fresh process after importing ``{imports}``.
+COLLECTION_CODE = """
+import gc, json, time
+import {imports}
+objects = len(gc.get_objects())
+best_full = best_frozen = float("inf")
+for _ in range(3):
+    start = time.perf_counter()
+    gc.collect()
+    best_full = min(best_full, time.perf_counter() - start)
+    gc.freeze()
+    start = time.perf_counter()
+    gc.collect()
+    best_frozen = min(best_frozen, time.perf_counter() - start)
+    gc.unfreeze()
+print(json.dumps({{"objects": objects, "full_ms": 1e3 * best_full,
+                  "frozen_ms": 1e3 * best_frozen}}))
+"""
+#: What the measured processes have imported: a device run's, and a training run's.
+COLLECTION_IMPORTS = {
+    "frictiongym sim2real": "frictiongym.sim2real, frictiongym.hardware.serial_backend, "
+    "matplotlib.pyplot",
+    "with torch and stable-baselines3": "frictiongym.sim2real, matplotlib.pyplot, torch, "
+    "stable_baselines3, frictiongym.residual",
+}
+
+
+def collection_times(imports: str) -> dict[str, float]:
+    """Time a full garbage collection of a fresh process that imported ``imports``, as it is
+    and with its objects frozen (best of three)."""
+    code = COLLECTION_CODE.format(imports=imports)
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    result: dict[str, float] = json.loads(out.stdout)
+    return result
+
+
+def dead_host(watchdog_s: float) -> tuple[float, float]:
+    """Angle (rad) and speed (rad/s) of the model's disk after ``watchdog_s`` at 10 V from rest."""
+    from frictiongym.friction import ROTARY_PAPER
+    from frictiongym.plants import Plant
+
+    plant = Plant(ROTARY_PLANT, ROTARY_PAPER, dt=ROTARY_DT, num_plants=1)
+    for _ in range(round(watchdog_s / ROTARY_DT)):
+        plant.step(ROTARY_PLANT.command_limit)
+    return float(plant.position[0]), float(plant.velocity[0])
 
 
 def decoder_throughput(frames: int) -> dict[str, float]:
@@ -102,22 +210,52 @@ def decoder_throughput(frames: int) -> dict[str, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seconds", type=float, default=10.0)
+    parser.add_argument("--rounds", type=int, default=1)
+    parser.add_argument(
+        "--cases", default=",".join(CASES), help=f"comma-separated, of {list(CASES)}"
+    )
     parser.add_argument("--frames", type=int, default=50_000)
     args = parser.parse_args()
-    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores")
+    cases = [case.strip() for case in args.cases.split(",")]
+    unknown = [case for case in cases if case not in CASES]
+    if unknown:
+        parser.error(f"unknown case(s) {unknown}; choose from {list(CASES)}")
+    print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, load {os.getloadavg()}")
     d = decoder_throughput(args.frames)
     print(
         f"decoder: {d['decode_per_s']:,.0f} State frames/s ({d['bytes_per_frame']:.0f} B each, "
         f"fed in 4 KiB reads); bare struct.unpack of the payloads: {d['unpack_per_s']:,.0f}/s; "
         f"decoding costs {d['cost_vs_unpack']:.1f}x the unpack"
     )
-    t = loop_timing(args.seconds)
+    for name, imports in COLLECTION_IMPORTS.items():
+        try:
+            g = collection_times(imports)
+        except subprocess.CalledProcessError as exc:
+            print(f"garbage collection [{name}]: not measured ({exc.stderr.splitlines()[-1]})")
+            continue
+        print(
+            f"garbage collection [{name}]: a full collection of {g['objects']:,} objects takes "
+            f"{g['full_ms']:.1f} ms, {g['frozen_ms']:.2f} ms with them frozen"
+        )
+    watchdog = default_watchdog_ms(ROTARY_DT) / 1000.0
+    angle, speed = dead_host(watchdog)
     print(
-        f"loop: {t['steps']} steps in {t['duration_s']:.3f} s = {t['rate_hz']:.2f} Hz "
-        f"(target 500 Hz); |period - 2 ms| p50 {t['p50_ms']:.3f} ms, p99 {t['p99_ms']:.3f} ms, "
-        f"max {t['max_ms']:.3f} ms; late commands {t['late']}, skipped device ticks "
-        f"{t['skipped']}"
+        f"watchdog: {1e3 * watchdog:.0f} ms; a dead host's last command at the 10 V limit "
+        f"turns the model's disk {angle:.2f} rad from rest in that time, to {speed:.0f} rad/s"
     )
+    for r in range(args.rounds):
+        for case in cases:
+            busy, realtime = CASES[case]
+            t = loop_timing(args.seconds, busy, realtime)
+            print(
+                f"loop [{case}] round {r + 1}: {t['steps']} steps in {t['duration_s']:.3f} s = "
+                f"{t['rate_hz']:.2f} Hz (target 500 Hz); |period - 2 ms| p50 "
+                f"{t['p50_ms']:.3f} ms, p99 {t['p99_ms']:.3f} ms, max {t['max_ms']:.3f} ms; "
+                f"late commands {t['late']}, skipped device ticks {t['skipped']}, watchdog "
+                f"trips {t['trips']}; host loop: {t['host']}; device thread: {t['device']}; "
+                f"emulator missed {t['emulator_missed']} ticks",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

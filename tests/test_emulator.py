@@ -579,6 +579,9 @@ def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
     assert out.splitlines()[0].startswith("socket://127.0.0.1:")
     assert "ticks" in err
     assert "DISABLED" in err
+    assert "# device thread: " in err  # SCHED_FIFO, or why not
+    assert main(["--device", "altino", "--tcp", "0", "--duration", "0.3", "--no-realtime"]) == 0
+    assert "# device thread: ordinary, SCHED_FIFO not asked for" in capsys.readouterr().err
     bad = tmp_path / "friction.json"
     bad.write_text("{not json")
     other = Path(__file__).resolve().parents[1] / "docs" / "identification" / "altino"

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import gc
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -11,6 +13,12 @@ import pytest
 from frictiongym.hardware import Backend, DeviceInfo, HardwareError, Sample, resolve_backend
 from frictiongym.hardware.base import _OPEN, _stop_all
 from frictiongym.hardware.emulated import EmulatedBackend
+from frictiongym.hardware.realtime import (
+    REALTIME_PRIORITY,
+    freeze_heap,
+    realtime_priority,
+    thaw_heap,
+)
 from frictiongym.hardware.runlog import RunLog, Timing, read_steps
 from frictiongym.hardware.serial_backend import SerialBackend
 
@@ -159,3 +167,35 @@ def test_timing_statistics():
     assert timing.period_p50 == pytest.approx(0.0, abs=1e-12)
     assert timing.period_max == pytest.approx(0.002)
     assert (timing.late, timing.skipped) == (1, 2)
+
+
+def test_realtime_priority_says_what_it_got_and_restores_the_thread(monkeypatch):
+    policy = os.sched_getscheduler(0)
+    with realtime_priority() as got:
+        if got == f"SCHED_FIFO {REALTIME_PRIORITY}":
+            assert os.sched_getscheduler(0) & ~os.SCHED_RESET_ON_FORK == os.SCHED_FIFO
+        else:
+            assert got.startswith("ordinary, SCHED_FIFO not permitted")
+    assert os.sched_getscheduler(0) == policy
+
+    def refuse(*args):
+        raise PermissionError(1, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    with realtime_priority() as got:
+        assert got == (
+            "ordinary, SCHED_FIFO not permitted (it needs root, CAP_SYS_NICE or an rtprio limit)"
+        )
+    assert os.sched_getscheduler(0) == policy
+
+
+def test_frozen_objects_are_thawed_when_their_last_owner_lets_go():
+    first, second = object(), object()
+    freeze_heap(first)
+    freeze_heap(second)
+    assert gc.get_freeze_count() > 0
+    thaw_heap(first)
+    assert gc.get_freeze_count() > 0  # the second still holds them
+    thaw_heap(second)
+    thaw_heap(second)  # idempotent
+    assert gc.get_freeze_count() == 0

@@ -39,6 +39,10 @@ frame S s (plus uniform 0..S) before writing it, --unplug-after S closes the lin
 --freeze-after S stops sending after S s of device time (the device keeps running and its
 watchdog zeroes the motor). --lockstep ticks once per command received instead of in real
 time (exact, for tests).
+
+The device thread runs under SCHED_FIFO where the system permits it (root, CAP_SYS_NICE or an
+rtprio limit), so that other busy processes do not make it late; the second status line says
+what it got, and --no-realtime keeps it an ordinary thread.
 """
 
 
@@ -77,7 +81,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--watchdog", type=int, metavar="MS",
-        help="watchdog time in ms (default: max(3 periods, 20 ms); 0 turns it off)",
+        help="watchdog time in ms (default: max(3 periods, 100 ms); 0 turns it off)",
     )  # fmt: skip
     parser.add_argument(
         "--drop", type=float, default=0.0, metavar="P", help="byte drop probability"
@@ -96,6 +100,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--freeze-after", type=float, metavar="S", help="stop sending after S s of device time"
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults (default 0)")
+    parser.add_argument(
+        "--no-realtime", dest="realtime", action="store_false",
+        help="keep the device thread an ordinary one (default: SCHED_FIFO where permitted)",
+    )  # fmt: skip
     parser.add_argument(
         "--duration", dest="run_for", type=float, metavar="S",
         help="stop after S s of wall time (default: run until Ctrl-C or SIGTERM)",
@@ -133,7 +141,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         emu = Emulator(
             args.device, params=args.params, friction=args.friction,
             sensor_noise=bool(args.noise), lockstep=args.lockstep, faults=faults,
-            watchdog_ms=args.watchdog, seed=args.seed,
+            watchdog_ms=args.watchdog, seed=args.seed, realtime=args.realtime,
         )  # fmt: skip
     except (ValueError, TypeError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -153,6 +161,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         print(url, flush=True)
         if not args.quiet:
             print(f"# {command_line}", file=sys.stderr, flush=True)
+            print(f"# device thread: {emu.priority}", file=sys.stderr, flush=True)
         end = math.inf if args.run_for is None else time.monotonic() + args.run_for
         while not stop.is_set() and emu.running:
             stop.wait(max(0.0, min(1.0, end - time.monotonic())))

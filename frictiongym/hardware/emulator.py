@@ -49,6 +49,7 @@ from frictiongym.hardware import protocol as p
 from frictiongym.hardware.firmware import Firmware, Tick
 from frictiongym.hardware.realtime import (
     REALTIME_PRIORITY,
+    describe_priority,
     freeze_heap,
     raise_priority,
     thaw_heap,
@@ -101,6 +102,9 @@ class Emulator:
         One tick per command received instead of the real-time clock.
     faults : Faults, optional
         Link faults to inject (default: none).
+    realtime : bool, default True
+        Run the device thread under ``SCHED_FIFO`` where the system permits it
+        (:attr:`priority` says what it got); False leaves it an ordinary thread.
     """
 
     def __init__(
@@ -116,6 +120,7 @@ class Emulator:
         start: float | None = None,
         seed: int = 0,
         randomize: dict[str, Any] | None = None,
+        realtime: bool = True,
     ) -> None:
         if faults is None:
             faults = Faults()
@@ -131,8 +136,9 @@ class Emulator:
         self.faults = faults
         self.url: str | None = None
         self.error: BaseException | None = None  #: what stopped the device thread, if anything
-        #: The device thread's scheduling: ``"SCHED_FIFO N"``, or why it runs as an ordinary one.
+        #: The device thread's scheduling: ``"SCHED_FIFO N"``, or why it is an ordinary one.
         self.priority = "not started"
+        self.realtime = bool(realtime)
         self._rng = np.random.default_rng(np.random.SeedSequence(seed).spawn(1)[0])
         self._link: Link | None = None
         self._thread: threading.Thread | None = None
@@ -142,6 +148,7 @@ class Emulator:
         os.set_blocking(self._wake_w, False)
         self._stop = False
         self._closed = False
+        self._started = threading.Event()
         self._unplug_requested = threading.Event()
         self._unplugged = threading.Event()
         self._frozen = False
@@ -227,6 +234,7 @@ class Emulator:
             target=self._run, args=(loop,), name=f"frictiongym-emulator-{self.kind}", daemon=True
         )
         self._thread.start()
+        self._started.wait(JOIN_TIMEOUT)  # its priority is set: :attr:`priority` is final
         return link.url
 
     def unplug(self) -> None:
@@ -279,10 +287,9 @@ class Emulator:
             pass
 
     def _run(self, loop: Any) -> None:
-        why_not = raise_priority(REALTIME_PRIORITY)
-        self.priority = (
-            f"SCHED_FIFO {REALTIME_PRIORITY}" if why_not is None else f"ordinary ({why_not})"
-        )
+        why_not = raise_priority(REALTIME_PRIORITY) if self.realtime else "not asked for"
+        self.priority = describe_priority(why_not)
+        self._started.set()
         try:
             loop()
         except BaseException as exc:  # reported through .error

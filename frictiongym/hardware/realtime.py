@@ -64,10 +64,17 @@ def raise_priority(priority: int = REALTIME_PRIORITY) -> str | None:
     try:
         setscheduler(0, policy, os.sched_param(priority))
     except PermissionError:
-        return "not permitted (needs root, CAP_SYS_NICE or an rtprio limit)"
+        return "not permitted (it needs root, CAP_SYS_NICE or an rtprio limit)"
     except OSError as exc:
         return f"refused ({exc.strerror})"
     return None
+
+
+def describe_priority(why_not: str | None, priority: int = REALTIME_PRIORITY) -> str:
+    """Say what a thread got from :func:`raise_priority` (its answer ``why_not``)."""
+    if why_not is None:
+        return f"SCHED_FIFO {priority}"
+    return f"ordinary, SCHED_FIFO {why_not}"
 
 
 def restore_priority(policy: int, priority: int) -> None:
@@ -82,18 +89,18 @@ def restore_priority(policy: int, priority: int) -> None:
 def realtime_priority(priority: int = REALTIME_PRIORITY) -> Iterator[str]:
     """Run the block with the calling thread under ``SCHED_FIFO``, where permitted.
 
-    Yields a description of what the thread got (``"SCHED_FIFO 10"`` or ``"ordinary
-    (SCHED_FIFO not permitted ...)"``) for logs and reports; the thread's own scheduling is
-    restored afterwards. Keep inside only the loop: threads started inside inherit it.
+    Yields a description of what the thread got (``"SCHED_FIFO 10"`` or ``"ordinary, SCHED_FIFO
+    not permitted ..."``) for logs and reports; the thread's own scheduling is restored
+    afterwards. Keep inside only the loop: threads started inside inherit it.
     """
     getscheduler = getattr(os, "sched_getscheduler", None)
     if getscheduler is None:
-        yield "ordinary (SCHED_FIFO not supported on this system)"
+        yield describe_priority("not supported on this system", priority)
         return
     policy, previous = getscheduler(0), os.sched_getparam(0).sched_priority
     why_not = raise_priority(priority)
     try:
-        yield f"SCHED_FIFO {priority}" if why_not is None else f"ordinary (SCHED_FIFO {why_not})"
+        yield describe_priority(why_not, priority)
     finally:
         if why_not is None:
             restore_priority(policy, previous)
@@ -101,6 +108,7 @@ def realtime_priority(priority: int = REALTIME_PRIORITY) -> Iterator[str]:
 
 __all__ = [
     "REALTIME_PRIORITY",
+    "describe_priority",
     "freeze_heap",
     "raise_priority",
     "realtime_priority",
