@@ -15,7 +15,6 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -24,8 +23,9 @@ from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
 from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
-from frictiongym.plants.plant import PARALLEL_MIN_PLANTS, PlantParams, default_substeps, plant_row
+from frictiongym.plants.plant import PlantParams, default_substeps, plant_row
 from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
+from frictiongym.plants.threads import select_kernel
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -138,7 +138,9 @@ class Simulation:
         Truncate episodes after this many steps (the vector env; the single env leaves it to
         the registered ``TimeLimit``).
     parallel : bool, optional
-        Use numba's threads (default: for batches of ``PARALLEL_MIN_PLANTS`` or more).
+        ``True``: numba's threads; ``False``: one thread. Default: from
+        ``PARALLEL_MIN_PLANTS`` envs on, whichever is faster at the moment
+        (:class:`~frictiongym.plants.threads.AdaptiveKernel`; results are bit-identical).
     """
 
     device: Device
@@ -273,10 +275,8 @@ class Simulation:
         self.delay_buffer: FloatArray = np.zeros((n, self.delay_steps))
         self.noise_state: npt.NDArray[np.uint64] = np.zeros(n, dtype=np.uint64)
         self.head = 0
-        if parallel is None:
-            parallel = n >= PARALLEL_MIN_PLANTS and numba.config.NUMBA_NUM_THREADS > 1
-        self.parallel = bool(parallel)
-        self._kernel = ek.step_envs_parallel if self.parallel else ek.step_envs
+        self._kernel = select_kernel(ek.step_envs, ek.step_envs_parallel, n, parallel)
+        self.parallel = self._kernel is not ek.step_envs  # threads may run
 
     def close(self) -> None:
         """Release what the simulation holds (nothing; a device session closes its link)."""

@@ -13,7 +13,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import numba
 import numpy as np
 import numpy.typing as npt
 
@@ -21,13 +20,11 @@ from frictiongym._validation import check_finite, check_nonnegative, check_posit
 from frictiongym.friction import _core as fc
 from frictiongym.friction.laws import FrictionModel
 from frictiongym.plants import _kernel as k
+from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, select_kernel
 
 FloatArray = npt.NDArray[np.float64]
 
-#: Batches at least this large are stepped on all of numba's threads: below it the threads'
-#: start-up costs more than they save (the crossover lies between 32 and 128 plants on 2 cores;
-#: docs/benchmarks.md).
-PARALLEL_MIN_PLANTS = 128
+__all__ = ["PARALLEL_MIN_PLANTS", "Plant", "PlantParams", "default_substeps", "plant_row"]
 
 
 @dataclass(frozen=True)
@@ -133,10 +130,11 @@ class Plant:
     substeps : int, optional
         Substeps per control period; by default :func:`default_substeps`.
     parallel : bool, optional
-        Step the batch on all of numba's threads (results are bit-identical either way). By
-        default, for batches of at least ``PARALLEL_MIN_PLANTS`` plants when numba has more than
-        one thread; set ``NUMBA_NUM_THREADS=1`` or ``parallel=False`` when other work (several
-        env processes, a torch learner) already uses the cores.
+        ``True`` steps the batch on numba's threads, ``False`` on one; results are bit-identical
+        either way. By default (``None``) batches of ``PARALLEL_MIN_PLANTS`` plants or more time
+        their calls and use whichever is faster at the moment
+        (:class:`~frictiongym.plants.threads.AdaptiveKernel`), so threads help on an idle
+        machine and step aside beside a learner; smaller batches run on one thread.
 
     Notes
     -----
@@ -185,10 +183,11 @@ class Plant:
             strict=True,
         )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
-        if parallel is None:
-            parallel = num_plants >= PARALLEL_MIN_PLANTS and numba.config.NUMBA_NUM_THREADS > 1
-        self.parallel = bool(parallel)
-        self._step_kernel = k.step_batch_parallel if self.parallel else k.step_batch
+        self._step_kernel = select_kernel(
+            k.step_batch, k.step_batch_parallel, self.num_plants, parallel
+        )
+        #: whether the threaded kernel may run (always, or when the adaptive choice picks it)
+        self.parallel = self._step_kernel is not k.step_batch
         self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE))
         self._delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
         self._head = 0

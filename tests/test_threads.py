@@ -1,0 +1,209 @@
+"""The threading policy: which twin of a batched kernel runs, and that the choice changes nothing.
+
+The adaptive policy is driven here by a fake clock, so every test is deterministic and none is
+timed: each fake twin advances the clock by the cost the test gives it.
+"""
+
+from __future__ import annotations
+
+import types
+
+import gymnasium as gym
+import numba
+import numpy as np
+import pytest
+
+from frictiongym.envs import _kernel as ek
+from frictiongym.friction import ROTARY_PAPER
+from frictiongym.plants import Plant, PlantParams, threads
+from frictiongym.plants import _kernel as pk
+from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, select_kernel
+from tests._envs import IDS, RANDOM_KWARGS, commands
+
+THREADS = numba.config.NUMBA_NUM_THREADS > 1
+needs_threads = pytest.mark.skipif(not THREADS, reason="numba has one thread")
+PARAMS = PlantParams(7.143e-3, 0.0446, 10.0)
+US = 1e-6  #: a microsecond: fake call costs are of the size of real ones
+
+
+class FakeClock:
+    """A clock that only the fake kernels move."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+
+@pytest.fixture
+def clock(monkeypatch: pytest.MonkeyPatch) -> FakeClock:
+    fake = FakeClock()
+    monkeypatch.setattr(threads, "time", types.SimpleNamespace(perf_counter=fake.perf_counter))
+    return fake
+
+
+class Twins:
+    """Two fake kernels whose call costs (µs) a test can change as it runs."""
+
+    def __init__(self, clock: FakeClock, serial: float, threaded: float) -> None:
+        self.clock, self.cost = clock, [serial * US, threaded * US]
+        self.spent = [0.0, 0.0]
+
+    def twin(self, which: int):
+        def kernel(*args: object) -> int:
+            self.clock.now += self.cost[which]
+            self.spent[which] += self.cost[which]
+            return -1
+
+        return kernel
+
+    def adaptive(self) -> AdaptiveKernel:
+        return AdaptiveKernel(self.twin(0), self.twin(1))
+
+
+def run(kernel: AdaptiveKernel, calls: int) -> list[bool]:
+    """Call ``kernel`` ``calls`` times; which calls ran threaded."""
+    ran = []
+    for _ in range(calls):
+        ran.append(kernel.parallel)
+        assert kernel() == -1
+    return ran
+
+
+def test_small_batches_and_one_thread_run_serially() -> None:
+    serial, threaded = pk.step_batch, pk.step_batch_parallel
+    assert select_kernel(serial, threaded, PARALLEL_MIN_PLANTS - 1, None) is serial
+    assert select_kernel(serial, threaded, 1, None) is serial
+    large = select_kernel(serial, threaded, PARALLEL_MIN_PLANTS, None)
+    assert isinstance(large, AdaptiveKernel) if THREADS else large is serial
+
+
+def test_parallel_true_or_false_forces_a_twin() -> None:
+    serial, threaded = pk.step_batch, pk.step_batch_parallel
+    for size in (1, PARALLEL_MIN_PLANTS, 65536):
+        assert select_kernel(serial, threaded, size, True) is threaded
+        assert select_kernel(serial, threaded, size, False) is serial
+        assert select_kernel(serial, threaded, size, np.bool_(True)) is threaded
+    with pytest.raises(TypeError, match="parallel must be True, False or None"):
+        select_kernel(serial, threaded, 1, "yes")  # type: ignore[arg-type]
+
+
+def test_plant_and_envs_take_their_kernel_from_the_policy() -> None:
+    small = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS - 1)
+    large = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS)
+    assert small._step_kernel is pk.step_batch
+    assert not small.parallel
+    assert isinstance(large._step_kernel, AdaptiveKernel) == THREADS
+    forced = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS, parallel=False)
+    assert forced._step_kernel is pk.step_batch
+    assert not forced.parallel
+    assert Plant(PARAMS, ROTARY_PAPER, 0.002, parallel=True)._step_kernel is pk.step_batch_parallel
+    vec = gym.make_vec(
+        IDS[0], num_envs=PARALLEL_MIN_PLANTS, vectorization_mode="vector_entry_point"
+    )
+    assert isinstance(vec.unwrapped.sim._kernel, AdaptiveKernel) == THREADS
+    serial = gym.make_vec(IDS[0], 8, vectorization_mode="vector_entry_point", parallel=True)
+    assert serial.unwrapped.sim._kernel is ek.step_envs_parallel
+
+
+def test_the_faster_twin_runs_once_both_are_measured(clock: FakeClock) -> None:
+    for serial, threaded, want in ((200.0, 110.0, True), (200.0, 400.0, False)):
+        twins = Twins(clock, serial, threaded)
+        kernel = twins.adaptive()
+        ran = run(kernel, 2000)
+        assert ran[:4] == [False] * 4  # first the serial twin: a warm-up and three measured
+        assert ran[4] is True  # then the threaded one
+        assert np.mean(ran[-1000:]) == pytest.approx(1.0 if want else 0.0, abs=0.02)
+
+
+def test_a_slow_threaded_twin_costs_at_most_a_few_percent(clock: FakeClock) -> None:
+    """Beside a learner the threaded twin can take 20 times as long: it is rarely retried."""
+    twins = Twins(clock, serial=200.0, threaded=4000.0)
+    kernel = twins.adaptive()
+    run(kernel, 20)  # the first trials
+    twins.spent = [0.0, 0.0]
+    calls = 50000  # 10 s
+    run(kernel, calls)
+    assert sum(twins.spent) <= 1.03 * calls * 200.0 * US
+    assert kernel.switches == 0
+
+
+def test_it_follows_the_load_both_ways(clock: FakeClock) -> None:
+    twins = Twins(clock, serial=200.0, threaded=120.0)
+    kernel = twins.adaptive()
+    assert np.mean(run(kernel, 500)[-200:]) > 0.95  # (serial trials now and then)
+    twins.cost[1] = 2000.0 * US  # a learner starts: the threaded twin stalls
+    ran = run(kernel, 5000)
+    assert not any(ran[16:200])  # it left the threaded twin within two blocks
+    assert np.mean(ran[16:]) < 0.01  # and retries it rarely
+    twins.cost[1] = 120.0 * US  # the learner stops: back within MAX_WAIT of serial calls
+    ran = run(kernel, int(threads.MAX_WAIT / (200.0 * US)) + 100)
+    assert np.mean(ran[-200:]) > 0.95  # (serial trials now and then)
+
+
+def test_a_lucky_trial_is_undone_after_one_slow_call(clock: FakeClock) -> None:
+    twins = Twins(clock, serial=200.0, threaded=1000.0)
+    kernel = twins.adaptive()
+    run(kernel, 200)
+    twins.cost[1] = 100.0 * US  # the next trial is lucky ...
+    while not kernel.parallel:
+        kernel()
+    run(kernel, 1 + threads.TRIAL_CALLS)
+    assert kernel.switches == 1
+    twins.cost[1] = 1000.0 * US  # ... and the calls after it are not
+    ran = run(kernel, 3)
+    assert ran == [True, False, False]
+
+
+@needs_threads
+@pytest.mark.parametrize("env_id", IDS)
+def test_switching_twins_mid_run_changes_no_trajectory(
+    clock: FakeClock, env_id: str, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Switches every few calls (fake costs that flip) give the serial kernel's run."""
+    monkeypatch.setattr(threads, "MAX_WAIT", 0.0)  # a trial every MIN_GAP calls
+    n, steps = PARALLEL_MIN_PLANTS, 150
+    kwargs = {"max_episode_steps": 40, **RANDOM_KWARGS}
+    make = gym.make_vec
+    reference = make(env_id, n, vectorization_mode="vector_entry_point", parallel=False, **kwargs)
+    switching = make(env_id, n, vectorization_mode="vector_entry_point", **kwargs)
+    sim = switching.unwrapped.sim
+    cost = [100.0 * US, 200.0 * US]
+    sim._kernel = AdaptiveKernel(*(flipping(twin, i, cost, clock) for i, twin in enumerate(
+        (ek.step_envs, ek.step_envs_parallel))))  # fmt: skip
+    actions = commands(env_id, steps, shape=(n,), seed=3)
+    obs_ref, _ = reference.reset(seed=4)
+    obs, _ = switching.reset(seed=4)
+    np.testing.assert_array_equal(obs, obs_ref)
+    for t, a in enumerate(actions):
+        if t % 25 == 0:  # the faster twin changes: the next trial switches
+            cost.reverse()
+        expected = reference.step(a)
+        got = switching.step(a)
+        for e, g in zip(expected[:4], got[:4], strict=True):
+            np.testing.assert_array_equal(g, e)
+    assert sim._kernel.switches >= 3
+    assert min(sim._kernel.calls) >= 20
+
+
+def flipping(twin, which: int, cost: list[float], clock: FakeClock):
+    def kernel(*args: object) -> int:
+        clock.now += cost[which]
+        return twin(*args)
+
+    return kernel
+
+
+@needs_threads
+def test_the_adaptive_plant_matches_the_serial_one() -> None:
+    """The real clock: whatever the adaptive kernel picks, the states are the serial ones."""
+    n = PARALLEL_MIN_PLANTS
+    u = np.random.default_rng(0).normal(0.0, 0.3, (300, n))
+    adaptive = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=n)
+    serial = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=n, parallel=False)
+    for row in u:
+        adaptive.step(row)
+        serial.step(row)
+    np.testing.assert_array_equal(adaptive.state, serial.state)
+    assert min(adaptive._step_kernel.calls) >= 2  # both twins ran (the first trials at least)
