@@ -207,3 +207,53 @@ def test_the_adaptive_plant_matches_the_serial_one() -> None:
         serial.step(row)
     np.testing.assert_array_equal(adaptive.state, serial.state)
     assert min(adaptive._step_kernel.calls) >= 2  # both twins ran (the first trials at least)
+
+
+def test_keep_drops_plants_and_the_others_go_on_exactly() -> None:
+    """``Plant.keep`` (the tuner's early stop): per-plant laws, dead time, kernel carried over."""
+    n = PARALLEL_MIN_PLANTS + 100
+    rng = np.random.default_rng(1)
+    params = [PlantParams(7.143e-3 * f, 0.0446, 10.0, dead_time=0.004) for f in rng.uniform(
+        0.8, 1.2, n)]  # fmt: skip
+    laws = [ROTARY_PAPER.replace(shape=s) for s in ("linear", "exponential")] * (n // 2)
+    u = rng.normal(0.0, 0.3, (150, n))
+    full = Plant(params, laws, 0.002, num_plants=n)
+    part = Plant(params, laws, 0.002, num_plants=n)
+    kernel = part._step_kernel
+    kept = np.arange(n)
+    for t, row in enumerate(u):
+        if t in (50, 100):
+            mask = rng.random(kept.size) < (0.9 if t == 50 else 0.02)
+            part.keep(mask)
+            kept = kept[mask]
+        full.step(row)
+        part.step(row[kept])
+        np.testing.assert_array_equal(part.state, full.state[kept])
+        if t == 60:
+            assert part._step_kernel is (kernel if THREADS else pk.step_batch)
+    assert part.num_plants == kept.size < PARALLEL_MIN_PLANTS
+    assert part._step_kernel is pk.step_batch
+    assert not part.parallel
+    assert part.params == [params[i] for i in kept]
+
+
+def test_keep_rejects_a_wrong_mask() -> None:
+    plant = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=4)
+    with pytest.raises(ValueError, match=r"mask must have shape \(4,\)"):
+        plant.keep([True, False])
+    with pytest.raises(ValueError, match="at least one plant"):
+        plant.keep([False] * 4)
+
+
+def test_the_tuners_result_does_not_depend_on_the_kernel() -> None:
+    from frictiongym.tuning import StepSpecs, TuningModel, simulate
+
+    specs = StepSpecs(rise_time=0.1, peak_time=0.3, settling_time=0.3, overshoot_pct=40.0)
+    gains = np.random.default_rng(2).uniform((0.0, 0.0, 0.0), (20.0, 5.0, 1.0), (1500, 3))
+    model = TuningModel.paper(with_friction=True)
+    runs = [simulate(gains, model, specs, 0.6, parallel=p) for p in (False, None, True)]
+    assert runs[0].feasible.any()
+    for other in runs[1:]:
+        np.testing.assert_array_equal(other.feasible, runs[0].feasible)
+        np.testing.assert_array_equal(other.stopped_at, runs[0].stopped_at)
+        np.testing.assert_array_equal(other.metrics.settling_time, runs[0].metrics.settling_time)

@@ -20,7 +20,7 @@ from frictiongym._validation import check_finite, check_nonnegative, check_posit
 from frictiongym.friction import _core as fc
 from frictiongym.friction.laws import FrictionModel
 from frictiongym.plants import _kernel as k
-from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, select_kernel
+from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, select_kernel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -222,6 +222,34 @@ class Plant:
     def frictions(self) -> list[FrictionModel]:
         """Friction laws (one entry when shared by the whole batch)."""
         return list(self._frictions)
+
+    def keep(self, mask: npt.ArrayLike) -> None:
+        """Drop the plants where ``mask`` is false; the others go on exactly as before.
+
+        The kept plants keep their state, parameters and commands in flight. A batch that
+        shrinks below ``PARALLEL_MIN_PLANTS`` steps serially from then on; otherwise it keeps its
+        kernel and, if adaptive, what the kernel's timings have learnt (scaled to the new size).
+        """
+        keep = np.asarray(mask, dtype=bool)
+        if keep.shape != (self.num_plants,):
+            raise ValueError(f"mask must have shape ({self.num_plants},), got {keep.shape}")
+        idx = np.flatnonzero(keep)
+        if idx.size == 0:
+            raise ValueError("keep() must keep at least one plant")
+        if len(self._params) > 1:
+            self._params = [self._params[i] for i in idx]
+        if len(self._frictions) > 1:
+            self._frictions = [self._frictions[i] for i in idx]
+        if self.rows.shape[0] > 1:
+            self.rows = np.ascontiguousarray(self.rows[idx])
+        self.state = np.ascontiguousarray(self.state[idx])
+        self._delay_buffer = np.ascontiguousarray(self._delay_buffer[idx])
+        size, self.num_plants = self.num_plants, int(idx.size)
+        kernel = self._step_kernel
+        if isinstance(kernel, AdaptiveKernel) and self.num_plants < PARALLEL_MIN_PLANTS:
+            self._step_kernel, self.parallel = k.step_batch, False
+        elif isinstance(kernel, AdaptiveKernel):
+            kernel.rescale(self.num_plants / size)
 
     def reset(
         self,

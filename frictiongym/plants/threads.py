@@ -127,6 +127,13 @@ class AdaptiveKernel:
         """Whether the next call runs on the threaded twin."""
         return self._running == 1
 
+    def rescale(self, factor: float) -> None:
+        """Scale what the timings have learnt by ``factor`` (the batch changed size)."""
+        self._mean = [m * factor for m in self._mean]
+        self._loss *= factor
+        self._tenure[0] *= factor
+        self._tenure[2] *= factor
+
     def __call__(self, *args: Any) -> int:
         """Run the kernel on ``args`` with the twin due now; returns the kernel's result."""
         start = time.perf_counter()

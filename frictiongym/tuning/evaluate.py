@@ -52,13 +52,6 @@ STEP = 1.0
 #: Why a candidate was dropped before the horizon (``Evaluation.stop_reason``).
 STOP_REASONS = {0: "none", 1: "rise/peak", 2: "overshoot", 3: "settling"}
 
-#: Survivors of an early stop are stepped on numba's threads only from this many plants: the
-#: parallel kernel's fork/join per step stalls whenever another process holds a core. That
-#: costs little on 32 768 plants but dominates on a few hundred: with two busy processes on
-#: the 2-core machine a round of 65 536 candidates once ran at 3 k/s instead of 70-90 k/s
-#: (serial survivors: 69-71 k/s in every round; docs/benchmarks.md).
-PARALLEL_SURVIVORS = 4096
-
 #: Samples between early-stop checks after the first, at the peak-time limit: 50 samples =
 #: 0.1 s at 2 ms. Assumed; any value gives the same result. With the paper's specs nearly every
 #: infeasible candidate is dropped at the first check, so the interval hardly matters for speed
@@ -192,6 +185,7 @@ def simulate(
     *,
     early_stop: bool = True,
     keep_traces: bool = False,
+    parallel: bool | None = None,
 ) -> Evaluation:
     """Simulate the unit step of N candidates at once and judge them against ``specs``.
 
@@ -208,6 +202,10 @@ def simulate(
         the metrics of complete candidates do not change. Off when the plant has dead time.
     keep_traces : bool, default False
         Return the responses (memory ``8 (n + 1) N`` bytes).
+    parallel : bool, optional
+        The batched plant's kernel, as :class:`Plant`'s ``parallel``: by default the adaptive
+        choice (:mod:`frictiongym.plants.threads`), which keeps what it learns as early stops
+        shrink the batch; results are the same whichever kernel runs.
 
     Returns
     -------
@@ -222,7 +220,7 @@ def simulate(
     size, dt = g.shape[0], model.dt
     n = horizon_steps(horizon, dt)
     t = np.asarray(np.arange(n + 1) * dt, dtype=np.float64)
-    plant = Plant(model.plant, model.friction, dt, num_plants=size)
+    plant = Plant(model.plant, model.friction, dt, num_plants=size, parallel=parallel)
     pid = PID(LoopSpec(dt=dt, limit=model.plant.command_limit), PIDGains(*g.T.copy()))
     early_stop = early_stop and plant.delay_steps == 0
     checks = _Checks(t, specs) if early_stop else None
@@ -262,10 +260,7 @@ def simulate(
             tach.reset(position=fed[keep], velocity=v[keep])
         blocks = [b[:, keep] for b in blocks]
         checks.keep(keep)
-        state = plant.state[keep]
-        parallel = active.size >= PARALLEL_SURVIVORS
-        plant = Plant(model.plant, model.friction, dt, num_plants=active.size, parallel=parallel)
-        plant.state[:] = state
+        plant.keep(keep)
         pid = pid.take(keep)
     peak_u[active] = peak_active
 
