@@ -71,6 +71,25 @@ def measure(variants: Sequence[Timed], repeats: int, seconds: float, burn_in: in
             variant.rates.append(variant.batch * n / timed(variant.run, n))
 
 
+def run_parts(parts: Sequence[Callable[[], str | None]], markdown: bool) -> int:
+    """Run a script's parts in turn; print the wall time and, if asked, their markdown.
+
+    A part returns its markdown, or None after printing an error (the exit status is then 1).
+    """
+    start = time.perf_counter()
+    texts = []
+    for part in parts:
+        text = part()
+        if text is None:
+            return 1
+        texts.append(text)
+    print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
+    if markdown:
+        print()
+        print("\n\n".join(texts))
+    return 0
+
+
 def paired_ratios(variant: Timed, reference: Timed) -> list[float]:
     """Per-round ratios of a variant's rate to the reference's rate."""
     return [a / b for a, b in zip(variant.rates, reference.rates, strict=True)]

@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 from itertools import cycle, islice
 from typing import Any
 
+import _load
 import gymnasium as gym
 import numba
 import numpy as np
@@ -79,6 +80,7 @@ from _bench import (
     measure,
     paired_ratios,
     ratio_stats,
+    run_parts,
     single_threaded,
     source_revision,
     stats,
@@ -86,6 +88,7 @@ from _bench import (
 )
 
 import frictiongym  # noqa: F401  (registers the frictiongym ids)
+from frictiongym.plants.threads import AdaptiveKernel
 
 SERVO = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
@@ -224,10 +227,12 @@ def make_vector(env_id: str, num_envs: int, kwargs: dict[str, Any], seed: int) -
 
 
 def kernel_of(env: Any) -> str:
-    """``parallel`` or ``serial`` for a frictiongym vector env, ``-`` otherwise."""
+    """``adaptive``, ``parallel`` or ``serial`` for a frictiongym vector env, ``-`` otherwise."""
     sim = getattr(env, "sim", None)
     if sim is None:
         return "-"
+    if isinstance(sim._kernel, AdaptiveKernel):
+        return "adaptive"
     return "parallel" if sim.parallel else "serial"
 
 
@@ -351,6 +356,31 @@ def headlines(
     return out
 
 
+def threads_runner(
+    size: int, parallel: bool | None, policy: _load.TorchPolicy | None, seed: int = 0
+) -> tuple[Runner, Any]:
+    """The servo's vector env of ``size`` envs on ``parallel``, with ``policy`` after each step.
+
+    Returns the runner and the env's kernel (an ``AdaptiveKernel`` on the default for large N).
+    """
+    kwargs = {} if parallel is None else {"parallel": parallel}
+    env = make_vector(SERVO, size, kwargs, seed)
+    rows = cycle(vector_actions(SERVO, size, seed))
+    step = env.step
+
+    def run(steps: int) -> None:
+        if policy is None:
+            for actions in islice(rows, steps):
+                step(actions)
+            return
+        policy.hold_threads()
+        for actions in islice(rows, steps):
+            obs = step(actions)[0]
+            policy(obs)
+
+    return run, env.sim._kernel
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Command-line options."""
     parser = argparse.ArgumentParser(
@@ -407,6 +437,14 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="seed of the pre-generated actions and of the envs' resets (default: 0)",
     )
+    parser.add_argument(
+        "--part",
+        choices=("all", "cartpole", "threads"),
+        default="all",
+        help="cartpole: the comparisons with CartPole; threads: the servo's vector env on the "
+        "serial, default and threaded kernel under each --loads case; all: both (default)",
+    )
+    _load.add_arguments(parser, "envs")
     return parser
 
 
@@ -426,8 +464,6 @@ def main(argv: list[str] | None = None) -> int:
     shown_argv = sys.argv[1:] if argv is None else argv
     command = shlex.join(["python", "scripts/bench_envs.py", *shown_argv])
     now = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    n = args.num_envs
-
     header = {
         "command": command,
         "date": now,
@@ -444,7 +480,30 @@ def main(argv: list[str] | None = None) -> int:
     for key, value in header.items():
         print(f"{key + ':':9s}{value}")
 
-    start = time.perf_counter()
+    if _load.needs_torch(args) and not _load.import_torch_first():
+        parser.error("the learner and torch loads need torch; use --loads quiet busy")
+    parts = {"cartpole": lambda: cartpole_part(args, header), "threads": lambda: threads_part(args)}
+    return run_parts(
+        [run for name, run in parts.items() if args.part in ("all", name)], args.markdown
+    )
+
+
+def threads_part(args: argparse.Namespace) -> str:
+    """Time the servo's vector env on each kernel under each load; returns the markdown."""
+    return _load.section(
+        args,
+        f"`{SERVO}` vector env (default kwargs, the actions above; the torch load feeds each "
+        "step's observations to the MLP)",
+        lambda size, parallel, policy: threads_runner(size, parallel, policy, args.seed),
+        unit="env-steps",
+        features=3,
+        burn_in=VECTOR_ROWS,
+    )
+
+
+def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
+    """The single and vector comparisons with CartPole; returns the markdown."""
+    n = args.num_envs
     single_first, vector_first = first_calls(n, args.seed)
     print(f"first servo gym.make + reset + step in this process (env modules, numba compile or "
           f"cache load): {single_first:.3f} s; first make_vec + step at N = {n}: "
@@ -474,7 +533,7 @@ def main(argv: list[str] | None = None) -> int:
         mix_settings.append((vector[-1], env_id, {}))
         default_kernel = vector[-1].kernel
         vector.append(vector_variant(env_id, "parallel=False", {"parallel": False}, n, args.seed))
-        if env_id == SERVO and default_kernel.startswith("parallel"):
+        if env_id == SERVO and not default_kernel.startswith("serial"):
             if numba.get_num_threads() > 1:
                 vector.append(vector_variant(env_id, DEFAULT, {}, n, args.seed, one_thread=True))
         if env_id == SERVO:
@@ -508,11 +567,7 @@ def main(argv: list[str] | None = None) -> int:
             for env_id, ratios, met in rows
         )
         print(f"  {what} (target {target}): {cells}")
-    print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
-    if args.markdown:
-        print()
-        print(markdown(header, single, vector, heads, args.repeats))
-    return 0
+    return markdown(header, single, vector, heads, args.repeats)
 
 
 def us_stats(rates: Sequence[float]) -> str:

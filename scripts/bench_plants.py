@@ -9,14 +9,15 @@ For each batch size N the script times, interleaved in one process:
 * ``Plant`` with the paper's rotary friction (``ROTARY_PAPER``: linear Stribeck decay,
   event-exact step), with the sub-stepped ``exponential`` decay (default substeps), and with
   ``NoFriction``, so the cost of each law is visible. These run on ``Plant``'s default kernel:
-  the parallel one (numba ``prange`` over the plants) for batches of at least
-  ``PARALLEL_MIN_PLANTS`` when numba has more than one thread, the serial one otherwise.
-* ``ROTARY_PAPER`` once more on the other kernel (``parallel=False`` where the default is
-  parallel, ``parallel=True`` where it is serial), so the gain or cost of the threads is
-  visible at every batch size. Both kernels give bit-identical results. Where the default is
-  parallel, ``ROTARY_PAPER`` is also timed on the parallel kernel restricted to one thread
-  (``numba.set_num_threads(1)`` around the run), which splits the parallel / serial ratio
-  into what the parallel kernel's code gains on one core and what the other threads add.
+  for batches of at least ``PARALLEL_MIN_PLANTS`` when numba has more than one thread the
+  adaptive choice (``frictiongym.plants.threads``: the serial or the parallel kernel, numba
+  ``prange`` over the plants, whichever is faster at the moment), the serial one otherwise.
+* ``ROTARY_PAPER`` once more on each forced kernel (``parallel=False`` and ``parallel=True``),
+  so the gain or cost of the threads is visible at every batch size. The kernels give
+  bit-identical results. Where the default may use threads, ``ROTARY_PAPER`` is also timed on
+  the parallel kernel restricted to one thread (``numba.set_num_threads(1)`` around the run),
+  which splits the parallel / serial ratio into what the parallel kernel's code gains on one
+  core and what the other threads add.
 
 Every variant is driven by the same pre-generated commands: per plant an AR(1) process
 (correlation time 20 ms, standard deviation 0.2 V) around the break-away level of
@@ -28,12 +29,17 @@ Timing: one burn-in run (which also triggers numba's compile or cache load), a s
 calibrate the step count to ``--seconds``, then ``--repeats`` rounds in which each variant
 runs once, in an order rotated every round. Rates are medians over rounds. The ratio of a
 variant to the numpy reference is the median of the per-round ratios, so drift of the
-machine between rounds (up to 1.5x here, see research/perf.md) cancels out.
+machine between rounds (up to 1.5x here, docs/benchmarks.md) cancels out.
 
 As context only, gymnasium's ``CartPoleVectorEnv`` at 4 096 envs is timed against the Plant
 (default kernel and serial kernel) at the same batch size. That compares a full env step
 (physics, observation, reward, termination, autoreset) with a bare plant step, so it is a
 reference point, not a verdict.
+
+**Threads** (``--part threads``): the Plant (``ROTARY_PAPER``) at several batch sizes and the
+tuner's ``simulate`` on a chunk of 32 768 candidates, each on the serial kernel, the default
+and the threaded kernel, under each competing load of ``_load.py`` (quiet, a busy process, a
+torch learner process, torch work in this process; the tuner runs without the last).
 
 Run ``python scripts/bench_plants.py --help`` for the options.
 """
@@ -51,6 +57,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import cycle, islice
 
+import _load
 import numba
 import numpy as np
 import numpy.typing as npt
@@ -60,6 +67,7 @@ from _bench import (
     measure,
     paired_ratios,
     ratio_stats,
+    run_parts,
     single_threaded,
     source_revision,
     stats,
@@ -68,7 +76,9 @@ from _bench import (
 
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
 from frictiongym.plants import Plant, PlantParams
-from frictiongym.plants.plant import PARALLEL_MIN_PLANTS
+from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel
+from frictiongym.tuning import DEFAULT_HORIZON, GainBounds, StepSpecs, TuningModel, simulate
+from frictiongym.tuning.search import DEFAULT_CHUNK
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -87,8 +97,8 @@ CONTEXT_ENVS = 4096
 class Variant:
     """One timed configuration: a label, a runner and what it steps.
 
-    ``kernel`` is ``"serial"`` or ``"parallel"`` for a Plant (empty otherwise) and ``default``
-    tells whether that is the kernel ``Plant`` picks by itself at this batch size.
+    ``kernel`` is ``"serial"``, ``"parallel"`` or ``"adaptive"`` for a Plant (empty otherwise)
+    and ``default`` tells whether that is the kernel ``Plant`` picks by itself at this size.
     """
 
     label: str
@@ -119,11 +129,20 @@ def plant_variant(
     With ``one_thread`` the parallel kernel runs with numba restricted to one thread.
     """
     run, plant = make_plant(friction, table, True if one_thread else parallel)
-    default = parallel is None or parallel == Plant(PARAMS, friction, DT, table.shape[1]).parallel
-    kernel = "parallel" if plant.parallel else "serial"
+    default = parallel is None or kernel_name(Plant(PARAMS, friction, DT, table.shape[1])) == (
+        "parallel" if parallel else "serial"
+    )
+    kernel = kernel_name(plant)
     if one_thread:
         run, kernel, default = single_threaded(run), ONE_THREAD, False
     return Variant(label, run, table.shape[1], plant.substeps, kernel, default)
+
+
+def kernel_name(plant: Plant) -> str:
+    """``adaptive``, ``parallel`` or ``serial``: the kernel a Plant steps with."""
+    if isinstance(plant._step_kernel, AdaptiveKernel):
+        return "adaptive"
+    return "parallel" if plant.parallel else "serial"
 
 
 def command_table(batch: int, seed: int) -> FloatArray:
@@ -264,6 +283,7 @@ def stick_slip_mix(friction: FrictionModel, seed: int, steps: int, batch: int = 
 
 #: Kernel comparisons of ROTARY_PAPER: (numerator, denominator, description).
 KERNEL_RATIOS = (
+    ("adaptive", "serial", "adaptive (default) / serial"),
     ("parallel", "serial", "parallel / serial"),
     (ONE_THREAD, "serial", "parallel on 1 thread / serial"),
     ("parallel", ONE_THREAD, "parallel / parallel on 1 thread"),
@@ -346,6 +366,23 @@ def build_parser() -> argparse.ArgumentParser:
         default=0,
         help="seed of the pre-generated commands and CartPole actions (default: 0)",
     )
+    parser.add_argument(
+        "--part",
+        choices=("all", "plants", "threads"),
+        default="all",
+        help="plants: the Plant against the numpy loop (and the CartPole context); threads: "
+        "the Plant and the tuner on the serial, default and threaded kernel under each "
+        "--loads case; all: both (default)",
+    )
+    parser.add_argument(
+        "--tuner-chunk",
+        type=int,
+        default=DEFAULT_CHUNK,
+        metavar="N",
+        help=f"candidates of the tuner's simulate() in the threads part (default: "
+        f"{DEFAULT_CHUNK}, a chunk of frictiongym tune; 0: skip the tuner)",
+    )
+    _load.add_arguments(parser, "plants (the tuner skips the torch load)")
     return parser
 
 
@@ -374,7 +411,80 @@ def main(argv: list[str] | None = None) -> int:
         f"plant:   J={PARAMS.inertia} B={PARAMS.damping} dt={DT} s; commands AR(1), "
         f"std {COMMAND_STD} V, correlation time {COMMAND_TAU * 1e3:g} ms"
     )
+    if _load.needs_torch(args) and not _load.import_torch_first():
+        parser.error("the learner and torch loads need torch; use --loads quiet busy")
+    parts = {"plants": lambda: plants_part(args), "threads": lambda: threads_part(args)}
+    return run_parts(
+        [run for name, run in parts.items() if args.part in ("all", name)], args.markdown
+    )
 
+
+def plant_threads_runner(
+    size: int, parallel: bool | None, policy: _load.TorchPolicy | None, seed: int
+) -> tuple[Runner, object]:
+    """ROTARY_PAPER on ``size`` plants on ``parallel``; ``policy`` gets (x, v) after each step."""
+    table = command_table(size, seed)
+    run, plant = make_plant(ROTARY_PAPER, table, parallel)
+    if policy is None:
+        return run, plant._step_kernel
+    rows = list(table)
+    step, state = plant.step, plant.state
+
+    def run_with_policy(steps: int) -> None:
+        policy.hold_threads()
+        for u in islice(cycle(rows), steps):
+            step(u)
+            policy(state[:, :2].astype(np.float32))
+
+    return run_with_policy, plant._step_kernel
+
+
+def tune_runner(
+    size: int, parallel: bool | None, policy: _load.TorchPolicy | None, seed: int
+) -> tuple[Runner, object]:
+    """``simulate`` of ``size`` candidates as ``frictiongym tune`` judges a chunk (one step)."""
+    gains = GainBounds().sample(np.random.default_rng(seed), size)
+    model, specs = TuningModel(), StepSpecs()
+
+    def run(steps: int) -> None:
+        for _ in range(steps):
+            simulate(gains, model, specs, DEFAULT_HORIZON, parallel=parallel)
+
+    return run, None
+
+
+def threads_part(args: argparse.Namespace) -> str:
+    """Time the Plant and the tuner on each kernel under each load; returns the markdown."""
+    parts = [
+        _load.section(
+            args,
+            "the Plant (`ROTARY_PAPER`, the commands above; the torch load feeds each step's "
+            "(x, v) to the MLP)",
+            lambda size, parallel, policy: plant_threads_runner(size, parallel, policy, args.seed),
+            unit="plant-steps",
+            features=2,
+            burn_in=100,
+        )
+    ]
+    if args.tuner_chunk > 0:
+        parts.append(
+            _load.section(
+                args,
+                f"the tuner's `simulate` on {thousands(args.tuner_chunk)} candidates (a chunk of "
+                "`frictiongym tune`: paper specs, nominal model, 3 s horizon, early stop)",
+                lambda size, parallel, policy: tune_runner(size, parallel, policy, args.seed),
+                unit="candidates",
+                features=0,
+                burn_in=1,
+                sizes=[args.tuner_chunk],
+                loads=[load for load in args.loads if load != "torch"],
+            )
+        )
+    return "\n\n".join(parts)
+
+
+def plants_part(args: argparse.Namespace) -> str | None:
+    """The Plant against the numpy loop, and the context; the markdown, or None on an error."""
     start = time.perf_counter()
     probe = Plant(PARAMS, ROTARY_PAPER, dt=DT)
     probe.step(0.0)
@@ -386,12 +496,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"first parallel step (compile or cache load, thread pool start): "
           f"{time.perf_counter() - start_parallel:.3f} s; threading layer "
           f"{numba.threading_layer()}, {numba.get_num_threads()} threads; Plant's default is "
-          f"parallel for N >= {PARALLEL_MIN_PLANTS}")  # fmt: skip
+          f"adaptive for N >= {PARALLEL_MIN_PLANTS}")  # fmt: skip
     error = check_reference(args.seed)
     print(f"numpy ref vs Plant(NoFriction), 500 steps: max relative state difference {error:.1e}")
     if error > 1e-9:
         print("error: the numpy reference does not match the frictionless Plant", file=sys.stderr)
-        return 1
+        return None
 
     laws: list[tuple[str, FrictionModel]] = [
         (PAPER, ROTARY_PAPER),
@@ -415,9 +525,11 @@ def main(argv: list[str] | None = None) -> int:
         for label, law in laws:
             variants.append(plant_variant(label, law, table))
             if law is ROTARY_PAPER:  # the same law on the other kernel(s)
-                default_parallel = variants[-1].kernel == "parallel"
-                variants.append(plant_variant(label, law, table, parallel=not default_parallel))
-                if default_parallel and numba.get_num_threads() > 1:
+                default = variants[-1].kernel
+                for forced in (False, True):
+                    if default != ("parallel" if forced else "serial"):
+                        variants.append(plant_variant(label, law, table, parallel=forced))
+                if default != "serial" and numba.get_num_threads() > 1:
                     variants.append(plant_variant(label, law, table, one_thread=True))
         burn_in = max(100, table.shape[0])
         measure(variants, args.repeats, args.seconds, burn_in)
@@ -456,12 +568,7 @@ def main(argv: list[str] | None = None) -> int:
                 line += f"   x CartPole {ratio_stats(paired_ratios(variant, context[0]))}"
             print(line)
         print_kernel_ratios(context)
-
-    print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
-    if args.markdown:
-        print()
-        print(markdown(results, mixes, context, args.repeats))
-    return 0
+    return markdown(results, mixes, context, args.repeats)
 
 
 def markdown(

@@ -23,9 +23,12 @@ def test_plot_friction_writes_a_png(tmp_path):
 @pytest.mark.parametrize(
     ("script", "options"),
     [
-        ("bench_plants.py", ("--batches", "--repeats", "--quick", "--markdown")),
+        ("bench_plants.py", ("--batches", "--repeats", "--quick", "--markdown", "--part",
+                             "--thread-sizes", "--loads", "--tuner-chunk")),
         ("bench_envs.py", ("--repeats", "--seconds", "--num-envs", "--quick", "--markdown",
-                           "--seed")),
+                           "--seed", "--part", "--thread-sizes", "--loads")),
+        ("bench_rl_loops.py", ("--repeats", "--rollout", "--loads", "--loops", "--quick",
+                               "--torch-threads", "--markdown")),
         ("benchmark.py", ("--out", "--quick", "--group", "--scenario", "--seeds",
                           "--no-figures")),
         ("identify.py", ("--env", "--out", "--backend", "--law", "--noise", "--seed")),
@@ -53,7 +56,14 @@ def test_script_help_explains_its_options(script, options):
 
 def test_bench_envs_quick_reports_both_headline_ratios():
     done = subprocess.run(
-        [sys.executable, str(SCRIPTS / "bench_envs.py"), "--quick", "--markdown"],
+        [
+            sys.executable,
+            str(SCRIPTS / "bench_envs.py"),
+            "--quick",
+            "--markdown",
+            "--part",
+            "cartpole",
+        ],
         capture_output=True,
         text=True,
         check=False,
@@ -66,3 +76,23 @@ def test_bench_envs_quick_reports_both_headline_ratios():
     for name in ("RotaryServo-v0", "AltinoDistance-v0"):
         assert name in out
     assert "| comparison | target |" in out  # the markdown tables
+
+
+@pytest.mark.parametrize(
+    ("script", "extra"), [("bench_envs.py", ()), ("bench_plants.py", ("--tuner-chunk", "0"))]
+)
+def test_threads_part_compares_the_default_with_both_kernels(script, extra):
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / script), "--part", "threads", "--quick", "--markdown",
+         "--loads", "quiet", "busy", "--thread-sizes", "512", "--repeats", "1", "--seconds",
+         "0.02", *extra],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    assert "| load | N | serial kernel" in done.stdout
+    for load in ("quiet", "busy"):
+        assert f"| {load} | 512 |" in done.stdout
+    assert "default within 5% of the serial kernel or faster (median) in every case:" in done.stdout
