@@ -8,7 +8,14 @@
    * ``quiet``: nothing else started by the script;
    * ``busy``: a third process spinning on one core (``while True: pass``) for the whole run;
    * ``busy-ordinary``: the same, with the host loop and the emulator's device thread left
-     ordinary threads (``--no-realtime``), as on a system that does not permit ``SCHED_FIFO``.
+     ordinary threads (``--no-realtime``), as on a system that does not permit ``SCHED_FIFO``;
+   * ``busy-one-session``: as ``busy-ordinary``, but the spinning process is in this process's
+     session, as if started from the same shell.
+
+   The emulator, and the spinning process except in ``busy-one-session``, run in sessions of
+   their own, as when started from other shells: Linux gives each session one share of the
+   CPU (autogroup scheduling), so a process spinning in the loop's own session takes its
+   time from the loop's share.
 
    We report the achieved rate, the period error |host period - 2 ms| p50/p99/max, late
    commands, device ticks the host missed ("skipped"), watchdog trips, the scheduling the
@@ -52,17 +59,24 @@ from frictiongym.hardware.firmware import default_watchdog_ms
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.plants.presets import ROTARY_DT, ROTARY_PAPER_GAINS, ROTARY_PLANT
 
+#: case -> (a core busy: "" no, "own" in a session of its own, "shared" in this one;
+#: real-time priority asked for)
 CASES = {
-    "quiet": (False, True),
-    "busy": (True, True),
-    "busy-ordinary": (True, False),
-}  #: case -> (a core busy, real-time priority asked for)
+    "quiet": ("", True),
+    "busy": ("own", True),
+    "busy-ordinary": ("own", False),
+    "busy-one-session": ("shared", False),
+}
 
 
 @contextlib.contextmanager
-def busy_core(busy: bool) -> Iterator[None]:
-    """Keep one core busy with a spinning process for the block (if ``busy``)."""
-    spinner = subprocess.Popen([sys.executable, "-c", "while True: pass"]) if busy else None
+def busy_core(session: str) -> Iterator[None]:
+    """Keep one core busy with a spinning process for the block (``session``: see CASES)."""
+    spinner = None
+    if session:
+        spinner = subprocess.Popen(
+            [sys.executable, "-c", "while True: pass"], start_new_session=session == "own"
+        )
     try:
         yield
     finally:
@@ -81,13 +95,13 @@ def maybe_priority(realtime: bool) -> Iterator[str]:
         yield "ordinary, SCHED_FIFO not asked for"
 
 
-def loop_timing(seconds: float, busy: bool, realtime: bool) -> dict[str, object]:
+def loop_timing(seconds: float, busy: str, realtime: bool) -> dict[str, object]:
     """Run the PID against the emulator in another process for ``seconds``; time the loop."""
     command = [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", "rotary"]
     with busy_core(busy), tempfile.TemporaryFile("w+") as status:
         emulator = subprocess.Popen(
             command + ([] if realtime else ["--no-realtime"]),
-            stdout=subprocess.PIPE, stderr=status, text=True,
+            stdout=subprocess.PIPE, stderr=status, text=True, start_new_session=True,
         )  # fmt: skip
         trips = 0
         try:

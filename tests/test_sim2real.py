@@ -208,10 +208,11 @@ def test_the_device_example_holds_up_with_a_core_busy(tmp_path, monkeypatch):
         run_module, "build_controller",
         lambda env, kind, gains: _CollectingController(original(env, kind, gains), 0, 300, 0.0),
     )  # fmt: skip
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    # Each in a session of its own, as from other shells (Linux shares a session's CPU time).
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
     emulator = subprocess.Popen(
         [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", "rotary", "--quiet"],
-        stdout=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, text=True, start_new_session=True,
     )  # fmt: skip
     try:
         ready, _, _ = select.select([emulator.stdout], [], [], 60.0)

@@ -114,7 +114,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _status_line(emu: Any) -> str:
     from frictiongym.hardware import protocol as p
 
-    s = emu.stats()
+    s = emu.stats(timing=False)  # no percentiles: the device thread must not wait
     bits = "|".join(bit.name or "" for bit in p.Status if emu.status & bit) or "OK"
     return (
         f"ticks {s.ticks} (missed {s.missed})  commands {s.commands}  crc errors "

@@ -76,16 +76,12 @@ class EmulatorStats:
     late: int  #: ticks that held an old command while armed and enabled
     frames_sent: int  #: frames written (states and hellos; before byte drops)
     bytes_dropped: int  #: bytes dropped by fault injection or because nobody read them
-    tick_time_mean: float  #: time to run one tick and send its state, s
-    tick_time_p99: float
-    tick_time_max: float
-    wake_late_p50: float  #: how late the thread woke for a tick, s (real time only)
-    wake_late_p99: float
-    wake_late_max: float
-
-
-def _quantile(values: deque[float], q: float) -> float:
-    return float(np.quantile(np.fromiter(values, float), q)) if values else 0.0
+    tick_time_mean: float  #: time to run one tick and send its state, s (every tick so far)
+    tick_time_p99: float  #: over the last ``TIMING_SAMPLES`` ticks
+    tick_time_max: float  #: over every tick
+    wake_late_p50: float  #: how late the thread woke for a tick, s (real time only; the last
+    wake_late_p99: float  #: ``TIMING_SAMPLES`` ticks)
+    wake_late_max: float  #: over every tick
 
 
 class Emulator:
@@ -158,6 +154,10 @@ class Emulator:
         self._bytes_dropped = 0
         self._missed = 0
         self._tick_times: deque[float] = deque(maxlen=TIMING_SAMPLES)
+        self._tick_time_total = 0.0  # over every tick, for the mean
+        self._tick_time_max = 0.0
+        self._ticks_timed = 0
+        self._wake_late_max = 0.0
         self._wake_late: deque[float] = deque(maxlen=TIMING_SAMPLES)
 
     # -- public state -------------------------------------------------------------------------
@@ -193,21 +193,28 @@ class Emulator:
         """Whether the device thread runs."""
         return self._thread is not None and self._thread.is_alive()
 
-    def stats(self) -> EmulatorStats:
-        """Counters and timing so far."""
+    def stats(self, timing: bool = True) -> EmulatorStats:
+        """Counters and timing so far.
+
+        The device thread waits for nothing here: the samples are copied under its lock and
+        summarised outside it. ``timing=False`` skips the percentiles (they read as NaN; the
+        mean and the maxima stay), cheap enough for a status line every second.
+        """
         with self._lock:
             fw = self.firmware
-            times, late = self._tick_times, self._wake_late
             link_dropped = self._link.dropped if self._link is not None else 0
-            return EmulatorStats(
-                ticks=fw.ticks, missed=self._missed, commands=fw.commands,
-                crc_errors=fw.decoder.errors, late=fw.late, frames_sent=self._frames_sent,
-                bytes_dropped=self._bytes_dropped + link_dropped,
-                tick_time_mean=float(np.mean(np.fromiter(times, float))) if times else 0.0,
-                tick_time_p99=_quantile(times, 0.99), tick_time_max=max(times, default=0.0),
-                wake_late_p50=_quantile(late, 0.5), wake_late_p99=_quantile(late, 0.99),
-                wake_late_max=max(late, default=0.0),
-            )  # fmt: skip
+            counts = (fw.ticks, self._missed, fw.commands, fw.decoder.errors, fw.late,
+                      self._frames_sent, self._bytes_dropped + link_dropped)  # fmt: skip
+            times = list(self._tick_times) if timing else []
+            late = list(self._wake_late) if timing else []
+            tick_mean = self._tick_time_total / max(self._ticks_timed, 1)
+            tick_max, late_max = self._tick_time_max, self._wake_late_max
+        p = np.quantile(times, 0.99) if times else (0.0 if timing else math.nan)
+        q = np.quantile(late, [0.5, 0.99]) if late else np.full(2, 0.0 if timing else math.nan)
+        return EmulatorStats(
+            *counts, tick_time_mean=tick_mean, tick_time_p99=float(p), tick_time_max=tick_max,
+            wake_late_p50=float(q[0]), wake_late_p99=float(q[1]), wake_late_max=late_max,
+        )  # fmt: skip
 
     # -- serving ------------------------------------------------------------------------------
 
@@ -359,7 +366,11 @@ class Emulator:
 
     def _after_tick(self, state: p.State, started: float) -> None:
         self._send(state)
-        self._tick_times.append(time.perf_counter() - started)
+        took = time.perf_counter() - started
+        self._tick_times.append(took)
+        self._tick_time_total += took
+        self._tick_time_max = max(self._tick_time_max, took)
+        self._ticks_timed += 1
         device_time = self.firmware.ticks * self.dt
         faults = self.faults
         if faults.freeze_after is not None and device_time >= faults.freeze_after:
@@ -391,6 +402,7 @@ class Emulator:
                         state = fw.tick((fw.ticks + 1) * dt)
                     self._missed += missed
                     self._wake_late.append(now - deadline)
+                    self._wake_late_max = max(self._wake_late_max, now - deadline)
                     self._after_tick(state, now)
                 self._release()
                 continue
