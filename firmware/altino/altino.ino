@@ -3,7 +3,7 @@
  *
  * Runs on the Altino's user MCU in place of a sketch built on the vendor's Altino.h. It talks
  * to the car's base controller over `Serial` at 115200 with the vendor's 28-byte command frames
- * and 31-byte sensor replies (shared/research/hardware.md §2.2 [A1][A2]), and to the host over
+ * and 31-byte sensor replies (the vendor's PC and Arduino libraries), and to the host over
  * a second serial port with our protocol. Every 50 ms (20 Hz) it sends one State whose sensor
  * is the front-centre IR readout (0..800, grows toward the wall; d = 966 / (x + 45) cm).
  * Both wheels get the host's command (motor units, +-1000; positive drives forward, toward
@@ -18,9 +18,10 @@
  * Build: arduino-cli compile --fqbn <your board> --library firmware/common firmware/altino
  * Host:  gym.make("frictiongym/AltinoDistance-v0", backend="serial:///dev/ttyUSB0?baud=115200")
  *
- * The frame layout, checksums and sign-magnitude motor encoding follow the vendor library as
- * documented in the research notes; this file is our own code. Unverified on a car: the base's
- * answer to every frame and the steering-centre value (see firmware/README.md).
+ * The frame layout, checksums and sign-magnitude motor encoding follow the vendor library
+ * (frictiongym/hardware/altino_frames.py has the same codec); this file is our own code.
+ * Unverified on a car: the base's answer to every frame and the steering-centre value (see
+ * firmware/README.md).
  */
 #include <fg_device.h>
 
@@ -38,7 +39,7 @@ static const uint32_t HOST_BAUD = 115200UL;
  * and ask for the sensors this long before the tick so the reading is fresh at the tick. */
 static const uint32_t CAR_FRAME_GAP_US = 10000UL;
 static const uint32_t SENSOR_LEAD_US = 10000UL;
-/* Index of the front-centre IR sensor (IR[1]; research §2.3 [A3]). */
+/* Index of the front-centre IR sensor (IR[1], as in the vendor's Arduino examples). */
 static const uint8_t IR_FRONT = 1;
 /* A car that has not answered for this long reports AMP_FAULT (which disarms): the distance
  * guard must never drive on a stale reading (a repeated readout is a car at rest to it, so a

@@ -8,13 +8,13 @@ fg_device_config fg_config_rotary(void)
     fg_device_config cfg;
     cfg.kind = FG_KIND_ROTARY;
     cfg.capabilities = FG_CAP_WATCHDOG;
-    /* 500 Hz: Quanser's usual QUBE-Servo 2 rate (QUARC models use Ts = 2 ms; research §1.2). */
+    /* 500 Hz: Quanser's usual QUBE-Servo 2 rate (QUARC models use Ts = 2 ms). */
     cfg.rate_hz = 500u;
     /* 512-line encoder in quadrature (Quanser datasheet; plants/sensors.py). */
     cfg.counts_per_rev = 2048u;
     /* Commands in mV: 1000 counts per V (protocol.py, Hello.command_scale). */
     cfg.command_scale = 1000u;
-    /* +-10 V: the safe envelope of the QUBE's amplifier (research §1.1; presets.py). */
+    /* +-10 V: the safe envelope of the QUBE's amplifier (presets.py). */
     cfg.command_limit = 10000;
     cfg.watchdog_ms = 0u; /* default: max(3 periods, 100 ms) = 100 ms */
     cfg.limit_cm = 0.0f;  /* unused: no FG_CAP_DISTANCE_LIMIT */
@@ -27,11 +27,11 @@ fg_device_config fg_config_altino(void)
     fg_device_config cfg;
     cfg.kind = FG_KIND_ALTINO;
     cfg.capabilities = FG_CAP_WATCHDOG | FG_CAP_DISTANCE_LIMIT;
-    /* 20 Hz: one drive frame and one sensor poll per period (presets.ALTINO_DT, research §2.2). */
+    /* 20 Hz: one drive frame and one sensor poll per period (presets.ALTINO_DT). */
     cfg.rate_hz = 20u;
     cfg.counts_per_rev = 0u;   /* no encoder: the sensor is the front IR readout */
     cfg.command_scale = 1u;    /* motor units, as Go() takes them */
-    cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library, research §2.1) */
+    cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library) */
     cfg.watchdog_ms = 0u;      /* default: max(3 periods, 100 ms) = 150 ms */
     cfg.limit_cm = FG_GUARD_LIMIT_CM; /* guard.LIMIT_CM (assumed; see guard.py) */
     cfg.firmware = FG_FIRMWARE_BUILD;

@@ -15,15 +15,15 @@
  *
  * Sources: SPI settings, byte layout, 625/15 V-to-PWM scaling, bit-15 amplifier enable, status
  * bits, current scaling and module ID are those of Quanser's QUBE-Servo 2 Arduino library and
- * examples (shared/research/hardware.md §1.5 [Q5][Q6]); this file is our own code.
+ * examples; this file is our own code.
  */
 #include <SPI.h>
 #include <fg_device.h>
 
 /* ---- configuration ------------------------------------------------------------------------ */
 
-/* Host link: exact on 16 MHz AVRs, and a 21-byte State at 500 Hz uses 11 % of it (research
- * §3.4). Boards with native USB ignore the number. */
+/* Host link: exact on 16 MHz AVRs, and a 21-byte State at 500 Hz uses 11 % of it. Boards with
+ * native USB ignore the number. */
 static const uint32_t HOST_BAUD = 1000000UL;
 /* QUBE SPI: 1 MHz, MSB first, mode 2 (CPOL 1, CPHA 0); slave select on pin 10 [Q5]. */
 static const uint32_t QUBE_SPI_HZ = 1000000UL;

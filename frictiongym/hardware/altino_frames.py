@@ -2,7 +2,7 @@
 
 28-byte command frames ``0x02, 28, checksum, ..., 0x03`` and 31- or 56-byte sensor replies
 ``0x02, length, checksum, ..., 0x03``, with 8-bit additive checksums, 16-bit big-endian fields
-and sign-magnitude wheel values (research/hardware.md §2.2). Every command frame carries every
+and sign-magnitude wheel values (the vendor's ``Altino.h``). Every command frame carries every
 field: the vendor's ``Go()`` and ``Sensor(1)`` send the same bytes, so a sensor request also
 sets the motors and a Go is also a request. :mod:`frictiongym.hardware.altino_stock` drives a
 car with them.
@@ -26,8 +26,7 @@ GO_LIMIT = 1000
 _STOP_MODE = 255
 _SIGN = 0x8000
 
-#: Per-frame time on the car: the vendor's Arduino library waits 10 ms after each frame
-#: (research/hardware.md §2.2, [A2]).
+#: Per-frame time on the car: the vendor's Arduino library waits 10 ms after each frame.
 CAR_FRAME_S = 0.010
 #: Wire time of one tick at 115200 baud 8N1 (10 bits a byte): a 28-byte command and a 31-byte
 #: reply, 5.1 ms.

@@ -2,9 +2,9 @@
 
 A user can start with an Altino as it ships, over its Bluetooth SPP (or cable) serial port,
 without flashing anything. The codec below follows the vendor's own PC and Arduino libraries
-``Altino.h`` (research/hardware.md §2.2): 28-byte command frames ``0x02, 28, checksum, ...,
-0x03`` and 31- or 56-byte sensor replies ``0x02, length, checksum, ..., 0x03``, with 8-bit
-additive checksums, 16-bit big-endian fields and sign-magnitude wheel values.
+``Altino.h``: 28-byte command frames ``0x02, 28, checksum, ..., 0x03`` and 31- or 56-byte
+sensor replies ``0x02, length, checksum, ..., 0x03``, with 8-bit additive checksums, 16-bit
+big-endian fields and sign-magnitude wheel values.
 
 Every command frame carries every field: the vendor's ``Go()`` and ``Sensor(1)`` send the same
 bytes (``Open()`` sets the request byte to 1 and ``Go()`` keeps it), so a sensor request also
@@ -120,8 +120,8 @@ class AltinoStockBackend(Backend):
     rate_hz : float, default 20.0
         Control rate (the env's default period, 50 ms: docs/altino-model.md).
     ir_index : int, default 1
-        IR sensor read as ``Sample.measured``: 1 is the front-centre one (Arduino examples;
-        research/hardware.md §2.3).
+        IR sensor read as ``Sample.measured``: 1 is the front-centre one (the vendor's Arduino
+        examples).
     timeout : float, default 0.5
         Longest wait for a reply, s (assumed: ten periods at 20 Hz, well above Bluetooth
         latency).

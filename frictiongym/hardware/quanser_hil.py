@@ -1,11 +1,11 @@
 """The QUBE-Servo 2 over Quanser's own HIL SDK (``quanser.hardware``): the board paces the loop.
 
 Quanser's Python API is not on PyPI; it is imported when the backend opens, and a clear
-:class:`SDKNotAvailableError` says where to get it. The calls follow Quanser's own examples
-(research/hardware.md §1.3): the motor voltage on analog output 0, the amplifier enable on
-digital output 0, the disk's encoder on encoder input 0, the amplifier-fault, stall-detected
-and stall-error flags on digital inputs 0-2, and a hardware-clocked encoder-reader task whose
-read blocks until the board's next sample: the device clock, not Python, times the loop.
+:class:`SDKNotAvailableError` says where to get it. The calls follow Quanser's own examples: the
+motor voltage on analog output 0, the amplifier enable on digital output 0, the disk's encoder
+on encoder input 0, the amplifier-fault, stall-detected and stall-error flags on digital inputs
+0-2, and a hardware-clocked encoder-reader task whose read blocks until the board's next
+sample: the device clock, not Python, times the loop.
 """
 
 from __future__ import annotations
@@ -40,7 +40,7 @@ SDK_MISSING = (
     "backend='serial:///dev/ttyACM0?baud=1000000'."
 )
 
-#: Channels of the QUBE-Servo 2 USB (Quanser's qube_servo2_usb page, research/hardware.md §1.1).
+#: Channels of the QUBE-Servo 2 USB (Quanser's qube_servo2_usb page).
 MOTOR_AO, ENABLE_DO, DISK_ENCODER = 0, 0, 0
 FAULT_DI = (0, 1, 2)  #: amplifier fault, stall detected, stall error (1 = active)
 _FAULT_BITS = (Status.AMP_FAULT, Status.STALL, Status.STALL_ERROR)
@@ -51,8 +51,7 @@ AO_RANGE_V = 15.0
 #: command acts for a tenth of a second at most).
 AUTO_WATCHDOG_S = 0.1
 #: Samples the encoder task buffers; older ones are overwritten and counted as skipped, so a
-#: late read returns the newest sample (gym_brt's reader: one sample, overwrite on overflow;
-#: research/hardware.md §1.4).
+#: late read returns the newest sample (gym_brt's reader: one sample, overwrite on overflow).
 TASK_BUFFER = 1
 #: How often the fault inputs are read, s (assumed: a stall error takes about 3 s to latch,
 #: Quanser's pal docstring; each read is one more USB round trip).
@@ -96,13 +95,13 @@ class QuanserHILBackend(Backend):
         HIL board type.
     identifier : str, default "0"
         Board identifier (``"0"``: the first; Quanser Interactive Labs' virtual QUBE is
-        ``"0@tcpip://localhost:18920?nagle='off'"``, research/hardware.md §1.3).
+        ``"0@tcpip://localhost:18920?nagle='off'"``).
     rate_hz : float, default 500.0
         Sample rate of the board's clock (QUARC's QUBE-Servo 2 models use 2 ms; Quanser's pal
         defaults to 500 Hz).
     voltage_limit : float, default 10.0
         Largest |voltage|, V, within the output's ±15 V (±10 V is Quanser's recommended
-        envelope for the QUBE-Servo 3 amplifier; research/hardware.md §1.1).
+        envelope for the QUBE-Servo 3 amplifier).
     watchdog_s : float, optional
         HIL watchdog time, s: None (default) uses :data:`AUTO_WATCHDOG_S` if the board has a
         watchdog and runs without one otherwise; a positive time requires one (error if

@@ -4,9 +4,9 @@ Both links are driven from one thread with ``select``: :meth:`Link.fds` names th
 to wait on, :meth:`Link.read` returns what arrived (never blocks), :meth:`Link.write` sends what
 it can and keeps the rest in a bounded buffer (a device's UART drops what nobody reads).
 
-* :class:`PtyLink`: ``os.openpty()`` with the master in raw mode (research/hardware.md §4.2) and
-  non-blocking; the host opens the slave path (``os.ttyname``) with pyserial. While no host has
-  the slave open the master reads fail with ``EIO``: the link waits and retries.
+* :class:`PtyLink`: ``os.openpty()`` with the master in raw mode and non-blocking; the host
+  opens the slave path (``os.ttyname``) with pyserial. While no host has the slave open the
+  master reads fail with ``EIO``: the link waits and retries.
 * :class:`TcpLink`: one client at a time (``TCP_NODELAY``), back to ``accept`` when it leaves;
   the host connects with pyserial's ``socket://HOST:PORT``.
 """
