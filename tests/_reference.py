@@ -1,7 +1,7 @@
 """Event-located reference solver for the stick/slip plant: the test oracle.
 
 An independent, pure-Python/SciPy solution of ``J x'' + B x' = u - F(x', u)`` with the
-command ``u`` held over each control period (ZOH), following research/friction.md §4.2 and
+command ``u`` held over each control period (ZOH), following the hybrid (Filippov) semantics of docs/physics.md and
 §4.8. It shares no code with :mod:`frictiongym.plants._kernel`; it only reads the public
 fields of the friction-law dataclasses.
 

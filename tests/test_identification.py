@@ -71,7 +71,7 @@ def test_fit_law_recovers_an_exact_map(shape):
 
 
 def test_ramp_breakaway_matches_the_static_law_oracle():
-    """A slow ramp on the static law breaks away exactly at u_s (research/friction.md §6.3)."""
+    """A slow ramp on the static law breaks away exactly at u_s (t = u_s / rho)."""
     env = make_env(ROTARY, quantize=False)
     runner = Runner(env)
     from frictiongym.identification.estimates import breakaway_level

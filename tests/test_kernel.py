@@ -1,4 +1,4 @@
-"""The stick/slip step against closed forms, research/friction.md §7 oracles and the reference.
+"""The stick/slip step against closed forms, analytic oracles (docs/physics.md) and the reference.
 
 Physics: ``J x'' + B x' = u - F(x', u)``, friction in command units, the command held over each
 control period. The reference solver (``_reference.py``) is an independent event-located
@@ -338,7 +338,7 @@ def test_hunting_limit_cycle_with_stiction() -> None:
     intervals = np.diff(breakaways)[6:]
     assert len(settled) >= 5  # sustained: a rest every ~12 s, for ever
     assert np.all(np.sign(settled[1:]) == -np.sign(settled[:-1]))  # symmetric, alternating
-    # research/friction.md O9, 1 ms ZOH discrete PID: rest errors +-0.0656, 12.009 s apart
+    # Hunting oracle, 1 ms ZOH discrete PID: rest errors +-0.0656, 12.009 s apart
     np.testing.assert_allclose(np.abs(settled), 0.0656, rtol=0, atol=1e-4)
     np.testing.assert_allclose(intervals, 12.009, rtol=0, atol=4 * DT)  # ZOH jitter
     assert abs(np.mean(intervals) - 12.009) <= 1.5 * DT
@@ -351,7 +351,7 @@ def test_hunting_limit_cycle_with_stiction() -> None:
 def test_no_limit_cycle_when_us_equals_uc() -> None:
     rest_errors, breakaways = hunting(us=1.0, seconds=150.0)
     e = rest_errors[1:]  # after the first overshoot
-    # research/friction.md O9 (1 ms ZOH): 0.229, -0.105, 0.048, -0.022, 0.010, -0.0046
+    # Hunting oracle (1 ms ZOH): 0.229, -0.105, 0.048, -0.022, 0.010, -0.0046
     # (quoted to 3 decimals, the last to 2 significant digits: half a unit of the last digit)
     quoted = [0.229, -0.105, 0.048, -0.022, 0.010, -0.0046]
     assert np.all(np.abs(e[:6] - quoted) <= [5e-4] * 5 + [5e-5]), e[:6]

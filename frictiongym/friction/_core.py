@@ -46,7 +46,7 @@ I_SIGMA1 = 10
 ROW_SIZE = 11
 
 # Exponential decay normalised to reach exactly 0 at r = 1; without the normalisation it
-# would be 1 % of (u_s - u_c) there (research/friction.md §1.4).
+# would be 1 % of (u_s - u_c) there (exp(-ln 100) = 0.01).
 _EXP_RATE = math.log(100.0)
 _EXP_FLOOR = math.exp(-_EXP_RATE)
 

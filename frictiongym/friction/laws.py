@@ -250,7 +250,8 @@ class LuGre(FrictionModel):
     ``dz/dt = v - sigma0 |v| z / g(v)``, ``F = sigma0 z + sigma1 dz/dt + viscous v``, with
     ``g(v) = u_c + (u_s - u_c) exp(-(v/v_s)^2)`` per direction. Pre-sliding displacement is
     about ``u_s / sigma0``; there is no exact stick, so a body under a load below break-away
-    creeps slowly (research/friction.md §2.2).
+    creeps slowly (Åström & Canudas de Wit 2008, "Revisiting the LuGre model", IEEE Control
+    Systems Magazine 28(6)).
 
     Parameters
     ----------

@@ -1,6 +1,7 @@
 """Friction presets with the paper's identified numbers, and construction by name.
 
-Source of every number: the paper in ``shared/reference/friction-paper.txt`` (§4.1, Fig. 8(b)
+Source of every number: the paper, *Performance Enhancement of Motion Control Systems Through
+Friction Identification and Compensation* (§4.1, Fig. 8(b)
 for the servo; §4.2, Fig. 10(b) for the Altino), unless marked *assumed*.
 """
 
@@ -17,7 +18,7 @@ from frictiongym.friction.laws import (
 )
 
 #: Ratio v0 / v_s of a Gaussian Stribeck curve that is within 1 % of u_c at v0
-#: (research/friction.md §1.4: v_s = v0 / 2.146).
+#: (exp(-(v0/v_s)^2) = 0.01 gives v_s = v0 / 2.146).
 _GAUSS_V0_OVER_VS = math.sqrt(math.log(100.0))
 
 #: QUBE-Servo 2, volts vs rad/s (paper Fig. 8(b)). The viscous slope 0.0411 V/(rad/s) is part

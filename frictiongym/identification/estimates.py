@@ -2,7 +2,7 @@
 
 Every estimator takes one :class:`~frictiongym.identification.experiments.Trace` and uses only
 its valid samples. The models are the ones a first-order plant ``J v' + b v = u - F`` gives in
-one sliding branch of friction (research/friction.md §6):
+one sliding branch of friction (docs/identification.md):
 
 * a constant input from rest ends on ``y = a + v t + c exp(-t / tau)``, whatever happened
   before (break-away, the decay from ``u_s``), once the body is in one branch;

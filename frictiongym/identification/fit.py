@@ -3,8 +3,8 @@
 A point of the map is a level ``u`` held from rest and the steady speed ``v`` it reached:
 ``u = F(v) + b v`` with ``F`` the law's sliding friction and ``b`` all linear damping (the
 plant's and the law's viscous part cannot be told apart in steady state). The break-away
-levels ``u_s±`` come from the ramps and are held fixed, as research/friction.md §6.2
-recommends: the low-speed end of the map constrains ``u_s`` and ``v_0`` together. The curve is
+levels ``u_s±`` come from the ramps and are held fixed (docs/identification.md): the low-speed
+end of the map constrains ``u_s`` and ``v_0`` together. The curve is
 evaluated by the law's own :meth:`~frictiongym.friction.FrictionModel.force`, the code the
 simulated plant runs.
 

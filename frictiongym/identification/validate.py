@@ -37,7 +37,7 @@ def draw_device(
     Each friction level, ``v_0``, the viscous slope, ``J`` and ``B`` are drawn independently
     and uniformly. Draws are rejected until ``u_c < u_s`` and the map's slope just above rest
     is at least a fifth of the total damping in both directions: an open-loop map cannot
-    observe a falling branch (research/friction.md §6.2).
+    observe a falling branch (an open-loop level on it is unstable; docs/identification.md).
     """
     low, high = 1.0 - spread, 1.0 + spread
     while True:

@@ -5,7 +5,7 @@ kernels :func:`step_batch` (serial) and :func:`step_batch_parallel` (numba threa
 over N plants. Every caller goes through them, so a plant stepped alone and inside a batch,
 serially or in parallel, follows a bit-identical trajectory.
 
-Integrators (research/friction.md §4):
+Integrators (docs/physics.md):
 
 * **Exact** (static law with a ``step`` or ``linear`` decay, which covers none and
   Coulomb): friction is affine in ``v`` on each of at most two speed ranges, so each
@@ -177,7 +177,8 @@ def breakaway_direction(u: float, p: Row) -> float:
     """Direction a body at rest moves under input ``u``: +1.0, -1.0, or 0.0 if it stays put.
 
     The band is closed: the body breaks away only when ``u`` is strictly outside
-    ``[-us_neg, us_pos]`` (research/friction.md §4.2).
+    ``[-us_neg, us_pos]`` (Filippov's sliding-mode semantics, as Modelica's friction
+    elements; docs/physics.md).
     """
     if u > p[fc.I_US_POS]:
         return 1.0
@@ -397,7 +398,7 @@ def advance(
     hs = h / n_sub
     impulse = 0.0
     # Held at rest for the whole step (static law, no lag): friction equals the input exactly,
-    # not impulse / h, which can be off by one ulp (research/friction.md O1: F_f = u).
+    # not impulse / h, which can be off by one ulp (the test oracle F_f = u of docs/physics.md).
     held = law == fc.LAW_STATIC and lag == 0.0
     for _ in range(n_sub):
         force = u

@@ -1,7 +1,8 @@
 """Plant presets: the paper's QUBE-Servo 2 and our Altino model.
 
-Every number cites its source: the paper (``shared/reference/friction-paper.txt``), a
-datasheet, or *assumed, see docs/altino-model.md*.
+Every number cites its source: the paper (*Performance Enhancement of Motion Control Systems
+Through Friction Identification and Compensation*), a datasheet or vendor code, or *assumed, see
+docs/altino-model.md*.
 """
 
 from __future__ import annotations
@@ -12,14 +13,15 @@ from frictiongym.plants.plant import PlantParams
 
 #: Paper Eq. (2) and §3.1: J_e = 7.143e-3 V·s², B_e = 0.0446 V·s (first-order identification,
 #: load disk included; B_e contains the viscous slope 0.0411 V/(rad/s) of Fig. 8(b)).
-#: ±10 V: the QUBE-Servo 2 amplifier's command range (Quanser user manual; research/hardware.md).
+#: ±10 V: the QUBE-Servo 2 amplifier's command range (Quanser's QUBE-Servo 2 user manual).
 ROTARY_PLANT = PlantParams(inertia=7.143e-3, damping=0.0446, command_limit=10.0)
 
-#: 500 Hz, Quanser's usual QUBE-Servo 2 rate (QUARC models use Ts = 2 ms; research/hardware.md).
+#: 500 Hz, Quanser's usual QUBE-Servo 2 rate (its QUARC models, e.g. ``q_qube2_swingup``, use
+#: Ts = 2 ms).
 ROTARY_DT = 0.002
 
-#: Velocity estimate 50 s / (s + 50) of the encoder angle, as in Quanser's QUBE models
-#: (research/hardware.md).
+#: Velocity estimate 50 s / (s + 50) of the encoder angle, as in Quanser's QUBE models and
+#: examples.
 ROTARY_VELOCITY_CUTOFF = 50.0
 
 #: The paper's PID for the servo (§3.1), found by random search against its specs.
@@ -36,16 +38,17 @@ ROTARY_PAPER_GAINS = {"kp": 7.8, "ki": 1.5, "kd": 0.275}
 #:   (0.37 g), below the tyre-grip limit of a toy car.
 #: * ``damping`` 0: the paper's viscous slope 10.93 units/(cm/s) (Fig. 10(b)) is in the friction
 #:   law (``ALTINO_PAPER.viscous``) and adds to this.
-#: * ``command_limit`` 1000: the Altino's motor command range (``Go(±1000)``, research/hardware.md).
+#: * ``command_limit`` 1000: the Altino's motor command range (``Go(±1000)`` of the
+#:   vendor's ``Altino.h``).
 #: * ``lag`` 0: a small DC motor's electrical time constant L/R is about 1 ms, far below the control
 #:   period; the mechanical lag is the mass itself.
 #: * ``dead_time`` 0.05 s = one control period: Bluetooth SPP latency (tens of ms) plus the 10 ms
-#:   the on-board library waits per frame (research/hardware.md).
+#:   the on-board library waits per frame (the vendor's ``Altino.h``).
 ALTINO_PLANT = PlantParams(inertia=2.2, damping=0.0, command_limit=1000.0, lag=0.0, dead_time=0.05)
 
 #: 20 Hz: one drive command and one sensor poll per period fit the Altino's serial protocol with
-#: its 10 ms per-frame delay; research/hardware.md gives 10–50 Hz as realistic and recommends
-#: 50–100 ms periods. Assumed, see docs/altino-model.md.
+#: its 10 ms per-frame delay, which makes 10–50 Hz the realistic range. Assumed, see
+#: docs/altino-model.md.
 ALTINO_DT = 0.05
 
 #: Start of the paper's step (not stated in the paper). Assumed, see docs/altino-model.md: the
