@@ -1,9 +1,10 @@
 """Event-located reference solver for the stick/slip plant: the test oracle.
 
 An independent, pure-Python/SciPy solution of ``J x'' + B x' = u - F(x', u)`` with the
-command ``u`` held over each control period (ZOH), following the hybrid (Filippov) semantics of docs/physics.md and
-§4.8. It shares no code with :mod:`frictiongym.plants._kernel`; it only reads the public
-fields of the friction-law dataclasses.
+command ``u`` held over each control period (ZOH), following the hybrid (Filippov) semantics
+of docs/physics.md with event-located ``solve_ivp`` pieces. It shares no code with
+:mod:`frictiongym.plants._kernel`; it only reads the public fields of the friction-law
+dataclasses.
 
 Modes: SLIDE+ (v > 0), SLIDE- (v < 0), STUCK (v == 0.0 exactly). Each control period is
 integrated with :func:`scipy.integrate.solve_ivp` (DOP853, rtol 1e-12) one smooth piece at a
