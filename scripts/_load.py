@@ -266,8 +266,16 @@ def run_cases(
 
 
 def summary(cases: Sequence[LoadCase]) -> str:
-    """One line: whether the default stayed within the tolerance of serial in every case."""
-    bad = [f"{c.load} N={c.size}" for c in cases if not c.default_ok()]
+    """One line: whether the default stayed within the tolerance of serial in every case.
+
+    A case below names its default / serial median and, for scale, the serial copy's.
+    """
+    bad = [
+        f"{c.load} N={c.size} ({statistics.median(c.ratios('default')):.3g}; serial copy "
+        f"{statistics.median(c.ratios('serial copy')):.3g})"
+        for c in cases
+        if not c.default_ok()
+    ]
     verdict = "yes" if not bad else "no: " + ", ".join(bad)
     return (
         f"default within {TOLERANCE:.0%} of the serial kernel or faster (median) in every "

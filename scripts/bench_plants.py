@@ -56,6 +56,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from itertools import cycle, islice
+from typing import Any
 
 import _load
 import numba
@@ -72,6 +73,7 @@ from _bench import (
     source_revision,
     stats,
     thousands,
+    timed,
 )
 
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
@@ -453,9 +455,33 @@ def tune_runner(
     return run, None
 
 
+def adaptive_overhead(calls: int = 200_000, repeats: int = 5) -> float:
+    """Seconds an ``AdaptiveKernel`` adds to a call: no-op twins against the bare no-op (best)."""
+
+    def noop(*args: object) -> int:
+        return -1
+
+    arguments = (0,) * 7  # as many as step_batch takes
+    best = []
+    for kernel in (noop, AdaptiveKernel(noop, noop)):
+
+        def run(steps: int, kernel: Any = kernel) -> None:
+            for _ in range(steps):
+                kernel(*arguments)
+
+        best.append(min(timed(run, calls) for _ in range(repeats)) / calls)
+    return best[1] - best[0]
+
+
 def threads_part(args: argparse.Namespace) -> str:
     """Time the Plant and the tuner on each kernel under each load; returns the markdown."""
+    overhead = (
+        f"The adaptive kernel's own cost per call: {adaptive_overhead() * 1e6:.2f} µs (no-op "
+        "twins against the bare no-op, best of 5 runs of 200 000 calls)."
+    )
+    print(f"\n{overhead}")
     parts = [
+        overhead,
         _load.section(
             args,
             "the Plant (`ROTARY_PAPER`, the commands above; the torch load feeds each step's "
@@ -464,7 +490,7 @@ def threads_part(args: argparse.Namespace) -> str:
             unit="plant-steps",
             features=2,
             burn_in=100,
-        )
+        ),
     ]
     if args.tuner_chunk > 0:
         parts.append(

@@ -145,9 +145,9 @@ class RotaryServoVectorEnv(FrictionVectorEnv):
     """``num_envs`` QUBE-Servo 2 envs stepped by one compiled call (see :class:`RotaryServoEnv`).
 
     Takes the single env's arguments plus ``num_envs``, ``max_episode_steps`` (default 2500
-    through ``gym.make_vec``) and ``parallel`` (numba threads; default for 128 envs or more).
-    Autoreset mode: ``NEXT_STEP``. Env ``i`` of ``reset(seed=s)`` follows the single env
-    reset with ``seed=s + i`` exactly.
+    through ``gym.make_vec``) and ``parallel`` (``True``: numba's threads, ``False``: one;
+    default: from 512 envs, whichever is faster at the moment). Autoreset mode: ``NEXT_STEP``.
+    Env ``i`` of ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
     """
 
     device = ROTARY_DEVICE
