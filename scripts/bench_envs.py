@@ -421,9 +421,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="fast smoke run (about 5 s with numba's cache warm, 15 s cold): smaller defaults for "
-        "--repeats, --seconds and --num-envs (explicit values still win); the figures are then "
-        "too noisy to quote",
+        help="fast smoke run (--part cartpole: about 5 s with numba's cache warm, 15 s cold; the "
+        "threads part, 2 sizes under 4 loads: up to a minute): smaller defaults for --repeats, "
+        "--seconds, --num-envs and --thread-sizes (explicit values still win); the figures are "
+        "then too noisy to quote",
     )
     parser.add_argument(
         "--markdown",

@@ -347,9 +347,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--quick",
         action="store_true",
-        help="fast smoke run (a few seconds): smaller defaults for --batches, --repeats and "
-        "--seconds (explicit values still win) and a short stick/slip characterisation; the "
-        "figures are then too noisy to quote",
+        help="fast smoke run (--part plants: a few seconds; the threads part: a minute or two): "
+        "smaller defaults for --batches, --repeats, --seconds and --thread-sizes (explicit "
+        "values still win) and a short stick/slip characterisation; the figures are then too "
+        "noisy to quote",
     )
     parser.add_argument(
         "--markdown",
