@@ -5,7 +5,8 @@ Each batched kernel (:func:`~frictiongym.plants._kernel.step_batch`,
 that give bit-identical results. The threads pay off on an idle machine, but every call ends in a
 join that waits for all of numba's threads: when another process, or torch's own OpenMP threads
 in the same process, holds a core, a descheduled worker stalls each call and the threaded kernel
-ran 2-10 times slower than the serial one (docs/benchmarks.md, "Threads beside a learner").
+ran 5 to 40 times slower than the serial one at 4 096 envs (docs/benchmarks.md, "Threads beside
+a learner").
 No fixed rule is right on both sides of that, so :class:`AdaptiveKernel` times the calls
 themselves and runs whichever twin is currently faster. Since the twins agree bit for bit, the
 choice changes how long a call takes, never what it computes.
