@@ -228,3 +228,23 @@ def test_the_device_example_holds_up_with_a_core_busy(tmp_path, monkeypatch):
     assert [run.ended for run in result.runs] == ["complete"] * 3
     assert result.timing.steps == 3 * 750
     assert "faults" not in json.loads((tmp_path / "log" / "meta.json").read_text())
+
+
+def test_a_run_the_altino_guard_stops_is_told_from_one_the_safety_limit_ends():
+    from types import SimpleNamespace
+
+    from frictiongym.hardware import Sample
+    from frictiongym.hardware.protocol import Status
+    from frictiongym.sim2real.run import DEVICE_LIMIT, SAFETY_LIMIT, Trace, _ended_early
+
+    zeros = np.zeros(80)
+    trace = Trace(np.arange(80) * 0.05, zeros, zeros, zeros, zeros, terminated=True)
+    guard = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0, status=int(Status.LIMIT)))
+    assert _ended_early(guard, trace, 0.0, encoder=False) == (
+        DEVICE_LIMIT, "the device's distance guard stopped it after 79 steps"
+    )  # fmt: skip
+    wall = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0))
+    assert _ended_early(wall, trace, 0.0, encoder=False) == (
+        SAFETY_LIMIT, "the safety limit ended it after 79 steps (the car reached 0 cm)"
+    )  # fmt: skip
+    assert _ended_early(wall, trace, 12.566, encoder=True)[1].endswith("(|angle| passed 12.57 rad)")
