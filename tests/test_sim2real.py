@@ -131,6 +131,7 @@ def test_runs_the_safety_limit_ends_are_reported_not_compared(tmp_path, capsys):
     assert data["model_stops"]["friction"] is not None
     text = (out / "report.md").read_text()
     assert "the safety limit ended it after" in text
+    assert "(\\|angle\\| passed 12.57 rad) |" in text  # escaped: one cell in the runs table
     assert "No device run completed, so there is no gap to report." in text
     assert "closes" not in text
 

@@ -120,7 +120,8 @@ def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
     """Return the device runs' table and what the stopped ones mean for the figures."""
     lines = ["## Device runs", "", "| run | steps | ended |", "|---:|---:|---|"]
     for run in data["runs"]:
-        how = run["ended"] if run["ended"] == COMPLETE else f"**{run['ended']}**: {run['detail']}"
+        detail = run["detail"].replace("|", "\\|")  # |angle| must not split the cell
+        how = run["ended"] if run["ended"] == COMPLETE else f"**{run['ended']}**: {detail}"
         lines.append(f"| {run['run']} | {run['steps']} | {how} |")
     stopped = result.stopped
     if stopped:
