@@ -257,3 +257,35 @@ def test_the_tuners_result_does_not_depend_on_the_kernel() -> None:
         np.testing.assert_array_equal(other.feasible, runs[0].feasible)
         np.testing.assert_array_equal(other.stopped_at, runs[0].stopped_at)
         np.testing.assert_array_equal(other.metrics.settling_time, runs[0].metrics.settling_time)
+
+
+@pytest.mark.parametrize(
+    ("serial", "threaded", "expected"), [(10.0, 200.0, False), (10.0, 5.0, True)]
+)
+def test_a_new_batch_starts_from_what_earlier_batches_learnt(
+    clock: FakeClock, serial: float, threaded: float, expected: bool
+) -> None:
+    """A tuner's next chunk or a fresh vector env of the same kernels pays no trial at first."""
+    twins = Twins(clock, serial, threaded)
+    pair = (twins.twin(0), twins.twin(1))
+    run(AdaptiveKernel(*pair, size=1000), 400)
+    second = AdaptiveKernel(*pair, size=2000)  # twice the size: the learnt costs scale
+    assert run(second, 20) == [expected] * 20
+    assert second._mean[0] == pytest.approx(2.0 * serial * US, rel=0.3)
+    # Without a size nothing is shared: the batch measures both twins first.
+    fresh = run(AdaptiveKernel(*pair), 20)
+    assert True in fresh
+    assert False in fresh
+
+
+def test_short_batches_in_a_row_still_try_the_threads_again(clock: FakeClock) -> None:
+    """Batches too short to reach a trial alone share the time since the last one."""
+    twins = Twins(clock, 10.0, 200.0)  # beside a learner: the threads lose
+    pair = (twins.twin(0), twins.twin(1))
+    for _ in range(20):
+        run(AdaptiveKernel(*pair, size=1000), 30)
+    twins.cost[1] = 5.0 * US  # the machine is idle again: the threads win
+    ran = []
+    for _ in range(300):
+        ran += run(AdaptiveKernel(*pair, size=1000), 30)
+    assert sum(ran[-3000:]) >= 0.95 * 3000  # on the threads again, but for short trials

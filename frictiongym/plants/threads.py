@@ -56,6 +56,13 @@ MIN_GAP = 16
 
 _WARM_UP, _TRIAL, _USING = 0, 1, 2
 
+#: What the batches of each pair of twins have learnt: per batch element, the seconds per call
+#: of each twin and the last trial's loss; the twin in use; the seconds and calls spent on it
+#: since that trial. A new batch of the same twins goes on from there instead of trying both
+#: twins again: a tuner's short chunks would otherwise each pay a losing trial (7 % of a
+#: chunk beside a busy core), and never run long enough to try the threads again.
+_LEARNT: dict[tuple[Kernel, Kernel], tuple[float, float, float, int, float, int]] = {}
+
 
 class AdaptiveKernel:
     """Call the faster of two bit-identical kernel twins, judged by timing the calls.
@@ -94,6 +101,7 @@ class AdaptiveKernel:
         "_phase",
         "_probation",
         "_running",
+        "_size",
         "_tenure",
         "_time",
         "_trial_cost",
@@ -103,8 +111,9 @@ class AdaptiveKernel:
         "switches",
     )
 
-    def __init__(self, serial: Kernel, parallel: Kernel) -> None:
+    def __init__(self, serial: Kernel, parallel: Kernel, size: int = 0) -> None:
         self._kernels = (serial, parallel)
+        self._size = float(size)  # batch elements, 0 if unknown: then nothing is shared
         #: seconds per call of each twin: a running mean for the one in use, the last trial's
         #: mean for the other
         self._mean = [0.0, 0.0]
@@ -121,7 +130,14 @@ class AdaptiveKernel:
         self._tenure = [0.0, 0.0, 0.0]
         self.calls = [0, 0]
         self.switches = 0
-        self._start(0, _WARM_UP)  # the first trial measures the serial twin, in use
+        learnt = _LEARNT.get(self._kernels) if size > 0 else None
+        if learnt is None:
+            self._start(0, _WARM_UP)  # the first trial measures the serial twin, in use
+        else:  # go on where earlier batches of these twins left off
+            self._mean = [learnt[0] * size, learnt[1] * size]
+            self._loss, self._using = learnt[2] * size, learnt[3]
+            self._credit, self._gap = learnt[4], learnt[5]
+            self._start(self._using, _USING)
 
     @property
     def parallel(self) -> bool:
@@ -130,6 +146,7 @@ class AdaptiveKernel:
 
     def rescale(self, factor: float) -> None:
         """Scale what the timings have learnt by ``factor`` (the batch changed size)."""
+        self._size *= factor
         self._mean = [m * factor for m in self._mean]
         self._loss *= factor
         self._tenure[0] *= factor
@@ -181,11 +198,19 @@ class AdaptiveKernel:
             self._gap += calls
             self._tenure[0] += elapsed
             self._tenure[1] += calls
+            self._remember()
             waited = self._credit >= min(self._loss / BUDGET, MAX_WAIT)
             if mean[which] > mean[1 - which] or (self._gap >= MIN_GAP and waited):
                 self._start(1 - which, _WARM_UP)
             else:
                 self._start(which, _USING)
+
+    def _remember(self) -> None:
+        """Share what this batch has learnt with later batches of the same twins."""
+        if self._size > 0:
+            serial, threaded = (m / self._size for m in self._mean)
+            loss = self._loss / self._size
+            _LEARNT[self._kernels] = (serial, threaded, loss, self._using, self._credit, self._gap)
 
     def _end_trial(self, which: int, per_call: float, cost: float) -> None:
         """Keep the twin in use or hand over to the one just tried."""
@@ -208,6 +233,7 @@ class AdaptiveKernel:
             self._loss = max(0.0, cost - calls * mean[using])
         mean[which] = per_call
         self._credit, self._gap = 0.0, 0
+        self._remember()
         self._start(self._using, _USING)
 
 
@@ -232,4 +258,4 @@ def select_kernel(serial: Kernel, parallel: Kernel, size: int, choice: bool | No
     threads: int = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
     if size < PARALLEL_MIN_PLANTS or threads < 2:
         return serial
-    return AdaptiveKernel(serial, parallel)
+    return AdaptiveKernel(serial, parallel, size)
