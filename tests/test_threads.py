@@ -289,3 +289,12 @@ def test_short_batches_in_a_row_still_try_the_threads_again(clock: FakeClock) ->
     for _ in range(300):
         ran += run(AdaptiveKernel(*pair, size=1000), 30)
     assert sum(ran[-3000:]) >= 0.95 * 3000  # on the threads again, but for short trials
+
+
+def test_trials_that_keep_losing_back_off(clock: FakeClock) -> None:
+    """A threaded twin that stalls badly (beside a learner) is retried ever more rarely."""
+    twins = Twins(clock, 100.0, 20_000.0)  # each threaded call stalls 200 times longer
+    kernel = twins.adaptive()
+    run(kernel, 300_000)  # 30 s of serial calls
+    assert twins.spent[1] <= 0.02 * twins.spent[0]
+    assert kernel._wait == threads.MAX_BACKOFF

@@ -48,8 +48,11 @@ MARGIN = 0.03
 #: times what that trial lost, so trials cost about this fraction of the time at most ...
 BUDGET = 0.01
 #: ... but after at most this many seconds of calls (one unlucky trial, stalled by a burst of
-#: other work, must not keep the threads away for long once the machine is idle again) ...
+#: other work, must not keep the threads away for long once the machine is idle again), a wait
+#: that doubles with every trial lost in a row up to ``MAX_BACKOFF``: beside a learner a trial
+#: of the threads can stall for tens of ms, which retried every second cost 10 % ...
 MAX_WAIT = 1.0
+MAX_BACKOFF = 16.0
 #: ... and never sooner than this many calls after the last trial, unless the twin in use has
 #: become slower than the other was at its last trial.
 MIN_GAP = 16
@@ -58,10 +61,11 @@ _WARM_UP, _TRIAL, _USING = 0, 1, 2
 
 #: What the batches of each pair of twins have learnt: per batch element, the seconds per call
 #: of each twin and the last trial's loss; the twin in use; the seconds and calls spent on it
-#: since that trial. A new batch of the same twins goes on from there instead of trying both
-#: twins again: a tuner's short chunks would otherwise each pay a losing trial (7 % of a
-#: chunk beside a busy core), and never run long enough to try the threads again.
-_LEARNT: dict[tuple[Kernel, Kernel], tuple[float, float, float, int, float, int]] = {}
+#: since that trial; the longest wait for the next. A new batch of the same twins goes on from
+#: there instead of trying both twins again: a tuner's short chunks would otherwise each pay a
+#: losing trial (7 % of a chunk beside a busy core), and never run long enough to try the
+#: threads again.
+_LEARNT: dict[tuple[Kernel, Kernel], tuple[float, float, float, int, float, int, float]] = {}
 
 
 class AdaptiveKernel:
@@ -107,6 +111,7 @@ class AdaptiveKernel:
         "_trial_cost",
         "_trial_time",
         "_using",
+        "_wait",
         "calls",
         "switches",
     )
@@ -121,6 +126,7 @@ class AdaptiveKernel:
         self._credit = 0.0  # seconds spent on the twin in use since the last trial
         self._gap = 0  # calls since the last trial
         self._loss = 0.0  # seconds the last trial of the other twin cost beyond the one in use
+        self._wait = MAX_WAIT  # the longest wait for the next trial, s of calls
         self._trial_cost = 0.0  # seconds of the trial under way, warm-up included
         self._trial_time = 0.0  # seconds of its measured calls
         self._measured = 0  # its measured calls
@@ -136,7 +142,7 @@ class AdaptiveKernel:
         else:  # go on where earlier batches of these twins left off
             self._mean = [learnt[0] * size, learnt[1] * size]
             self._loss, self._using = learnt[2] * size, learnt[3]
-            self._credit, self._gap = learnt[4], learnt[5]
+            self._credit, self._gap, self._wait = learnt[4], learnt[5], learnt[6]
             self._start(self._using, _USING)
 
     @property
@@ -199,7 +205,7 @@ class AdaptiveKernel:
             self._tenure[0] += elapsed
             self._tenure[1] += calls
             self._remember()
-            waited = self._credit >= min(self._loss / BUDGET, MAX_WAIT)
+            waited = self._credit >= min(self._loss / BUDGET, self._wait)
             if mean[which] > mean[1 - which] or (self._gap >= MIN_GAP and waited):
                 self._start(1 - which, _WARM_UP)
             else:
@@ -210,7 +216,8 @@ class AdaptiveKernel:
         if self._size > 0:
             serial, threaded = (m / self._size for m in self._mean)
             loss = self._loss / self._size
-            _LEARNT[self._kernels] = (serial, threaded, loss, self._using, self._credit, self._gap)
+            credit, gap, wait = self._credit, self._gap, self._wait
+            _LEARNT[self._kernels] = (serial, threaded, loss, self._using, credit, gap, wait)
 
     def _end_trial(self, which: int, per_call: float, cost: float) -> None:
         """Keep the twin in use or hand over to the one just tried."""
@@ -229,8 +236,10 @@ class AdaptiveKernel:
             self._tenure = [cost, float(calls), mean[using]]
             self._using, self._probation = which, PROBATION
             self.switches += 1
+            self._wait = MAX_WAIT
         else:
             self._loss = max(0.0, cost - calls * mean[using])
+            self._wait = min(2.0 * self._wait, MAX_BACKOFF)
         mean[which] = per_call
         self._credit, self._gap = 0.0, 0
         self._remember()
