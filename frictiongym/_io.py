@@ -23,6 +23,35 @@ from types import TracebackType
 STAGING_PREFIX = ".frictiongym-partial-"
 
 
+#: Flags of a temporary file: a new file only, never opened through a link (``O_EXCL`` refuses
+#: any existing name, a link among them; ``O_NOFOLLOW`` where the platform has it).
+_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+
+
+def _new_temporary(target: Path) -> tuple[Path, int]:
+    """Create a file under a new random name beside ``target``; return it and its descriptor."""
+    while True:
+        tmp = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
+        try:
+            # Mode 0o666 less the umask, as open() gives; mkstemp would make it 0600.
+            return tmp, os.open(tmp, _NEW_FILE, 0o666)
+        except FileExistsError:
+            continue
+
+
+def _replace_with(tmp: Path, target: Path, fill: Callable[[], object]) -> None:
+    """Run ``fill()`` (which writes ``tmp``), rename ``tmp`` to ``target``; remove it on error.
+
+    The rename replaces a link at ``target`` instead of writing through it.
+    """
+    try:
+        fill()
+        os.replace(tmp, target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
 def write_file_atomic(path: str | os.PathLike[str], write: Callable[[Path], object]) -> None:
     """Have ``write(tmp)`` write a temporary file beside ``path``, then rename it to ``path``.
 
@@ -30,27 +59,27 @@ def write_file_atomic(path: str | os.PathLike[str], write: Callable[[Path], obje
     behind. The file gets the permissions a plain ``open(path, "w")`` would give.
     """
     target = Path(path)
-    while True:
-        tmp = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
-        try:
-            # Mode 0o666 less the umask, as open() gives; mkstemp would make it 0600.
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            break
-        except FileExistsError:
-            continue
-    try:
-        write(tmp)
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    tmp, descriptor = _new_temporary(target)
+    os.close(descriptor)
+    _replace_with(tmp, target, lambda: write(tmp))
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` whole or not at all (see :func:`write_file_atomic`)."""
+    """Write ``text`` to ``path`` whole or not at all (see :func:`write_file_atomic`).
+
+    The text goes through the descriptor that created the temporary file, so a link put in its
+    place meanwhile is not written through.
+    """
     if not isinstance(text, str):  # before the temporary file exists
         raise TypeError(f"text must be a str, got {type(text).__name__}")
-    write_file_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
+    target = Path(path)
+    tmp, descriptor = _new_temporary(target)
+
+    def fill() -> None:
+        with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
+            handle.write(text)
+
+    _replace_with(tmp, target, fill)
 
 
 class OutputError(Exception):

@@ -4,6 +4,11 @@ A run directory holds ``steps.csv`` (a row written and flushed per step, so an i
 loses nothing already recorded) and ``meta.json`` (parameters, controller, software version,
 device, and, from :meth:`RunLog.close`, the timing statistics), rewritten atomically whenever it
 changes. :func:`read_steps` reads a log back as numpy columns.
+
+No log file is ever written through a link: ``steps.csv`` is created as a new file
+(``O_EXCL``, and ``O_NOFOLLOW`` where the platform has it), ``meta.json`` is replaced by a
+rename, and :func:`default_directory` creates each run's folder with ``mkdir``, which fails on
+an existing name (a link among them) instead of sharing or following it.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import numpy as np
 import numpy.typing as npt
@@ -37,11 +42,47 @@ RESULT_COLUMNS = ("reward", "terminated")
 DEFAULT_ROOT = "frictiongym-runs"
 
 
+#: Flags of ``steps.csv``: a new file only (``O_EXCL`` refuses any existing name, a dangling
+#: link among them), never opened through a link.
+_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+#: Names tried for a new run folder (``-2``, ``-3``... after the first) before giving up.
+NAME_TRIES = 1000
+
+
 def default_directory(device: str) -> Path:
-    """Return a new run directory under ``$FRICTIONGYM_RUNS`` (default ./frictiongym-runs)."""
+    """Create and return a new run directory under ``$FRICTIONGYM_RUNS`` (./frictiongym-runs).
+
+    It is named ``<UTC time>-<device>-<pid>``, then ``-2``, ``-3``... while that name is taken
+    (envs opened in the same second). ``mkdir`` creates the folder or fails at once, so two
+    envs opening together, in threads or processes, never share one, and an existing name (a
+    link too) is never reused or followed.
+    """
     root = Path(os.environ.get("FRICTIONGYM_RUNS", DEFAULT_ROOT))
-    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
-    return root / f"{stamp}-{device}-{os.getpid()}"
+    _make_folder(root, "the run logs' folder (FRICTIONGYM_RUNS)")
+    base = f"{datetime.now(timezone.utc).strftime('%Y%m%d-%H%M%S')}-{device}-{os.getpid()}"
+    for n in range(1, NAME_TRIES + 1):
+        path = root / (base if n == 1 else f"{base}-{n}")
+        try:
+            path.mkdir()
+        except FileExistsError:
+            continue
+        return path
+    raise FileExistsError(
+        f"{root} already holds {NAME_TRIES} run folders named {base}-N; clear it out or set "
+        "FRICTIONGYM_RUNS to another folder"
+    )
+
+
+def _make_folder(folder: Path, what: str) -> None:
+    """Create ``folder`` and its parents if missing; a clear FileExistsError if it cannot be."""
+    if os.path.islink(folder) and not folder.exists():
+        raise FileExistsError(
+            f"{what} {folder} is a link to {os.readlink(folder)}, which does not exist; create "
+            "that folder or give another"
+        )
+    if os.path.lexists(folder) and not folder.is_dir():
+        raise FileExistsError(f"{what} {folder} is a file, not a folder; give another path")
+    folder.mkdir(parents=True, exist_ok=True)
 
 
 def write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
@@ -124,31 +165,43 @@ class RunLog:
         metadata: Mapping[str, Any],
     ) -> None:
         self.directory = Path(directory)
-        if self.directory.exists() and not self.directory.is_dir():
-            raise FileExistsError(f"the run log directory {self.directory} is a file; pick another")
-        self.directory.mkdir(parents=True, exist_ok=True)
+        _make_folder(self.directory, "the run log directory")
         self.steps_path = self.directory / "steps.csv"
         self.meta_path = self.directory / "meta.json"
-        if self.steps_path.exists():
-            raise FileExistsError(
-                f"{self.steps_path} already exists; give each run its own directory (or omit "
-                "the log directory for a new time-stamped one)"
-            )
         self.columns = (*STEP_COLUMNS, *(f"obs_{n}" for n in observation_names), *RESULT_COLUMNS)
-        self.metadata: dict[str, Any] = {
-            "format": "frictiongym.runlog/1",
-            "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
-            "software": software(),
-            "columns": list(self.columns),
-            **metadata,
-        }
-        write_json_atomic(self.meta_path, self.metadata)
-        self._file = self.steps_path.open("w", newline="", buffering=1)
-        self._writer = csv.writer(self._file)
-        self._writer.writerow(self.columns)
-        self._file.flush()
+        if os.path.lexists(self.meta_path):
+            self._refuse(self.meta_path)
+        try:  # claims the folder: of two runs opening it at once, one gets FileExistsError
+            descriptor = os.open(self.steps_path, _NEW_FILE, 0o666)
+        except FileExistsError:
+            self._refuse(self.steps_path)
+        self._file = os.fdopen(descriptor, "w", newline="", buffering=1)
+        try:
+            self._writer = csv.writer(self._file)
+            self._writer.writerow(self.columns)
+            self._file.flush()
+            self.metadata: dict[str, Any] = {
+                "format": "frictiongym.runlog/1",
+                "started": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+                "software": software(),
+                "columns": list(self.columns),
+                **metadata,
+            }
+            write_json_atomic(self.meta_path, self.metadata)
+        except BaseException:  # no log without its metadata
+            self._file.close()
+            self.steps_path.unlink(missing_ok=True)
+            raise
         self.rows = 0
         self._opened = time.monotonic()
+
+    @staticmethod
+    def _refuse(path: Path) -> NoReturn:
+        link = " (a link: run logs never write through one)" if path.is_symlink() else ""
+        raise FileExistsError(
+            f"{path} already exists{link}; give each run its own directory (or omit the log "
+            "directory for a new time-stamped one)"
+        ) from None
 
     @property
     def closed(self) -> bool:
