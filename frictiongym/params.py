@@ -132,7 +132,12 @@ def _real(source: str, key: str, value: object, rule: str = ">= 0") -> float:
     """``value`` as a float, finite and ``>= 0`` (or ``> 0``), else :class:`ParamsFileError`."""
     if not isinstance(value, numbers.Real) or isinstance(value, bool):
         raise _fail(source, f"{key!r} must be a number, got {value!r}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:  # an integer beyond the float range, such as 10**400
+        raise _fail(
+            source, f"{key!r} must be finite, got an integer too large for a float"
+        ) from None
     if not math.isfinite(v):
         raise _fail(source, f"{key!r} must be finite, got {value!r}")
     if (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):

@@ -388,6 +388,12 @@ def test_values_outside_their_physical_range_are_refused(tmp_path, key, value):
         load_params(path)
 
 
+def test_an_integer_beyond_the_float_range_is_a_params_file_error(tmp_path):
+    path = write(tmp_path, {**valid_mapping(), "B": 10**400})  # JSON allows any integer
+    with pytest.raises(ParamsFileError, match="'B' must be finite, got an integer too large"):
+        load_params(path)
+
+
 def test_deeply_nested_json_is_a_params_file_error(tmp_path):
     path = tmp_path / "friction.json"
     path.write_text('{"metadata": ' + "[" * 100_000 + "]" * 100_000 + "}")
