@@ -123,7 +123,7 @@ def fuzz_actions(cases: int, seed: int, say: Progress) -> Part:
     if stops:
         part.notes.append(
             f"actions: {sum(refused.values())} refused ({', '.join(sorted(refused))}); the "
-            f"motor read 0 within {max(stops) * 1000:.1f} ms of each refusal"
+            f"motor read 0 at most {max(stops) * 1000:.1f} ms after each refusal was raised"
         )
     return part
 

@@ -119,6 +119,10 @@ def case_rng(seed: int, part: str, case: int) -> random.Random:
 # --- the C harness ----------------------------------------------------------------------------
 
 
+class HarnessBuildError(RuntimeError):
+    """The C harness did not compile (the message holds the compiler's errors)."""
+
+
 class CHarness:
     """firmware/test/host_harness.c built with the system compiler, run in batches.
 
@@ -129,7 +133,7 @@ class CHarness:
     def __init__(self, workdir: Path, firmware: Path = FIRMWARE) -> None:
         compiler = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
         if compiler is None:
-            raise RuntimeError("no C compiler (cc or gcc) on PATH: install gcc or pass --no-c")
+            raise HarnessBuildError("no C compiler (cc or gcc) on PATH: install gcc or pass --no-c")
         sources = [*sorted((firmware / "common").glob("*.c")), firmware / "test" / "host_harness.c"]
         self.exe = workdir / "host_harness"
         self.sanitized = self._compile(compiler, [*CFLAGS, *SANITIZERS], sources)
@@ -146,7 +150,9 @@ class CHarness:
             check=False,
         )
         if check and done.returncode != 0:
-            raise RuntimeError(f"{compiler} failed on the C harness:\n{done.stderr}")
+            raise HarnessBuildError(
+                f"{compiler} failed on the C harness (or pass --no-c):\n{done.stderr}"
+            )
         return done.returncode == 0
 
     def run(self, requests: list[str]) -> tuple[list[list[str]] | None, str]:

@@ -140,7 +140,11 @@ def main(argv: list[str] | None = None) -> int:
     """Run the fuzzing; return 0 if everything held, 1 otherwise."""
     args = parse_args(argv)
     command = "python scripts/fuzz_hardware.py " + " ".join(argv or sys.argv[1:])
-    results = run_parts(args)
+    try:
+        results = run_parts(args)
+    except wire.HarnessBuildError as exc:  # the firmware does not compile: a failure too
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     print(f"\n{command.strip()}\n")
     print(summary(results))
     failed = sum(len(part.failures) for part, _ in results)
