@@ -28,12 +28,15 @@ from _fuzz_wire import Part, Progress, case_rng
 import frictiongym  # noqa: F401  (registers the ids)
 from frictiongym import params as fp
 from frictiongym.hardware import protocol as p
+from frictiongym.hardware.emulated import EmulatedBackend
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
     DeviceTimeoutError,
+    HardwareError,
     WatchdogTripError,
 )
 from frictiongym.hardware.runlog import read_steps
+from frictiongym.hardware.transport import Faults
 
 ROOT = Path(__file__).resolve().parents[1]
 SERVO, ALTINO = "frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0"
@@ -190,25 +193,31 @@ def _actions_on(
 def fuzz_faults(runs: int, seed: int, say: Progress) -> Part:
     """Unplug, freeze and host silence on the real-time emulator; times to error and stop."""
     part = Part.named("faults")
-    times: dict[str, list[float]] = {"unplug": [], "freeze": [], "silence": []}
+    times: dict[str, list[float]] = {"unplug": [], "freeze": [], "delay": [], "silence": []}
+    raised: dict[str, int] = {}
     with tempfile.TemporaryDirectory(prefix="fuzz-faults-") as folder:
         for run in range(runs):
             for fault in times:
                 rng = case_rng(seed, f"faults-{fault}", run)
-                took = _one_fault(part, fault, run, rng, Path(folder) / f"{fault}-{run}")
+                took = _one_fault(part, fault, run, rng, Path(folder) / f"{fault}-{run}", raised)
                 if took is not None:
                     times[fault].append(took)
             say(f"faults: {run + 1}/{runs} rounds, {len(part.failures)} failures")
-    part.cases = 3 * runs
+    part.cases = len(times) * runs
     for fault, values in times.items():
         if values:
             what = "motor 0 (device time)" if fault == "silence" else "error raised"
             part.notes.append(f"faults: {fault}: {what} {min(values) * 1000:.1f}-"
                               f"{max(values) * 1000:.1f} ms after it began")  # fmt: skip
+    part.notes.append(f"faults: errors raised: {', '.join(f'{k} {v}' for k, v in raised.items())}")
     return part
 
 
-def _one_fault(part: Part, fault: str, run: int, rng: random.Random, log: Path) -> float | None:
+def _one_fault(
+    part: Part, fault: str, run: int, rng: random.Random, log: Path, raised: dict[str, int]
+) -> float | None:
+    if fault == "delay":
+        return _delayed_link(part, f"faults delay run {run}", rng, log, raised)
     env = gym.make(SERVO, backend="emulator://rotary", log=log)
     try:
         device = env.unwrapped.sim  # type: ignore[attr-defined]
@@ -221,14 +230,15 @@ def _one_fault(part: Part, fault: str, run: int, rng: random.Random, log: Path) 
         if fault == "silence":
             return _silence(part, where, env, emulator, device.info.watchdog_s, device.dt)
         started = time.perf_counter()
+        expected: tuple[type[Exception], ...] = (DeviceDisconnectedError, DeviceTimeoutError)
         (emulator.unplug if fault == "unplug" else emulator.freeze)()
-        expected = (DeviceDisconnectedError, DeviceTimeoutError)
         try:
             for _ in range(10_000):
                 env.step(np.array([0.5]))
                 steps += 1
-        except expected:
+        except expected as exc:
             took = time.perf_counter() - started
+            raised[type(exc).__name__] = raised.get(type(exc).__name__, 0) + 1
         except Exception as exc:
             part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
             return None
@@ -241,6 +251,40 @@ def _one_fault(part: Part, fault: str, run: int, rng: random.Random, log: Path) 
         return took
     finally:
         env.close()
+
+
+def _delayed_link(
+    part: Part, where: str, rng: random.Random, log: Path, raised: dict[str, int]
+) -> float | None:
+    """A link that holds every device frame back by 0.1-0.3 s from the start (stale news)."""
+    delay = rng.uniform(0.1, 0.3)
+    env = gym.make(SERVO, backend=EmulatedBackend("rotary", faults=Faults(delay=delay)), log=log)
+    emulator, returned = env.unwrapped.sim.backend.emulator, 0  # type: ignore[attr-defined]
+    started = time.perf_counter()
+    try:
+        env.reset(seed=0)
+        returned = 1
+        for _ in range(10_000):
+            env.step(np.array([0.5]))
+            returned += 1
+    except HardwareError as exc:
+        took = time.perf_counter() - started
+        raised[type(exc).__name__] = raised.get(type(exc).__name__, 0) + 1
+    except Exception as exc:
+        part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
+        return None
+    else:
+        part.fail(f"{where}: 10 000 steps on a link {delay * 1000:.0f} ms late and no error")
+        return None
+    finally:
+        held = _motor_zero_within(emulator, STOP_WAIT)
+        env.close()
+    if held is None:
+        part.fail(f"{where}: the motor was not zeroed after the error")
+    rows = len(read_steps(log)["step"])
+    if rows != returned:
+        part.fail(f"{where}: the log holds {rows} rows of {returned} samples")
+    return took
 
 
 def _silence(

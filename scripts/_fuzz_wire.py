@@ -67,10 +67,12 @@ WHAT: dict[str, tuple[str, str]] = {
     ),
     "faults": (
         "the servo env on the real-time emulator (500 Hz) stepped 20-200 times, then: the "
-        "device unplugged, the device frozen (no more frames), or the host silent",
-        "unplug/freeze raise DeviceDisconnectedError/DeviceTimeoutError with the log holding "
-        "every step; after host silence the device's watchdog zeroes the motor within its "
-        "time plus a period, and the next step raises WatchdogTripError",
+        "device unplugged, the device frozen (no more frames), its frames delayed by "
+        "0.1-0.3 s, or the host silent",
+        "unplug/freeze raise DeviceDisconnectedError/DeviceTimeoutError, a delay a "
+        "HardwareError with the motor zeroed, each with the log holding every step; after "
+        "host silence the device's watchdog zeroes the motor within its time plus a period, "
+        "and the next step raises WatchdogTripError",
     ),
     "model files": (
         "copies of models/residual/rotary.zip carrying pickles (an added data entry, SB3's "
