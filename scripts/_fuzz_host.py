@@ -216,8 +216,9 @@ def fuzz_faults(runs: int, seed: int, say: Progress) -> Part:
 def _one_fault(
     part: Part, fault: str, run: int, rng: random.Random, log: Path, raised: dict[str, int]
 ) -> float | None:
+    where = f"faults {fault} run {run}"
     if fault == "delay":
-        return _delayed_link(part, f"faults delay run {run}", rng, log, raised)
+        return _delayed_link(part, where, rng, log, raised)
     env = gym.make(SERVO, backend="emulator://rotary", log=log)
     try:
         device = env.unwrapped.sim  # type: ignore[attr-defined]
@@ -226,64 +227,70 @@ def _one_fault(
         steps = rng.randint(20, 200)
         for _ in range(steps):
             env.step(np.array([rng.uniform(-1.0, 1.0)]))
-        where = f"faults {fault} run {run}"
         if fault == "silence":
             return _silence(part, where, env, emulator, device.info.watchdog_s, device.dt)
-        started = time.perf_counter()
-        expected: tuple[type[Exception], ...] = (DeviceDisconnectedError, DeviceTimeoutError)
-        (emulator.unplug if fault == "unplug" else emulator.freeze)()
-        try:
-            for _ in range(10_000):
-                env.step(np.array([0.5]))
-                steps += 1
-        except expected as exc:
-            took = time.perf_counter() - started
-            raised[type(exc).__name__] = raised.get(type(exc).__name__, 0) + 1
-        except Exception as exc:
-            part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
-            return None
-        else:
-            part.fail(f"{where}: 10 000 steps after the fault and no error")
-            return None
-        rows = len(read_steps(log)["step"])
-        if rows != steps + 1:
-            part.fail(f"{where}: the log holds {rows} rows of {steps + 1} samples")
+        expected = (DeviceDisconnectedError, DeviceTimeoutError)
+        fault_now = emulator.unplug if fault == "unplug" else emulator.freeze
+        took, returned = _run_into_error(part, where, env, expected, raised, fault_now)
+        _check_rows(part, where, log, steps + 1 + returned)
         return took
     finally:
         env.close()
+
+
+def _run_into_error(
+    part: Part,
+    where: str,
+    env: gym.Env,
+    expected: tuple[type[Exception], ...],
+    raised: dict[str, int],
+    first: Callable[[], object],
+    first_samples: bool = False,
+) -> tuple[float | None, int]:
+    """Call ``first()``, then step until an error; return its time and the samples returned.
+
+    ``first`` starts the fault (or resets the env into it: ``first_samples``, one sample).
+    The time is None (a failure recorded) for an error not ``expected``, or none at all.
+    """
+    started, returned = time.perf_counter(), 0
+    try:
+        first()
+        returned += first_samples
+        for _ in range(10_000):
+            env.step(np.array([0.5]))
+            returned += 1
+    except expected as exc:
+        raised[type(exc).__name__] = raised.get(type(exc).__name__, 0) + 1
+        return time.perf_counter() - started, returned
+    except Exception as exc:
+        part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
+        return None, returned
+    part.fail(f"{where}: 10 000 steps into the fault and no error")
+    return None, returned
+
+
+def _check_rows(part: Part, where: str, log: Path, samples: int) -> None:
+    rows = len(read_steps(log)["step"])
+    if rows != samples:
+        part.fail(f"{where}: the log holds {rows} rows of {samples} samples returned")
 
 
 def _delayed_link(
     part: Part, where: str, rng: random.Random, log: Path, raised: dict[str, int]
 ) -> float | None:
     """A link that holds every device frame back by 0.1-0.3 s from the start (stale news)."""
-    delay = rng.uniform(0.1, 0.3)
-    env = gym.make(SERVO, backend=EmulatedBackend("rotary", faults=Faults(delay=delay)), log=log)
-    emulator, returned = env.unwrapped.sim.backend.emulator, 0  # type: ignore[attr-defined]
-    started = time.perf_counter()
+    faults = Faults(delay=rng.uniform(0.1, 0.3))
+    env = gym.make(SERVO, backend=EmulatedBackend("rotary", faults=faults), log=log)
+    emulator = env.unwrapped.sim.backend.emulator  # type: ignore[attr-defined]
     try:
-        env.reset(seed=0)
-        returned = 1
-        for _ in range(10_000):
-            env.step(np.array([0.5]))
-            returned += 1
-    except HardwareError as exc:
-        took = time.perf_counter() - started
-        raised[type(exc).__name__] = raised.get(type(exc).__name__, 0) + 1
-    except Exception as exc:
-        part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
-        return None
-    else:
-        part.fail(f"{where}: 10 000 steps on a link {delay * 1000:.0f} ms late and no error")
-        return None
+        took, returned = _run_into_error(
+            part, where, env, (HardwareError,), raised, lambda: env.reset(seed=0), True
+        )
+        if _motor_zero_within(emulator, STOP_WAIT) is None:
+            part.fail(f"{where}: the motor was not zeroed after the error")
     finally:
-        held = _motor_zero_within(emulator, STOP_WAIT)
         env.close()
-    if held is None:
-        part.fail(f"{where}: the motor was not zeroed after the error")
-    rows = len(read_steps(log)["step"])
-    if rows != returned:
-        part.fail(f"{where}: the log holds {rows} rows of {returned} samples")
+    _check_rows(part, where, log, returned)
     return took
 
 
