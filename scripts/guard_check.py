@@ -4,6 +4,7 @@ Drives the lock-step emulator (the firmware's rules around the env's own plant) 
 several starts with constant commands until the guard ends the episode, then keeps e-stopping
 until the car is at rest, and prints the closest true distance to the wall. Then runs the
 paper's gains for 400 steps and prints their closest predicted stop (they must not trip it).
+``scripts/guard_scan.py`` is the full scan: every plausible car, friction law and start.
 
 Usage: python scripts/guard_check.py
 """
@@ -60,15 +61,14 @@ def paper_gains() -> None:
         controller = FrictionCompensator(pid) if compensated else pid
         obs, _ = env.reset(seed=0)
         watch = guard.DistanceGuard(env.unwrapped.dt)
-        lowest, tripped = np.inf, False
+        lowest, tripped, held = np.inf, False, 0.0
         for _ in range(400):
             action = controller(obs)
-            watch.update(float(obs[0]))
-            if watch.speed is not None and obs[0] > 0:
-                stop = guard.stopping_point(float(obs[1]), watch.speed, env.unwrapped.dt,
-                                            command=float(action[0]))  # fmt: skip
-                lowest = min(lowest, stop)
+            watch.update(float(obs[0]), held)
+            if obs[0] > 0:
+                lowest = min(lowest, watch.predicted_stop(float(action[0])))
             obs, _, terminated, _, _ = env.step(action)
+            held = float(np.clip(action[0], -1000.0, 1000.0))
             tripped |= bool(env.unwrapped.sim.last_sample.status & Status.LIMIT)
             if terminated:
                 break

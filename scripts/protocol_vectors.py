@@ -403,11 +403,14 @@ def ir(distance: float) -> int:
 def altino_scenarios() -> list[dict[str, Any]]:
     """Altino: 20 Hz (50000 µs), watchdog 150 ms, limit ±1000, the distance guard.
 
-    The guard's numbers (guard.py): d = 966 / (x + 45) cm, v = (d_prev - d) / 0.05 s; a sample
-    trips it at d - 0.1 v - v² / 600 <= 1.5 cm (v > 0), and a forward command u held next
-    trips it at d - (0.1 v + 0.005 a) - (v + 0.1 a)² / 600 <= 1.5 cm, a = u / 2.2 (v < 0 taken
-    as 0). Each comment gives d, v and stop; every case stays well clear of the boundary (C
-    computes in binary32, Python in binary64).
+    The guard's numbers (guard.py, the default car bounds: mass 1.1-5.5, friction 150.4 +
+    10.93 v): d = 966 / (x + 45) cm, v = (d_prev - d) / 0.05 s for two readings in range, else
+    the speed bound (out of range: judged at 21.23 cm with a period more); stop = where the
+    car stops holding the larger of the command and those of the last two periods for 0.1 s,
+    then braking, the nearer for mass 1.1 and 5.5 (``guard.stopping_point``); it trips at
+    stop <= 1.5 cm. Each comment gives d, v and stop; every case stays well clear of the
+    boundary (C computes in binary32, Python in binary64). Forward is refused before the first
+    sample, so most scenarios begin with one.
     """
     dis, lim = ["DISABLED"], ["LIMIT"]
     # fmt: off
@@ -418,18 +421,20 @@ def altino_scenarios() -> list[dict[str, Any]]:
             tick(50000, 30, status=dis, sensor=30),
         ]},
         {"name": "altino clipping", "device": "altino", "events": [
+            tick(500, 30, status=dis),  # the first sample: 12.88 cm, at rest
             cmd(1000, 1, 1500, "REARM", "ENABLE", motor=1000),
             cmd(2000, 2, -1001, "ENABLE", motor=-1000),
             tick(50000, 30, status=[], applied=-1000),
         ]},
         {"name": "guard: a fast approach trips it; it brakes until the car stops, then refuses "
                  "forward", "device": "altino", "events": [
+            tick(500, ir(10.0), status=dis),  # 9.96 cm, at rest
             cmd(1000, 1, 500, "REARM", "ENABLE", motor=500),
-            tick(50000, ir(10.0), status=[], applied=500, motor=500),  # 9.96 cm: no speed yet
+            tick(50000, ir(10.0), status=[], applied=500, motor=500),  # 9.96, 0 cm/s: 7.95 cm
             cmd(51000, 2, 500, "ENABLE", motor=500),
-            tick(100000, ir(9.0), status=[], applied=500, motor=500),  # 9.03, 18.6 cm/s: 6.59
+            tick(100000, ir(9.0), status=[], applied=500, motor=500),  # 9.03, 18.6 cm/s: 6.05
             cmd(101000, 3, 500, "ENABLE", motor=500),
-            tick(150000, ir(7.0), status=lim, applied=500, motor=-1000),  # 7.0, 40.6: 0.20 cm
+            tick(150000, ir(7.0), status=lim, applied=500, motor=-1000),  # 7.0, 40.6: -0.35 cm
             cmd(151000, 4, 500, "ENABLE", motor=-1000),  # forward refused, the brake holds
             tick(200000, ir(6.0), status=lim, applied=-1000, motor=-1000),  # 6.0, 20 cm/s
             cmd(201000, 5, 500, "ENABLE", motor=-1000),
@@ -443,10 +448,11 @@ def altino_scenarios() -> list[dict[str, Any]]:
         ]},
         {"name": "guard: the brake outlasts an e-stop while the car approaches",
          "device": "altino", "events": [
+            tick(500, ir(12.0), status=dis),
             cmd(1000, 1, 800, "REARM", "ENABLE", motor=800),
             tick(50000, ir(12.0), status=[], applied=800, motor=800),  # 11.9 cm
             cmd(51000, 2, 800, "ENABLE", motor=800),
-            tick(100000, ir(9.5), status=lim, applied=800, motor=-1000),  # 9.47, 49.1: 0.54 cm
+            tick(100000, ir(9.5), status=lim, applied=800, motor=-1000),  # 9.47, 49.1: -0.58 cm
             cmd(101000, 3, 0, "ESTOP", motor=-1000),  # the host ends the episode
             tick(150000, ir(8.0), status=["LIMIT", "DISABLED"], applied=-1000,
                  motor=-1000),  # 7.98 cm, 29.7 cm/s: still approaching
@@ -456,12 +462,13 @@ def altino_scenarios() -> list[dict[str, Any]]:
             tick(300000, ir(8.0), status=["LIMIT", "DISABLED"], applied=0, motor=0),
         ]},
         {"name": "guard: the brake outlasts a watchdog trip", "device": "altino", "events": [
+            tick(500, ir(14.0), status=dis),
             cmd(1000, 1, 300, "REARM", "ENABLE", motor=300),
-            tick(50000, ir(14.0), status=[], applied=300),  # 14.0 cm; with +300 held: 13.0 cm
+            tick(50000, ir(14.0), status=[], applied=300),  # 14.0 cm; with +300 held: 13.2 cm
             tick(100000, ir(12.5), status=["COMMAND_LATE"], applied=300,
-                 motor=300),  # 12.5 cm, 29.1 cm/s: 8.2 cm; with +300 held: 5.9 cm
+                 motor=300),  # 12.5 cm, 29.1 cm/s; with +300 held: 7.9 cm
             tick(150000, ir(9.5), status=["COMMAND_LATE", "LIMIT"], applied=300,
-                 motor=-1000),  # 9.47, 61.5: -3.0 cm; 149 ms silent
+                 motor=-1000),  # 9.47, 61.5: -3.7 cm; 149 ms silent
             tick(200000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
                  motor=-1000),  # 7.49 cm, 39.6 cm/s: still approaching
             tick(250000, ir(7.5), status=["WATCHDOG", "LIMIT", "DISABLED"], applied=-1000,
@@ -477,13 +484,13 @@ def altino_scenarios() -> list[dict[str, Any]]:
             tick(150000, 560, status=lim, applied=-200, motor=-200),  # 1.60 cm, going away
             cmd(151000, 4, -200, "REARM", "ENABLE", motor=-200),  # clear of the limit
             tick(200000, 560, status=[], applied=-200, motor=-200),
-            cmd(201000, 5, 200, "ENABLE", motor=0),  # forward from 1.60 cm at rest: 1.01 cm
+            cmd(201000, 5, 200, "ENABLE", motor=0),  # forward from 1.60 cm at rest: 1.36 cm
             tick(250000, 560, status=lim, applied=0, motor=0),
         ]},
         {"name": "guard: at rest near the wall, a large forward command trips it at once",
          "device": "altino", "events": [
             tick(50000, ir(5.0), status=dis),  # 5.01 cm at rest
-            cmd(51000, 1, 1000, "REARM", "ENABLE", motor=0),  # held: 5.01 - 2.27 - 3.44 cm
+            cmd(51000, 1, 1000, "REARM", "ENABLE", motor=0),  # held from rest: -0.94 cm
             tick(100000, ir(5.0), status=lim, applied=0, motor=0),
             cmd(101000, 2, 1000, "ENABLE", motor=0),  # refused while latched
             tick(150000, ir(5.0), status=lim, applied=0, motor=0),
@@ -493,31 +500,64 @@ def altino_scenarios() -> list[dict[str, Any]]:
         {"name": "guard: a small forward command far from the wall passes", "device": "altino",
          "events": [
             tick(50000, ir(10.0), status=dis),  # 9.96 cm at rest
-            cmd(51000, 1, 300, "REARM", "ENABLE", motor=300),  # held: 9.96 - 0.68 - 0.31 cm
+            cmd(51000, 1, 300, "REARM", "ENABLE", motor=300),  # 9.96 cm at rest
             tick(100000, ir(9.8), status=[], applied=300,
-                 motor=300),  # 9.76 cm, 4.0 cm/s: 8.15 cm with +300 held
+                 motor=300),  # 9.76 cm, 4.0 cm/s: 8.79 cm with +300 held
             cmd(101000, 2, 300, "ENABLE", motor=300),
             tick(150000, ir(9.5), status=[], applied=300,
-                 motor=300),  # 9.47 cm, 5.7 cm/s: 7.59 cm with +300 held
+                 motor=300),  # 9.47 cm, 5.7 cm/s: 8.42 cm with +300 held
         ]},
-        {"name": "guard: an out-of-range readout gives no speed", "device": "altino", "events": [
+        {"name": "guard: before the first sample forward is refused", "device": "altino",
+         "events": [
+            cmd(1000, 1, 500, "REARM", "ENABLE", motor=0),  # no distance known: not latched
+            cmd(2000, 2, -300, "ENABLE", motor=-300),  # backing away passes
+            tick(50000, ir(10.0), status=[], applied=-300, motor=-300),
+            cmd(51000, 3, 500, "ENABLE", motor=500),  # 9.96 cm, at rest: judged, it passes
+        ]},
+        {"name": "guard: after an out-of-range readout the speed is the bound", "device": "altino",
+         "events": [
+            tick(500, 0, status=dis),  # out of range: at least 21.2 cm away
             cmd(1000, 1, 100, "REARM", "ENABLE", motor=100),
             tick(50000, 0, status=[], applied=100, motor=100),  # beyond 21.5 cm: no distance
             cmd(51000, 2, 100, "ENABLE"),
             tick(100000, 200, status=[], applied=100,
-                 motor=100),  # 3.94 cm: no speed (readout 0 is no distance, not 21.5 cm): 3.68
+                 motor=100),  # 3.94 cm, first in range: the bound, 0 (+100 < least friction)
             cmd(101000, 3, 100, "ENABLE"),
             tick(150000, 0, status=[], applied=100, motor=100),  # a dropout
             cmd(151000, 4, 100, "ENABLE"),
             tick(200000, 300, status=[], applied=100,
-                 motor=100),  # 2.80 cm: no speed across the dropout (22.8 cm/s would trip): 2.54
+                 motor=100),  # 2.80 cm: the bound across the dropout, 0 (22.8 cm/s would trip)
             cmd(201000, 5, 100, "ENABLE"),
             tick(250000, 320, status=[], applied=100,
-                 motor=100),  # 2.65 cm, 3.1 cm/s: 2.32 cm; with +100 held: 2.02 cm
+                 motor=100),  # 2.65 cm, 3.1 cm/s: 2.32 cm
             cmd(251000, 6, 100, "ENABLE"),
-            tick(300000, 400, status=lim, applied=100, motor=-1000),  # 2.17, 9.5: 1.07 cm
+            tick(300000, 400, status=lim, applied=100, motor=-1000),  # 2.17, 9.5: 1.01 cm
+        ]},
+        {"name": "guard: the first reading in range is judged at the fastest the car can be",
+         "device": "altino", "events": [
+            tick(500, 0, status=dis),  # out of range, at rest
+            cmd(1000, 1, 600, "REARM", "ENABLE", motor=600),
+            tick(50000, 0, status=[], applied=600, motor=600),
+            cmd(51000, 2, 600, "ENABLE", motor=600),
+            tick(100000, 0, status=[], applied=600, motor=600),
+            cmd(101000, 3, 600, "ENABLE", motor=600),
+            tick(150000, ir(7.0), status=lim, applied=600, motor=-1000),  # 7.0 cm at 35.9 cm/s
+        ]},
+        {"name": "guard: out of range, a forward command the car could not stop from is refused",
+         "device": "altino", "events": [
+            tick(500, 0, status=dis),
+            cmd(1000, 1, 1000, "REARM", "ENABLE", motor=1000),
+            tick(50000, 0, status=[], applied=1000, motor=1000),
+            cmd(51000, 2, 1000, "ENABLE", motor=1000),
+            tick(100000, 0, status=[], applied=1000, motor=1000),
+            cmd(101000, 3, 1000, "ENABLE", motor=1000),
+            tick(150000, 0, status=[], applied=1000, motor=1000),  # bound 67.8 cm/s: 1.87 cm
+            cmd(151000, 4, 1000, "ENABLE", motor=1000),
+            tick(200000, 0, status=lim, applied=1000, motor=0),  # 72.7: 0.47 cm; no blind brake
+            cmd(201000, 5, -200, "ENABLE", motor=-200),  # backing away passes
         ]},
         {"name": "altino watchdog after 150 ms", "device": "altino", "events": [
+            tick(500, 30, status=dis),
             cmd(1000, 1, 300, "REARM", "ENABLE", motor=300),
             tick(50000, 30, status=[], applied=300),
             tick(100000, 30, status=["COMMAND_LATE"], applied=300),

@@ -368,8 +368,13 @@ def test_altino_guard_brakes_then_refuses_forward(serve):
 
 @pytest.mark.parametrize("counts", [600, 1000])
 def test_altino_guard_brakes_through_an_estop(serve, counts):
-    """The host e-stops when it sees LIMIT: the brake goes on while the car approaches."""
-    emu, host = serve("altino", lockstep=True)
+    """The host e-stops when it sees LIMIT: the brake goes on while the car approaches.
+
+    From 20 cm, within the IR range: from the default 30 cm, +1000 trips the guard before the
+    car is in range (the car could become too fast to stop within it), where it does not brake
+    blind.
+    """
+    emu, host = serve("altino", lockstep=True, start=20.0)
     _drive_until_the_guard_trips(host, counts)
     state = host.step(0, p.Flag.ESTOP)
     assert state.status == p.Status.LIMIT | p.Status.DISABLED

@@ -18,6 +18,8 @@ fg_device_config fg_config_rotary(void)
     cfg.command_limit = 10000;
     cfg.watchdog_ms = 0u; /* default: max(3 periods, 100 ms) = 100 ms */
     cfg.limit_cm = 0.0f;  /* unused: no FG_CAP_DISTANCE_LIMIT */
+    cfg.car.mass_min = cfg.car.mass_max = 1.0f; /* unused */
+    cfg.car.friction = cfg.car.viscous = 0.0f;
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
@@ -34,6 +36,11 @@ fg_device_config fg_config_altino(void)
     cfg.command_limit = 1000;  /* Go() clamps to +-1000 (vendor library) */
     cfg.watchdog_ms = 0u;      /* default: max(3 periods, 100 ms) = 150 ms */
     cfg.limit_cm = FG_GUARD_LIMIT_CM; /* guard.LIMIT_CM (assumed; see guard.py) */
+    /* guard.CarBounds: the plausible mass range and the paper's least friction (guard.py) */
+    cfg.car.mass_min = FG_GUARD_MASS_MIN;
+    cfg.car.mass_max = FG_GUARD_MASS_MAX;
+    cfg.car.friction = FG_GUARD_FRICTION;
+    cfg.car.viscous = FG_GUARD_VISCOUS;
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
@@ -51,6 +58,7 @@ uint16_t fg_watchdog_ms(const fg_device_config *cfg)
 
 void fg_device_init(fg_device *dev, const fg_device_config *cfg)
 {
+    int i;
     dev->cfg = *cfg;
     fg_decoder_init(&dev->decoder);
     dev->watchdog_us = (uint32_t)fg_watchdog_ms(cfg) * 1000UL;
@@ -63,31 +71,103 @@ void fg_device_init(fg_device *dev, const fg_device_config *cfg)
     dev->sensor = 0;
     dev->distance = -1.0f; /* no sample yet */
     dev->speed = 0.0f;
+    dev->bound = 0.0f; /* the car boots at rest */
+    dev->held_peak = 0;
+    for (i = 0; i < FG_GUARD_REACTION_PERIODS; i++) {
+        dev->held[i] = 0;
+    }
+    dev->sampled = 0;
     dev->armed = 0;
     dev->enabled = 0;
     dev->fresh = 0;
     dev->latched = 0;
 }
 
-/* The distance guard's prediction (fg_device.h; guard.py stopping_point): would the car, at
- * the last sample's distance and approach speed, holding command (counts = units on the
- * Altino) over the reaction time, fail to stop short of the limit braking then? */
+/* guard.py CarBounds.accel: the acceleration toward the wall at speed v >= 0 of a car of
+ * mass (0: the largest of any plausible car). */
+static float car_accel(const fg_car_bounds *car, float command, float v, float mass)
+{
+    float net = command - car->friction - car->viscous * v;
+    if (mass <= 0.0f) {
+        mass = net > 0.0f ? car->mass_min : car->mass_max;
+    }
+    return net / mass;
+}
+
+/* guard.py CarBounds.top_speed, at least v (1e30: no viscous term, no top speed). */
+static float car_top_speed(const fg_car_bounds *car, float command, float v)
+{
+    float net = command - car->friction, top = 0.0f;
+    if (net > 0.0f) {
+        top = car->viscous > 0.0f ? net / car->viscous : 1e30f;
+    }
+    return top > v ? top : v;
+}
+
+/* guard.py CarBounds.advance: the speed bound after holding command for t seconds. */
+static float car_advance(const fg_car_bounds *car, float v, float command, float t)
+{
+    float a, top, slowed;
+    v = v > 0.0f ? v : 0.0f;
+    a = car_accel(car, command, v, 0.0f);
+    if (a > 0.0f) { /* Euler, capped at the top speed: the acceleration only falls */
+        top = car_top_speed(car, command, v);
+        v = v + a * t;
+        return v < top ? v : top;
+    }
+    /* implicit Euler: the exact decay is faster */
+    slowed = (v + (command - car->friction) * t / car->mass_max) /
+             (1.0f + car->viscous * t / car->mass_max);
+    return slowed > 0.0f ? slowed : 0.0f;
+}
+
+/* guard.py stopping_point: where the car stops if it holds command for t, then brakes at full
+ * reverse; the nearer for the lightest and the heaviest car (convex in the mass). */
+static float stop_point(const fg_device *dev, float d, float speed, float t, float command)
+{
+    const fg_car_bounds *car = &dev->cfg.car;
+    float force = (float)dev->cfg.command_limit + car->friction;
+    float worst = d, mass, a, top, travel, v, stop;
+    uint8_t i;
+    speed = speed > 0.0f ? speed : 0.0f; /* a receding car counts as at rest */
+    for (i = 0; i < 2; i++) {
+        mass = i ? car->mass_max : car->mass_min;
+        v = speed;
+        a = car_accel(car, command, v, mass);
+        travel = v * t;
+        if (a > 0.0f) {
+            top = car_top_speed(car, command, v);
+            travel = travel + 0.5f * a * t * t;
+            travel = travel < top * t ? travel : top * t;
+            v = v + a * t;
+            v = v < top ? v : top;
+        }
+        stop = d - travel - mass * v * v / (2.0f * force + car->viscous * v);
+        worst = stop < worst ? stop : worst;
+    }
+    return worst;
+}
+
+/* The distance guard's prediction (fg_device.h; guard.py DistanceGuard._trips): would the
+ * car, at the last sample's distance and approach speed (out of range: at the edge with the
+ * speed bound, one period later), holding command (counts = units on the Altino) or what is
+ * already on its way over the reaction time, fail to stop short of the limit braking then? */
 static uint8_t guard_trips(const fg_device *dev, int16_t command)
 {
-    float v = dev->speed > 0.0f ? dev->speed : 0.0f; /* a receding car counts as at rest */
-    float a = (float)command > FG_GUARD_FRICTION /* forward, beyond the least friction */
-                  ? ((float)command - FG_GUARD_FRICTION) / FG_GUARD_MASS
-                  : 0.0f;
-    float t = (float)FG_GUARD_REACTION_PERIODS / (float)dev->cfg.rate_hz;
-    float stop = dev->distance;
-    float v_end;
-    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) || stop < 0.0f) {
-        return 0; /* no guard, or no distance (out of range) */
+    float dt = 1.0f / (float)dev->cfg.rate_hz;
+    float t = (float)FG_GUARD_REACTION_PERIODS * dt;
+    float stop;
+    int i;
+    if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT) || !dev->sampled) {
+        return 0; /* no guard, or nothing to judge yet */
     }
-    if (v > 0.0f || a > 0.0f) { /* reaction travel, then braking */
-        v_end = v + a * t;
-        stop = stop - (v * t + 0.5f * a * t * t) -
-               v_end * v_end / (2.0f * FG_GUARD_BRAKE_DECELERATION);
+    for (i = 0; i < FG_GUARD_REACTION_PERIODS; i++) {
+        command = dev->held[i] > command ? dev->held[i] : command;
+    }
+    if (dev->distance < 0.0f) {
+        stop = stop_point(dev, FG_GUARD_EDGE_CM, dev->bound, t + dt, (float)command);
+    } else {
+        stop = stop_point(dev, dev->distance, dev->speed, t, (float)command);
     }
     return (uint8_t)(stop <= dev->cfg.limit_cm);
 }
@@ -101,22 +181,34 @@ static void guard_judge(fg_device *dev)
     }
 }
 
-/* Feed one sample to the guard (guard.py DistanceGuard.update). */
+/* Feed one sample to the guard (guard.py DistanceGuard.update), the largest output held
+ * since the last one being the newest of held[]. */
 static void guard_update(fg_device *dev, int32_t readout)
 {
-    float distance = -1.0f; /* readout 0: out of range, the speed is unknown */
+    float distance = -1.0f; /* readout 0: out of range */
+    int16_t command;
+    int i;
     if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT)) {
         return; /* the servo: no float maths at 500 Hz */
     }
+    command = dev->held_peak;
+    for (i = 0; i + 1 < FG_GUARD_REACTION_PERIODS; i++) {
+        dev->held[i] = dev->held[i + 1];
+        command = dev->held[i] > command ? dev->held[i] : command;
+    }
+    dev->held[FG_GUARD_REACTION_PERIODS - 1] = dev->held_peak;
+    dev->bound = car_advance(&dev->cfg.car, dev->bound, (float)command,
+                             1.0f / (float)dev->cfg.rate_hz);
     if (readout > 0) {
         distance = FG_IR_NUMERATOR / ((float)readout + FG_IR_OFFSET);
     }
     if (distance < 0.0f || dev->distance < 0.0f) {
-        dev->speed = 0.0f;
+        dev->speed = dev->bound; /* no two readings: the fastest the car can be */
     } else {
         dev->speed = (dev->distance - distance) * (float)dev->cfg.rate_hz; /* / dt */
     }
     dev->distance = distance;
+    dev->sampled = 1;
     guard_judge(dev);
 }
 
@@ -128,17 +220,24 @@ static void guard_update(fg_device *dev, int32_t readout)
 static void update_motor(fg_device *dev)
 {
     int16_t motor = (dev->armed && dev->enabled) ? dev->requested : 0;
+    uint8_t guarded = (uint8_t)(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT);
+    if (guarded && !dev->sampled && motor > 0) {
+        motor = 0; /* no distance known yet: forward is refused, nothing latched */
+    }
     if (!(dev->latched & FG_STATUS_LIMIT) && motor > 0 && guard_trips(dev, motor)) {
         dev->latched |= FG_STATUS_LIMIT; /* the forward command is not let through */
     }
     if (dev->latched & FG_STATUS_LIMIT) {
-        if (dev->speed > FG_GUARD_STOPPED_SPEED) {
-            motor = (int16_t)-dev->cfg.command_limit; /* the brake */
+        if (dev->distance >= 0.0f && dev->speed > FG_GUARD_STOPPED_SPEED) {
+            motor = (int16_t)-dev->cfg.command_limit; /* the brake (never blind) */
         } else if (motor > 0) {
             motor = 0; /* backing away (negative) still passes */
         }
     }
     dev->motor = motor;
+    if (motor > dev->held_peak) {
+        dev->held_peak = motor; /* what the car may feel over this period */
+    }
 }
 
 static int16_t clip(int16_t value, int16_t limit)
@@ -218,6 +317,7 @@ size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t a
      *    sample, is the motor's for the next period */
     dev->sensor = sensor;
     guard_update(dev, sensor);
+    dev->held_peak = (int16_t)-dev->cfg.command_limit; /* the next period starts */
     update_motor(dev);
     /* 5. the State */
     if (dev->decoder.errors != dev->errors_reported) {
@@ -255,6 +355,11 @@ size_t fg_device_hello(const fg_device *dev, uint8_t *frame)
     msg.u.hello.watchdog_ms = (uint16_t)(dev->watchdog_us / 1000UL);
     msg.u.hello.firmware = dev->cfg.firmware;
     return fg_encode(&msg, frame);
+}
+
+void fg_device_set_car(fg_device *dev, const fg_car_bounds *car)
+{
+    dev->cfg.car = *car;
 }
 
 int16_t fg_device_motor(const fg_device *dev)

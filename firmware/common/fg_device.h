@@ -52,34 +52,65 @@ enum fg_action {
 #define FG_WATCHDOG_PERIODS 3u
 
 /* Altino distance guard (FG_CAP_DISTANCE_LIMIT). frictiongym/hardware/guard.py is the
- * reference and gives each constant's source; the values here must equal its. At every tick,
- * from the sample x (the front IR readout):
+ * reference and gives each constant's source; the values here must equal its. What it cannot
+ * measure it bounds (fg_car_bounds: the mass anywhere in [mass_min, mass_max], friction at
+ * least friction + viscous v). At every tick, from the sample x (the front IR readout):
  *   d = FG_IR_NUMERATOR / (x + FG_IR_OFFSET) cm        (x <= 0: out of range, no distance)
- *   v = (d_prev - d) / dt, cm/s toward the wall        (0 unless both samples have a distance)
- *   T = FG_GUARD_REACTION_PERIODS * dt, v+ = max(v, 0),
- *   a = max(u - FG_GUARD_FRICTION, 0) / FG_GUARD_MASS for the command u about to be held
- *   stop(u) = d - (v+ T + a T^2 / 2) - (v+ + a T)^2 / (2 FG_GUARD_BRAKE_DECELERATION)
- *                                                      (stop = d when v+ = 0 and a = 0)
- * and LIMIT latches when stop(0) <= cfg.limit_cm at a sample, or when stop(u) <= cfg.limit_cm
- * for the forward command u the motor is about to hold (checked whenever the output is
- * computed: on a Command's arrival and at every tick, against the last sample), so that
- * command is not let through (REARM clears LIMIT, unless the latest sample trips it again at
- * once). While LIMIT is latched the motor gets -command_limit (full reverse: the
- * brake) while v > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed,
- * forward is refused. The brake acts even when the device is disarmed (e-stop, watchdog,
- * fault): a car that still approaches must not coast into the wall. Maths in binary32 (AVR's
- * double); the Python reference uses binary64, so results can differ only at the boundary. */
+ *   bound: upper bound of the approach speed, advanced every tick under the largest command
+ *          held over the last FG_GUARD_REACTION_PERIODS periods (0 at boot: the car at rest),
+ *          speeding up as mass_min, slowing down as mass_max
+ *   v = (d_prev - d) / dt, cm/s toward the wall if both samples have a distance, else bound
+ *   a(u, v) = (u - friction - viscous v) / M
+ *   over T: travel = min(v T + a T^2 / 2, max(v, v_top) T), v_T = min(v + a T, v_top),
+ *           (a <= 0: travel = v T, v_T = v); v_top = (u - friction) / viscous
+ *   stop(u) = d - travel - M v_T^2 / (2 (limit + friction) + viscous v_T), the nearer for
+ *             M = mass_min and M = mass_max (convex in M: an end of the range is the worst)
+ * with T = FG_GUARD_REACTION_PERIODS dt, d the distance; out of range d = FG_GUARD_EDGE_CM
+ * and T one period longer (the car may enter the range just after a sample). u is the larger
+ * of the command judged and those held over the last FG_GUARD_REACTION_PERIODS periods (the
+ * dead time). LIMIT latches when stop(0) <= cfg.limit_cm at a sample, or when stop(u) <=
+ * cfg.limit_cm for the forward command u the motor is about to hold (checked whenever the
+ * output is computed: on a Command's arrival and at every tick, against the last sample), so
+ * that command is not let through (REARM clears LIMIT, unless the latest sample trips it again
+ * at once). Before the first sample forward commands are refused (not latched). While LIMIT
+ * is latched the motor gets -command_limit (full reverse: the brake) while the car is in range
+ * and v > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed, forward is
+ * refused. The brake acts even when the device is disarmed (e-stop, watchdog, fault): a car
+ * that still approaches must not coast into the wall. Maths in binary32 (AVR's double); the
+ * Python reference uses binary64, so results can differ only at the boundary. */
 #define FG_IR_NUMERATOR 966.0f             /* paper Eq. (1); plants/sensors.py IR_NUMERATOR */
 #define FG_IR_OFFSET 45.0f                 /* paper Eq. (1); plants/sensors.py IR_OFFSET */
-/* Build reported in Hello: 2 = the predictive distance guard (build 1: a fixed readout limit).
-   frictiongym/hardware/firmware.py FIRMWARE_BUILD is the same number. */
-#define FG_FIRMWARE_BUILD 2u
+/* Build reported in Hello: 3 = the guard bounds the speed and the car (2: the predictive
+   guard of one nominal car; 1: a fixed readout limit). hardware/firmware.py FIRMWARE_BUILD. */
+#define FG_FIRMWARE_BUILD 3u
 #define FG_GUARD_LIMIT_CM 1.5f             /* guard.LIMIT_CM: closest approach, cm */
-#define FG_GUARD_BRAKE_DECELERATION 300.0f /* guard.BRAKE_DECELERATION, cm/s^2 */
 #define FG_GUARD_REACTION_PERIODS 2        /* guard.REACTION_PERIODS: sensing + dead time */
 #define FG_GUARD_STOPPED_SPEED 0.5f        /* guard.STOPPED_SPEED, cm/s */
-#define FG_GUARD_MASS 2.2f                 /* guard.MASS: units s^2/cm (assumed; guard.py) */
-#define FG_GUARD_FRICTION 150.4f           /* guard.FRICTION: least forward friction, units */
+/* guard.EDGE_CM: the nearest distance that reads 0 (round(966 / d - 45) = 0) */
+#define FG_GUARD_EDGE_CM (FG_IR_NUMERATOR / (FG_IR_OFFSET + 0.5f))
+/* The car's bounds (guard.py CarBounds), defaults of fg_config_altino; a build may define
+ * others (-DFG_GUARD_FRICTION=0 for a car on a surface with no friction to speak of), and
+ * fg_device_set_car() changes them at run time. */
+#ifndef FG_GUARD_MASS_MIN
+#define FG_GUARD_MASS_MIN 1.1f             /* guard.MASS_MIN: units s^2/cm (plausible range) */
+#endif
+#ifndef FG_GUARD_MASS_MAX
+#define FG_GUARD_MASS_MAX 5.5f             /* guard.MASS_MAX (docs/altino-model.md) */
+#endif
+#ifndef FG_GUARD_FRICTION
+#define FG_GUARD_FRICTION 150.4f           /* guard.FRICTION: least forward Coulomb, units */
+#endif
+#ifndef FG_GUARD_VISCOUS
+#define FG_GUARD_VISCOUS 10.93f            /* guard.VISCOUS: least viscous slope */
+#endif
+
+/* What the distance guard assumes of the car (guard.py CarBounds). */
+typedef struct {
+    float mass_min; /* lightest plausible effective mass, units s^2/cm (fastest to speed up) */
+    float mass_max; /* heaviest (slowest to brake) */
+    float friction; /* least Coulomb friction against a forward-moving car, units (0: none) */
+    float viscous;  /* least viscous slope, units/(cm/s) (0: none: no top speed) */
+} fg_car_bounds;
 
 typedef struct {
     uint8_t kind;            /* enum fg_kind */
@@ -90,6 +121,7 @@ typedef struct {
     int16_t command_limit;   /* commands are clipped to +-this, counts */
     uint16_t watchdog_ms;    /* 0: the default, max(3 periods, 100 ms) */
     float limit_cm;          /* the distance guard's closest approach, cm (FG_GUARD_LIMIT_CM) */
+    fg_car_bounds car;       /* what the distance guard assumes of the car (FG_GUARD_*) */
     uint32_t firmware;       /* build number reported in Hello */
 } fg_device_config;
 
@@ -105,7 +137,11 @@ typedef struct {
     int16_t motor;            /* the output the motor holds now (negative while braking) */
     int32_t sensor;           /* last sample */
     float distance;           /* guard: distance of the last sample, cm; < 0: out of range */
-    float speed;              /* guard: approach speed, cm/s (toward the wall > 0) */
+    float speed;              /* guard: approach speed judged, cm/s (toward the wall > 0) */
+    float bound;              /* guard: upper bound of the approach speed, cm/s */
+    int16_t held_peak;        /* guard: largest output since the last tick, counts */
+    int16_t held[FG_GUARD_REACTION_PERIODS]; /* guard: largest output of the last periods */
+    uint8_t sampled;          /* guard: a sample has come (before it, forward is refused) */
     uint8_t armed;            /* REARM received and no e-stop, watchdog or fault since */
     uint8_t enabled;          /* ENABLE bit of the newest Command */
     uint8_t fresh;            /* a Command arrived since the last tick */
@@ -137,6 +173,9 @@ size_t fg_device_tick(fg_device *dev, uint32_t now_us, int32_t sensor, int16_t a
 
 /* The Hello frame (with its 0x00) into frame; returns its length. */
 size_t fg_device_hello(const fg_device *dev, uint8_t *frame);
+
+/* Change the distance guard's bounds of the car at run time (the guard's state is kept). */
+void fg_device_set_car(fg_device *dev, const fg_car_bounds *car);
 
 /* Motor output now, counts (0 unless armed and enabled, or the distance guard brakes), and
  * whether to enable the amplifier (armed and enabled, or a non-zero output). */

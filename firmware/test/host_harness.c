@@ -15,6 +15,7 @@
  *   dev_rx T_US HEX              -> act BITS motor M amp E [hello HEX]
  *   dev_tick T_US SENSOR AUX HW  -> state FRAME_HEX, motor M amp E
  *   dev_estop                    -> motor M amp E
+ *   dev_car MMIN MMAX FRIC VISC  -> ok      (fg_device_set_car: the guard's bounds of the car)
  *
  * Not part of any firmware: it uses stdio and a large static line buffer.
  */
@@ -67,6 +68,12 @@ static long next_long(void)
 {
     const char *tok = strtok(NULL, " \t\r\n");
     return tok ? strtol(tok, NULL, 10) : 0;
+}
+
+static float next_float(void)
+{
+    const char *tok = strtok(NULL, " \t\r\n");
+    return tok ? (float)strtod(tok, NULL) : 0.0f;
 }
 
 static unsigned long next_ulong(void)
@@ -224,6 +231,14 @@ static void handle(char *cmd)
         print_hex(out, len);
         putchar('\n');
         print_motor();
+    } else if (strcmp(cmd, "dev_car") == 0) {
+        fg_car_bounds car;
+        car.mass_min = next_float();
+        car.mass_max = next_float();
+        car.friction = next_float();
+        car.viscous = next_float();
+        fg_device_set_car(&dev, &car);
+        puts("ok");
     } else if (strcmp(cmd, "dev_estop") == 0) {
         fg_device_estop(&dev);
         print_motor();

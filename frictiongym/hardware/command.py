@@ -9,6 +9,7 @@ import sys
 import threading
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from types import FrameType
 from typing import Any
 
@@ -21,10 +22,13 @@ rate (rotary: QUBE-Servo 2, 500 Hz; altino: Altino car, 20 Hz), on a pseudo-term
 --tcp, on a TCP port for another process or machine. It behaves as the firmware does: boots
 with the motor disabled, answers Hello, holds each command over its period, streams one state
 frame per tick, zeroes the motor when commands stop for --watchdog ms (latched until re-armed)
-and, on the Altino, runs the distance guard: when the car, at the speed the IR readings show,
-could no longer stop 1.5 cm short of the wall, it brakes at full reverse while the car
-approaches (even after an e-stop or a watchdog trip), then refuses forward commands (latched
-until re-armed; backing away still works).
+and, on the Altino, runs the distance guard: when the car, at the speed the IR readings show
+(or the fastest it can be, before two readings in range), could no longer stop 1.5 cm short
+of the wall, it brakes at full reverse while the car approaches (even after an e-stop or a
+watchdog trip), then refuses forward commands (latched until re-armed; backing away still
+works). The guard assumes the worst car it cannot measure: any mass in --guard-mass and the
+least friction of the true law (--friction none: none at all, so it refuses fast driving out
+of the IR range).
 
 The first line of output is the port to connect to. Connect an env to it:
   gym.make("frictiongym/RotaryServo-v0", backend="serial:///dev/pts/7")
@@ -60,6 +64,21 @@ def _endpoint(text: str) -> tuple[str, int]:
     return host or "127.0.0.1", number
 
 
+def _mass_range(text: str) -> tuple[float, float]:
+    """Parse ``MIN:MAX`` (units·s²/cm) for --guard-mass."""
+    low, _, high = text.partition(":")
+    try:
+        pair = (float(low), float(high))
+    except ValueError:
+        pair = (math.nan, math.nan)
+    if not (all(math.isfinite(m) and m > 0 for m in pair) and pair[0] <= pair[1]):
+        raise argparse.ArgumentTypeError(
+            f"--guard-mass takes MIN:MAX, two positive masses in units·s²/cm with MIN <= MAX, "
+            f"e.g. 1.1:5.5; got {text!r}"
+        )
+    return pair
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument("--device", required=True, choices=KINDS, help="the device to emulate")
@@ -74,6 +93,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--friction", default="paper", metavar="LAW",
         help="true friction law: paper (default), none, coulomb, stribeck or lugre",
+    )  # fmt: skip
+    parser.add_argument(
+        "--guard-mass", type=_mass_range, metavar="MIN:MAX",
+        help="Altino: the mass range the distance guard assumes, units·s²/cm (default 1.1:5.5, "
+        "widened to the plant's own; its least friction is that of the true law)",
     )  # fmt: skip
     parser.add_argument("--noise", action="store_true", help="add the env's default sensor noise")
     parser.add_argument(
@@ -143,6 +167,9 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             sensor_noise=bool(args.noise), lockstep=args.lockstep, faults=faults,
             watchdog_ms=args.watchdog, seed=args.seed, realtime=args.realtime,
         )  # fmt: skip
+        if args.guard_mass is not None and emu.firmware.guard is not None:
+            low, high = args.guard_mass
+            emu.set_car_bounds(replace(emu.firmware.car_bounds, mass_min=low, mass_max=high))
     except (ValueError, TypeError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

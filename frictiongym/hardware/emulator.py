@@ -47,6 +47,7 @@ import numpy as np
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.firmware import Firmware, Tick
+from frictiongym.hardware.guard import CarBounds
 from frictiongym.hardware.realtime import (
     REALTIME_PRIORITY,
     describe_priority,
@@ -91,9 +92,9 @@ class Emulator:
     ----------
     kind : {"rotary", "altino"}
         The device.
-    params, friction, sensor_noise, randomize, watchdog_ms, start, seed
-        The plant's "true" parameters and the firmware's settings
-        (:class:`~frictiongym.hardware.firmware.Firmware`).
+    params, friction, sensor_noise, randomize, watchdog_ms, start, seed, car_bounds
+        The plant's "true" parameters and the firmware's settings, the distance guard's
+        bounds among them (:class:`~frictiongym.hardware.firmware.Firmware`).
     lockstep : bool, default False
         One tick per command received instead of the real-time clock.
     faults : Faults, optional
@@ -117,6 +118,7 @@ class Emulator:
         seed: int = 0,
         randomize: dict[str, Any] | None = None,
         realtime: bool = True,
+        car_bounds: CarBounds | None = None,
     ) -> None:
         if faults is None:
             faults = Faults()
@@ -125,6 +127,7 @@ class Emulator:
         self.firmware = Firmware(
             kind, params=params, friction=friction, sensor_noise=sensor_noise,
             randomize=randomize, watchdog_ms=watchdog_ms, start=start, seed=seed,
+            car_bounds=car_bounds,
         )  # fmt: skip
         self.kind = kind
         self.dt = self.firmware.dt
@@ -192,6 +195,11 @@ class Emulator:
     def running(self) -> bool:
         """Whether the device thread runs."""
         return self._thread is not None and self._thread.is_alive()
+
+    def set_car_bounds(self, car_bounds: CarBounds) -> None:
+        """Change what the Altino's distance guard assumes of the car (``Firmware``'s)."""
+        with self._lock:
+            self.firmware.set_car_bounds(car_bounds)
 
     def stats(self, timing: bool = True) -> EmulatorStats:
         """Counters and timing so far.

@@ -34,14 +34,15 @@ from frictiongym.envs.core import Device, Simulation
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS
-from frictiongym.hardware.guard import DistanceGuard
+from frictiongym.hardware.guard import CarBounds, DistanceGuard
 from frictiongym.params import DeviceParams
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 
 #: Build number the firmware reports in its ``Hello``, the same as ``FG_FIRMWARE_BUILD`` in
-#: firmware/common/fg_device.h: 2 = the predictive distance guard (1: a fixed readout limit).
-FIRMWARE_BUILD = 2
+#: firmware/common/fg_device.h: 3 = the guard bounds the speed and the car (2: the predictive
+#: distance guard of one nominal car; 1: a fixed readout limit).
+FIRMWARE_BUILD = 3
 #: Command counts per physical unit: mV for the servo (protocol.DeviceKind), the Altino's own
 #: motor units.
 COMMAND_SCALE = {"rotary": 1000, "altino": 1}
@@ -115,6 +116,10 @@ class Firmware:
     seed : int, default 0
         Seed of the plant's draws (noise, randomisation): ``numpy.random.default_rng(seed)``,
         as ``env.reset(seed=seed)`` seeds the env.
+    car_bounds : CarBounds, optional
+        What the Altino's distance guard assumes of the car (default: the documented mass
+        range and the least friction of the plant's own law,
+        :meth:`~frictiongym.hardware.guard.CarBounds.from_law`).
     """
 
     def __init__(
@@ -128,6 +133,7 @@ class Firmware:
         watchdog_ms: int | None = None,
         start: float | None = None,
         seed: int = 0,
+        car_bounds: CarBounds | None = None,
     ) -> None:
         if kind not in KINDS:
             raise ValueError(f"unknown device {kind!r}; emulate one of {list(KINDS)}")
@@ -188,8 +194,14 @@ class Firmware:
         #: Per-tick records, as :meth:`ticks_history` returns them (:data:`TickRecord`).
         self.history: deque[TickRecord] = deque(maxlen=HISTORY_TICKS)
         self._errors_seen = 0
+        if car_bounds is None:
+            car_bounds = self._car_bounds()
+        if not isinstance(car_bounds, CarBounds):
+            raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
+        #: What the distance guard assumes of the car (its mass range and least friction).
+        self.car_bounds = car_bounds
         #: The Altino's distance guard (None on the servo): brakes before the wall.
-        self.guard = DistanceGuard(self.dt, self.hello.command_limit) if altino else None
+        self.guard = self._new_guard() if altino else None
         self.sensor = 0
         self._place(self.device.start if start is None else float(start))
 
@@ -229,10 +241,39 @@ class Firmware:
         self.sensor = self._sensor()
         if self.guard is not None:
             tripped = self.guard.tripped
-            self.guard = DistanceGuard(self.dt, self.hello.command_limit)
+            self.guard = self._new_guard()
             self.guard.tripped = tripped
-            self._watch()
+            self._watch(0)
         self.motor_counts = self._output()
+
+    def _car_bounds(self) -> CarBounds:
+        """Return the guard's bounds from the plant's own law, mass and randomisation ranges."""
+        plant, spread = self.sim.plant, self.sim.randomize
+        bounds = CarBounds.from_law(
+            self.sim.friction, plant.damping, plant.inertia, self.hello.command_limit
+        )
+        if spread is None:
+            return bounds
+        masses = [plant.inertia * f for f in spread.inertia or (1.0, 1.0)]
+        return CarBounds(
+            min(bounds.mass_min, masses[0]), max(bounds.mass_max, masses[1]),
+            bounds.friction * (spread.friction or (1.0,))[0],
+            bounds.viscous * (spread.damping or (1.0,))[0], bounds.command_limit,
+        )  # fmt: skip
+
+    def set_car_bounds(self, car_bounds: CarBounds) -> None:
+        """Change what the distance guard assumes of the car; its state is kept.
+
+        The C firmware's ``fg_device_set_car``.
+        """
+        if not isinstance(car_bounds, CarBounds):
+            raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
+        self.car_bounds = car_bounds
+        if self.guard is not None:
+            self.guard.car = car_bounds
+
+    def _new_guard(self) -> DistanceGuard:
+        return DistanceGuard(self.dt, self.hello.command_limit, car=self.car_bounds)
 
     def _zero_position(self) -> None:
         """Reset the encoder count: the plant's position is 0, the rest of its state kept.
@@ -323,9 +364,9 @@ class Firmware:
 
     # -- tick -------------------------------------------------------------------------------
 
-    def _watch(self) -> None:
-        """Feed the latest sample to the distance guard; latch ``LIMIT`` when it trips."""
-        if self.guard is not None and self.guard.update(self.sensor):
+    def _watch(self, held: int) -> None:
+        """Feed the latest sample and the counts held before it to the guard; latch on a trip."""
+        if self.guard is not None and self.guard.update(self.sensor, held / self.scale):
             self.latched |= p.Status.LIMIT
 
     def _output(self) -> int:
@@ -344,6 +385,21 @@ class Firmware:
             self.latched |= p.Status.LIMIT
         return counts
 
+    def hold(self, counts: int) -> None:
+        """Integrate the plant over one period holding ``counts``, then sample its sensor.
+
+        The plant's part of :meth:`tick` alone, for another implementation of the firmware to
+        drive the same plant (``scripts/guard_scan.py`` runs the C one around it).
+        """
+        self._command[0] = counts / self.scale
+        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+        if self.kind == "altino" and self.sim.state[0, pk.S_X] >= 0.0:
+            # An inelastic wall at 0 cm (the env has none: it ends the episode there).
+            self.sim.state[0, pk.S_X] = 0.0
+            self.sim.state[0, pk.S_V] = 0.0
+            self.sim.state[0, pk.S_STUCK] = 1.0
+        self.sensor = self._sensor()
+
     def tick(self, now: float) -> p.State:
         """Run one device period ending at ``now`` (s); return its ``State``.
 
@@ -361,15 +417,8 @@ class Firmware:
             self.latched |= p.Status.WATCHDOG
         counts = self._output()  # the newest command, a forward one checked by the guard
         self.motor_counts = counts
-        self._command[0] = counts / self.scale
-        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
-        if self.kind == "altino" and self.sim.state[0, pk.S_X] >= 0.0:
-            # An inelastic wall at 0 cm (the env has none: it ends the episode there).
-            self.sim.state[0, pk.S_X] = 0.0
-            self.sim.state[0, pk.S_V] = 0.0
-            self.sim.state[0, pk.S_STUCK] = 1.0
-        self.sensor = self._sensor()
-        self._watch()
+        self.hold(counts)
+        self._watch(counts)
         self.motor_counts = self._output()  # the guard may brake from now on
         self.ticks += 1
         driving = self.armed and self.enabled

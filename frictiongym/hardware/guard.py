@@ -1,58 +1,190 @@
 """The Altino's distance guard: brake before the wall, whatever the host commands.
 
-Refusing forward commands at a distance limit is not enough: a car at speed coasts on (the
-emulated Altino at 600 units stops about 8 cm after its motor is cut, and its dead time adds a
-period of travel). The guard therefore predicts where the car would stop if it braked after its
-reaction time, from the IR distance *d*, its change per tick (the approach speed *v*) and the
-command *u* the motor is about to hold, and trips when that point reaches the limit. With the
-reaction time ``T = reaction_periods * dt``, a forward command ``u > 0`` taken to accelerate
-the car at ``a = max(u - FRICTION, 0) / MASS`` (the least friction the car has: a car driven
-from rest gets no faster) and ``v+ = max(v, 0)``::
+Refusing forward commands at a distance limit is not enough: a car at speed coasts on, and its
+dead time adds a period of travel. The guard therefore predicts where the car would stop if it
+braked after its reaction time and trips when that point reaches the limit. What it cannot
+measure it bounds (:class:`CarBounds`): the mass lies anywhere in the documented plausible
+range, the friction is at least the least the device's law allows. With ``T =
+reaction_periods * dt``, the approach speed *v* and the command *u* the motor may hold until
+the brake acts::
 
-    stop = d - (v+ * T + a * T**2 / 2) - (v+ + a * T)**2 / (2 * BRAKE_DECELERATION)
+    a(u, v) = (u - FRICTION - VISCOUS v) / M
+    travel  = min(v T + a(u, v) T^2 / 2, max(v, v_top(u)) T),  v_T = min(v + a T, v_top(u))
+    stop    = d - travel - M v_T^2 / (2 K + VISCOUS v_T),  K = limit + FRICTION
 
-(``stop = d`` when ``v+ = 0`` and ``u <= 0``). Each sample is judged with ``u = 0``
-(:meth:`DistanceGuard.update`: braking now); every forward command is judged before the motor
-holds it (:meth:`DistanceGuard.command`, with the latest sample): a car at rest near the wall
-cannot be launched into it before the guard sees it move. Backing away (``u <= 0``) is never
-checked. A trip brakes at full reverse while the car still approaches, holds
-``min(request, 0)`` after, and stays latched (``Status.LIMIT``) until the host re-arms. The
-firmware (``firmware/common/fg_device.c``), the emulator and the stock-firmware backend run
-this same rule.
+the nearer for ``M = MASS_MIN`` and ``M = MASS_MAX`` (both terms are convex in the mass: an
+end of the range is the worst). A car that does not accelerate travels at most ``v T``; the
+last term bounds the distance full reverse needs to stop the car, the viscous force taken at
+the mean speed of the stop (it overestimates). The speed *v*:
+
+* two readings in the IR range: their difference over ``dt``;
+* the first reading in range, or none (out of range): :attr:`DistanceGuard.bound`, an upper
+  bound on the speed the car can have, integrated every period from the commands the motor
+  held (the largest of the last ``reaction_periods``, for the dead time) with the same bounds.
+  Out of range the distance is unknown but at least :data:`EDGE_CM`, and the car may enter the
+  range just after a sample and be seen a period later: it is judged at ``EDGE_CM`` with one
+  period more of reaction. So a forward command that could take the car faster than it can
+  stop from the edge of the range is refused before the car is seen at all.
+
+Each sample is judged with the command already on its way (:meth:`DistanceGuard.update`);
+every forward command before the motor holds it (:meth:`DistanceGuard.command`). A trip brakes
+at full reverse while the car still approaches (two readings in range say it moves, or the
+first reading's bound does; blind, out of range, it does not brake), holds ``min(request, 0)``
+after, and stays latched (``Status.LIMIT``) until the host re-arms. Until the first sample
+forward commands are refused (nothing is known of the distance yet). The firmware
+(``firmware/common/fg_device.c``), the emulator and the stock-firmware backend run this same
+rule.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
+from dataclasses import dataclass
 
-from frictiongym.plants.sensors import ir_estimate
+from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET, ir_estimate
 
 #: Closest the car may come to the wall, cm. Assumed (docs/hardware.md): above the IR sensor's
 #: nearest reading (966 / (800 + 45) = 1.14 cm) and below the closest approach of the paper's
 #: gains in our model (the Ki = 20 PID overshoots to 1.9 cm), so the guard never acts on them.
 LIMIT_CM = 1.5
-#: Deceleration assumed when predicting the stop, cm/s². Assumed, conservative: full reverse
-#: gives (1000 + 150) / 2.2 = 523 cm/s² in our model (docs/altino-model.md); 300 is 0.3 g.
-BRAKE_DECELERATION = 300.0
-#: Effective mass of the car, command units·s²/cm: ``presets.ALTINO_PLANT.inertia``, assumed
-#: in docs/altino-model.md (plausible range 1.1-5.5).
-MASS = 2.2
-#: Friction a forward command must overcome, units: the paper's forward Coulomb level
-#: (``ALTINO_PAPER.uc_pos``, Fig. 10(b)), the least friction of a moving car in our model, so
-#: ``max(u - FRICTION, 0) / MASS`` bounds the acceleration from above. Taking no friction at all
-#: would trip the guard on the paper's Ki = 20 PID, which creeps to 1.9 cm pushing about +200
-#: (just under break-away); on a surface with less friction than the paper's, lower it.
+#: Plausible range of the car's effective mass, command units·s²/cm (docs/altino-model.md: the
+#: assumed 2.2 of ``presets.ALTINO_PLANT.inertia``, plausible 1.1-5.5, a mechanical time
+#: constant of 0.1-0.5 s). Not measured on any car: the guard takes the worst of the range.
+MASS_MIN = 1.1
+MASS_MAX = 5.5
+#: Least friction resisting a forward-moving car, units: the paper's forward Coulomb level
+#: (``ALTINO_PAPER.uc_pos``, Fig. 10(b)); stiction only adds to it. The default of a car whose
+#: law is unknown (the stock backend); the emulator takes it from its own law
+#: (:meth:`CarBounds.from_law`).
 FRICTION = 150.4
+#: Least viscous slope, units/(cm/s): the paper's (``ALTINO_PAPER.viscous``, Fig. 10(b); the
+#: model's plant damping ``ALTINO_PLANT.damping`` is 0).
+VISCOUS = 10.93
 #: Periods of travel before a brake acts: one to see the car move, one of dead time.
 REACTION_PERIODS = 2
 #: Approach speed above which the tripped guard keeps braking, cm/s (one IR count at 5 cm per
 #: 50 ms period is 0.5 cm/s: below that the car is taken as stopped).
 STOPPED_SPEED = 0.5
+#: Nearest distance a car out of the IR range (readout 0) can be at, cm: the readout is
+#: ``round(966 / d - 45)`` (paper Eq. (1)), 0 only for ``d >= 966 / 45.5``.
+EDGE_CM = IR_NUMERATOR / (IR_OFFSET + 0.5)
 
 
 def readout_distance(readout: float) -> float | None:
     """Distance (cm) an IR readout stands for (paper Eq. (1)); None when out of range (0)."""
     return float(ir_estimate(readout)) if readout > 0 else None
+
+
+@dataclass(frozen=True)
+class CarBounds:
+    """What the guard assumes of a car it cannot weigh: bounds that hold for every plausible car.
+
+    Parameters
+    ----------
+    mass_min, mass_max : float, default MASS_MIN, MASS_MAX
+        Range of the effective mass, units·s²/cm: the lightest accelerates fastest, the
+        heaviest brakes slowest.
+    friction : float, default FRICTION
+        Least Coulomb friction against a forward-moving car, units (0: none).
+    viscous : float, default VISCOUS
+        Least viscous slope, units/(cm/s) (0: none; then the car has no top speed).
+    command_limit : float, default 1000.0
+        Full command, units: the brake is full reverse.
+    """
+
+    mass_min: float = MASS_MIN
+    mass_max: float = MASS_MAX
+    friction: float = FRICTION
+    viscous: float = VISCOUS
+    command_limit: float = 1000.0
+
+    def __post_init__(self) -> None:
+        for name in ("mass_min", "mass_max", "command_limit"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name in ("friction", "viscous"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a number >= 0 (0: none), got {value!r}")
+        if self.mass_min > self.mass_max:
+            raise ValueError(
+                f"mass_min ({self.mass_min}) must not exceed mass_max ({self.mass_max})"
+            )
+
+    @classmethod
+    def from_law(
+        cls,
+        law: object,
+        damping: float = 0.0,
+        inertia: float | None = None,
+        command_limit: float = 1000.0,
+    ) -> CarBounds:
+        """Bounds of a car with friction ``law`` (a FrictionModel) and plant ``damping``.
+
+        Least friction: the forward Coulomb level (``uc_pos``) of a static law, 0 for no
+        friction and for LuGre (its bristles can pull forward for a moment); least viscous
+        slope: the law's ``viscous`` plus ``damping``. The mass range is the documented one,
+        widened to hold ``inertia`` (an identified or emulated mass outside it).
+        """
+        lugre = type(law).__name__ == "LuGre"
+        friction = 0.0 if lugre else float(getattr(law, "uc_pos", 0.0))
+        viscous = float(getattr(law, "viscous", 0.0)) + float(damping)
+        low, high = MASS_MIN, MASS_MAX
+        if inertia is not None:
+            low, high = min(low, inertia), max(high, inertia)
+        return cls(low, high, friction, viscous, command_limit)
+
+    def accel(self, command: float, speed: float, mass: float | None = None) -> float:
+        """Acceleration toward the wall at ``speed`` (>= 0) holding ``command``.
+
+        Of a car of ``mass``; by default the largest of any plausible car.
+        """
+        net = command - self.friction - self.viscous * speed
+        if mass is None:
+            mass = self.mass_min if net > 0.0 else self.mass_max
+        return net / mass
+
+    def top_speed(self, command: float) -> float:
+        """Speed at which ``command`` no longer accelerates the car (inf without viscous)."""
+        net = command - self.friction
+        if net <= 0.0:
+            return 0.0
+        return net / self.viscous if self.viscous > 0.0 else math.inf
+
+    def advance(self, speed: float, command: float, seconds: float) -> float:
+        """Upper bound of the approach speed after holding ``command`` for ``seconds``.
+
+        Accelerating: a forward Euler step capped at the top speed (the acceleration only
+        falls as the car speeds up). Slowing: an implicit Euler step (the exact decay is
+        faster). Never below 0: a car that stops is taken as at rest.
+        """
+        speed = max(speed, 0.0)
+        a = self.accel(command, speed)
+        if a > 0.0:
+            return min(speed + a * seconds, max(self.top_speed(command), speed))
+        net = command - self.friction
+        slowed = (speed + net * seconds / self.mass_max) / (
+            1.0 + self.viscous * seconds / self.mass_max
+        )
+        return max(slowed, 0.0)
+
+    def braking_distance(self, speed: float, mass: float | None = None) -> float:
+        """Upper bound of the distance full reverse needs to stop a car of ``mass``, cm.
+
+        From ``speed``, the viscous force taken at the mean speed of the stop (the force only
+        falls as the car slows, so this overestimates). Default: the heaviest car.
+        """
+        if speed <= 0.0:
+            return 0.0
+        force = self.command_limit + self.friction
+        mass = self.mass_max if mass is None else mass
+        return mass * speed * speed / (2.0 * force + self.viscous * speed)
+
+
+#: The bounds of the Altino model with the paper's friction law (the defaults above).
+PAPER_CAR = CarBounds()
 
 
 def stopping_point(
@@ -61,6 +193,7 @@ def stopping_point(
     dt: float,
     reaction_periods: int = REACTION_PERIODS,
     command: float = 0.0,
+    car: CarBounds = PAPER_CAR,
 ) -> float:
     """Where a car stops if it holds ``command`` over the reaction time, then brakes.
 
@@ -75,34 +208,43 @@ def stopping_point(
     reaction_periods : int, default REACTION_PERIODS
         Periods the command is held before a brake acts.
     command : float, default 0.0
-        Command held until then, units; only a forward one counts, as
-        ``max(command - FRICTION, 0) / MASS`` of acceleration.
+        Command held until then, units.
+    car : CarBounds, default PAPER_CAR
+        The bounds of mass and friction the prediction must hold for.
 
     Returns
     -------
     float
         The predicted stopping distance from the wall, cm (``distance`` for a car at rest or
-        receding that is not driven forward).
+        receding that is not driven forward): the nearer of the lightest car's and the
+        heaviest's (travel and braking distance are convex in the mass, so one of the two
+        ends of its range is the worst).
     """
-    accel = max(command - FRICTION, 0.0) / MASS
-    if speed <= 0.0 and accel == 0.0:
-        return distance
-    v = max(speed, 0.0)
-    reaction = reaction_periods * dt
-    travel = v * reaction + 0.5 * accel * reaction * reaction
-    v_end = v + accel * reaction
-    return distance - travel - v_end * v_end / (2.0 * BRAKE_DECELERATION)
+    t = reaction_periods * dt
+    stops = []
+    for mass in (car.mass_min, car.mass_max):
+        v = max(speed, 0.0)
+        a = car.accel(command, v, mass)
+        if a > 0.0:
+            top = max(car.top_speed(command), v)
+            travel = min(v * t + 0.5 * a * t * t, top * t)
+            v = min(v + a * t, top)
+        else:
+            travel = v * t
+        stops.append(distance - travel - car.braking_distance(v, mass))
+    return min(stops)
 
 
 class DistanceGuard:
     """The guard's state for one car sampled every ``dt`` seconds.
 
     ``reaction_periods``: periods of travel before a brake acts (one more on a link whose
-    replies lag a period, as the stock firmware's).
+    replies lag a period, as the stock firmware's); ``car``: the bounds it assumes
+    (default: :data:`PAPER_CAR` with ``command_limit``).
 
-    Call :meth:`update` with every IR readout, then :meth:`command` with the command the motor
-    is to hold next (the newest request): it checks a forward one and returns what the motor
-    may get.
+    Call :meth:`update` with every IR readout and the command the motor held over the period
+    that ended, then :meth:`command` with the command the motor is to hold next (the newest
+    request): it checks a forward one and returns what the motor may get.
     """
 
     def __init__(
@@ -111,15 +253,21 @@ class DistanceGuard:
         command_limit: float = 1000.0,
         limit_cm: float = LIMIT_CM,
         reaction_periods: int = REACTION_PERIODS,
+        car: CarBounds | None = None,
     ) -> None:
         if not (math.isfinite(dt) and dt > 0):
             raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
         self.dt = dt
+        self.car = CarBounds(command_limit=abs(command_limit)) if car is None else car
         self.brake = -abs(command_limit)
         self.limit_cm = limit_cm
         self.reaction_periods = reaction_periods
         self.tripped = False
-        self.speed = 0.0  #: approach speed, cm/s (positive toward the wall)
+        self.speed = 0.0  #: approach speed judged, cm/s (positive toward the wall)
+        self.bound = 0.0  #: upper bound of the approach speed, cm/s (the car starts at rest)
+        self.sampled = False  #: a readout has come (before it, forward is refused)
+        #: Commands held over the last periods: those a car with dead time may still feel.
+        self._held: deque[float] = deque([0.0], maxlen=max(reaction_periods, 1))
         self._distance: float | None = None
 
     def rearm(self) -> bool:
@@ -128,23 +276,39 @@ class DistanceGuard:
         The latest sample is judged again: a car still within the limit, or approaching too fast
         to stop short of it, stays tripped.
         """
-        self.tripped = self._distance is not None and self._trips(self._distance)
+        self.tripped = self.sampled and self._trips(0.0)
         return self.tripped
 
-    def _trips(self, distance: float, command: float = 0.0) -> bool:
-        stop = stopping_point(distance, self.speed, self.dt, self.reaction_periods, command)
-        return stop <= self.limit_cm
+    def predicted_stop(self, command: float = 0.0) -> float:
+        """Where the guard predicts the car stops if the motor holds ``command``, cm.
 
-    def update(self, readout: float) -> bool:
-        """Take one readout; return whether the guard is tripped."""
+        From the latest sample (out of range: from :data:`EDGE_CM`, a period later), with the
+        larger of ``command`` and the commands already on their way (the dead time).
+        """
+        command = max(command, *self._held)
+        if self._distance is None:  # out of range: at the edge at worst, seen a period late
+            return stopping_point(
+                EDGE_CM, self.bound, self.dt, self.reaction_periods + 1, command, self.car
+            )
+        return stopping_point(
+            self._distance, self.speed, self.dt, self.reaction_periods, command, self.car
+        )
+
+    def _trips(self, command: float) -> bool:
+        return self.predicted_stop(command) <= self.limit_cm
+
+    def update(self, readout: float, held: float = 0.0) -> bool:
+        """Take one readout and the command held over the period it ends; return whether tripped."""
+        self._held.append(held)
+        self.bound = self.car.advance(self.bound, max(self._held), self.dt)
         distance = readout_distance(readout)
         if distance is None or self._distance is None:
-            self.speed = 0.0
+            self.speed = self.bound  # no two readings: the fastest the car can be
         else:
             self.speed = (self._distance - distance) / self.dt
         self._distance = distance
-        if distance is not None:
-            self.tripped |= self._trips(distance)
+        self.sampled = True
+        self.tripped |= self._trips(0.0)
         return self.tripped
 
     def command(self, requested: float) -> float:
@@ -152,11 +316,13 @@ class DistanceGuard:
 
         A forward request (> 0) is judged first, held over the reaction time from the latest
         sample: if the car would then not stop short of the limit, the guard trips (latched)
-        and the request is refused at once. Without a sample (none yet, or out of range) it
-        passes.
+        and the request is refused at once. Before any sample it is refused (not latched).
         """
-        if not self.tripped and requested > 0.0 and self._distance is not None:
-            self.tripped = self._trips(self._distance, requested)
+        if not self.sampled:
+            return min(requested, 0.0)
+        if not self.tripped and requested > 0.0:
+            self.tripped = self._trips(requested)
         if not self.tripped:
             return requested
-        return self.brake if self.speed > STOPPED_SPEED else min(requested, 0.0)
+        approaching = self._distance is not None and self.speed > STOPPED_SPEED
+        return self.brake if approaching else min(requested, 0.0)

@@ -1,0 +1,160 @@
+"""The Altino's distance guard: its bounds hold for every plausible car, and no car hits the wall.
+
+The scans drive the emulator's firmware (the Python guard) and the C firmware around the same
+plant (scripts/guard_scan.py); the reduced one holds the cases that reached the wall before
+the guard bounded the car (mass 5.5 from 176.5 cm and more, friction=none from 25 cm).
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import math
+import shutil
+import sys
+from pathlib import Path
+from types import ModuleType
+
+import numpy as np
+import pytest
+
+from frictiongym.hardware import guard
+from frictiongym.hardware.firmware import Firmware
+from frictiongym.hardware.guard import CarBounds, DistanceGuard, stopping_point
+
+ROOT = Path(__file__).resolve().parents[1]
+DT = 0.05
+MASSES = np.linspace(guard.MASS_MIN, guard.MASS_MAX, 9)
+
+
+def _load_scan() -> ModuleType:
+    spec = importlib.util.spec_from_file_location("guard_scan", ROOT / "scripts" / "guard_scan.py")
+    assert spec is not None
+    assert spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["guard_scan"] = module  # its dataclasses resolve their module by name
+    spec.loader.exec_module(module)
+    return module
+
+
+scan = _load_scan()
+#: The issue's failing cases and their neighbours: both ends of the mass range, every law.
+REDUCED = scan.cases((1.1, 5.5), scan.LAWS, starts=(3, 12, 25, 176.5, 207.5), commands=(300, 1000))
+
+
+def _ir(distance: float) -> int:
+    return round(966.0 / distance - 45.0)
+
+
+def _exact(car: CarBounds, mass: float, speed: float, command: float, seconds: float) -> tuple:
+    """A car of ``mass`` with exactly the least friction: (travel, speed) after ``seconds``."""
+    steps = 2000
+    h = seconds / steps
+    x, v = 0.0, speed
+    for _ in range(steps):
+        force = command - (car.friction + car.viscous * v if v > 0 else 0.0)
+        if v <= 0 and force <= 0:  # stopped: friction holds it (we only track approach)
+            v = 0.0
+            break
+        v = max(v + force / mass * h, 0.0)
+        x += v * h
+    return x, v
+
+
+def _stop_exactly(car: CarBounds, mass: float, speed: float, command: float, t: float) -> float:
+    """Travel of that car holding ``command`` for ``t``, then braking at full reverse."""
+    travel, v = _exact(car, mass, speed, command, t)
+    brake, _ = _exact(car, mass, v, -car.command_limit, 10.0)
+    return travel + brake
+
+
+@pytest.mark.parametrize("car", [CarBounds(), CarBounds(friction=0.0, viscous=0.0)],
+                         ids=["paper", "none"])  # fmt: skip
+def test_bounds_hold_for_every_plausible_mass(car: CarBounds) -> None:
+    for speed in (0.0, 10.0, 40.0, 75.0):
+        for command in (-1000.0, 0.0, 200.0, 600.0, 1000.0):
+            bound = car.advance(speed, command, DT)
+            predicted = 50.0 - stopping_point(50.0, speed, DT, 2, command, car)
+            for mass in MASSES:
+                _, v = _exact(car, mass, speed, command, DT)
+                assert bound >= v - 1e-6, (speed, command, mass)
+                real = _stop_exactly(car, mass, speed, command, 2 * DT)
+                assert predicted >= real - 1e-3, (speed, command, mass, predicted, real)
+
+
+def test_bounds_come_from_the_law() -> None:
+    fw = Firmware("altino", friction="none")
+    assert (fw.car_bounds.friction, fw.car_bounds.viscous) == (0.0, 0.0)
+    assert (fw.car_bounds.mass_min, fw.car_bounds.mass_max) == (guard.MASS_MIN, guard.MASS_MAX)
+    assert Firmware("altino").car_bounds == CarBounds()
+    assert Firmware("altino", friction="lugre").car_bounds.friction == 0.0
+    heavy = Firmware("altino", randomize={"inertia": (1.0, 4.0)}).car_bounds
+    assert heavy.mass_max == pytest.approx(8.8)
+    with pytest.raises(ValueError, match="mass_min"):
+        CarBounds(mass_min=6.0)
+
+
+def test_the_first_reading_in_range_is_judged_at_the_speed_bound() -> None:
+    watch = DistanceGuard(DT)
+    for _ in range(3):  # out of range, +600 held: the car may be doing 36 cm/s by now
+        watch.update(0, 600.0)
+    assert not watch.tripped
+    assert watch.update(_ir(7.0), 600.0), "7 cm at the speed bound cannot stop"
+    assert watch.command(600.0) == -1000.0, "it brakes at once"
+
+
+def test_out_of_range_a_command_too_fast_to_stop_from_is_refused() -> None:
+    watch = DistanceGuard(DT, car=CarBounds(friction=0.0, viscous=0.0))
+    watch.update(0)
+    assert watch.command(1000.0) == 0.0, "friction none: full command from rest is refused"
+    assert watch.tripped
+    assert watch.command(-300.0) == -300.0, "blind, it does not brake; backing away passes"
+
+
+def test_forward_is_refused_before_the_first_sample() -> None:
+    watch = DistanceGuard(DT)
+    assert watch.command(300.0) == 0.0
+    assert not watch.tripped
+    watch.update(_ir(10.0))
+    assert watch.command(300.0) == 300.0
+
+
+def test_set_car_bounds_reaches_the_guard() -> None:
+    fw = Firmware("altino")
+    slippery = CarBounds(friction=0.0, viscous=0.0)
+    fw.set_car_bounds(slippery)
+    assert fw.guard is not None
+    assert fw.guard.car == slippery
+
+
+def _contacts(outcomes: list) -> list:
+    return [o for o in outcomes if o.closest <= 0.0]
+
+
+def test_reduced_scan_no_contact_python() -> None:
+    outcomes = scan.scan("python", REDUCED)
+    assert len(outcomes) == 100
+    assert not _contacts(outcomes), _contacts(outcomes)[:5]
+    assert min(o.closest for o in outcomes) > 1.0
+
+
+@pytest.mark.skipif(shutil.which("gcc") is None, reason="gcc is not installed")
+def test_reduced_scan_no_contact_c() -> None:
+    outcomes = scan.scan("c", REDUCED)
+    assert not _contacts(outcomes), _contacts(outcomes)[:5]
+    python = scan.scan("python", REDUCED)
+    # binary32 against binary64 could part only at a trip's boundary: here they never do
+    assert [o.tripped for o in outcomes] == [o.tripped for o in python]
+    worst = max(abs(a.closest - b.closest) for a, b in zip(outcomes, python, strict=True))
+    assert worst < 0.01
+
+
+@pytest.mark.slow
+def test_full_scan_no_contact() -> None:
+    assert scan.main([]) == 0
+
+
+def test_scan_summary_counts_contacts() -> None:
+    case = scan.Case(5.5, "paper", 30.0, 1000)
+    rows = list(scan.summary([scan.Outcome(case, -0.0, False), scan.Outcome(case, 2.0, True)]))
+    assert rows[2] == "| paper | 2 | 1 | 1 | -0.00 | 5.5, 30, +1000 | -0.00 |"
+    assert math.isfinite(float(rows[2].split("|")[5]))
