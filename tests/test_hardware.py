@@ -6,6 +6,7 @@ import gc
 import json
 import math
 import os
+from fractions import Fraction
 
 import numpy as np
 import pytest
@@ -104,16 +105,23 @@ def test_the_base_class_refuses_non_finite_commands_and_saturates():
     backend.step(25.0)
     backend.step(-1e300)
     assert backend.sent == [3.0, 10.0, -10.0]
-    for bad in (math.nan, math.inf, -math.inf, "1 V", None):
+    for bad in (math.nan, math.inf, -math.inf, 10**400, np.float32("nan")):
         with pytest.raises(ValueError, match="not a finite number"):
             backend.step(bad)
+    for bad in ("1 V", "1.5", None, np.datetime64("2020-01-01"), np.timedelta64(3, "s"),
+                True, np.True_, np.array([1.0]), np.array(1.0), [1.0], 1 + 0j):  # fmt: skip
+        with pytest.raises(ValueError, match=r"must be a real number.*got .*\(\w+\)"):
+            backend.step(bad)
     assert backend.sent == [3.0, 10.0, -10.0]  # nothing more reached the device
-    assert backend.stops >= 5
+    assert backend.stops >= 16
     with pytest.raises(HardwareError, match="stopped"):
         backend.step(1.0)  # the NaN stopped it: start again first
     backend.start()
     backend.step(1.0)
-    assert backend.sent[-1] == 1.0
+    for number in (2, np.int16(-3), np.float32(0.5), Fraction(1, 4)):  # real numbers are fine
+        backend.step(number)
+    assert backend.sent[-5:] == [1.0, 2.0, -3.0, 0.5, 0.25]
+    assert all(type(value) is float for value in backend.sent)
     backend.close()
 
 

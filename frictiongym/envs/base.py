@@ -165,13 +165,20 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         """Hold ``action`` (saturated at the command limit) over one control period."""
         if self._needs_reset:
             raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
-        if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
-            self._command[0] = action[0]  # the common case, without a conversion
-        else:
-            self._command[0] = _one_number(action)
-        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
-        if self.render_mode == "human" and self.sim.state[0, ek.E_STEPS] % self._render_every == 0:
-            self.render()
+        try:  # any error here stops a device's motor (a refused action, a failed draw)
+            if type(action) is np.ndarray and action.shape == (1,) and action.dtype.kind == "f":
+                self._command[0] = action[0]  # the common case, without a conversion
+            else:
+                self._command[0] = _one_number(action)
+            self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
+            if (
+                self.render_mode == "human"
+                and self.sim.state[0, ek.E_STEPS] % self._render_every == 0
+            ):
+                self.render()
+        except BaseException:
+            self.sim.stop()
+            raise
         return (
             self._obs[0].copy(),
             float(self._out[ek.O_REWARD, 0]),

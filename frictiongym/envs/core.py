@@ -281,6 +281,9 @@ class Simulation:
     def close(self) -> None:
         """Release what the simulation holds (nothing; a device session closes its link)."""
 
+    def stop(self) -> None:
+        """Zero a device's motor after an error (a simulation has none to stop)."""
+
     @property
     def observation_size(self) -> int:
         """Length of one env's observation."""

@@ -163,11 +163,11 @@ class DeviceSession(Simulation):
         options: Mapping[str, Any] | None = None,
     ) -> None:
         """Stop the motor, put the device at its start if it can be placed, and arm it."""
+        self.backend.stop()  # first: a refused option must not leave the motor running
         options = dict(options or {})
         position = options.pop("position", None)
         if options.pop("velocity", 0.0) != 0.0:
             raise ValueError("a device starts at rest: reset option 'velocity' must be 0")
-        self.backend.stop()
         if self.info.can_place:
             start = self.device.start if position is None else position
             self._start_state({"position": start}, 1)  # the simulator's checks of the option
@@ -190,29 +190,40 @@ class DeviceSession(Simulation):
         out: FloatArray,
         flags: BoolArray,
     ) -> None:
-        """Hold ``command[0]`` on the device for one period (or observe its first sample)."""
-        requested = float(command[0])
-        if fresh[0]:
-            if self._first is None:
-                raise HardwareError("reset() the env before stepping it")
-            sample = self._first
-            self._first = None
-        else:
-            try:
+        """Hold ``command[0]`` on the device for one period (or observe its first sample).
+
+        Any exception, wherever it comes from (the device, the observation, a log write that
+        fails on a full disk, a ``KeyboardInterrupt``), zeroes the motor before it propagates.
+        """
+        try:
+            requested = float(command[0])
+            if fresh[0]:
+                if self._first is None:
+                    raise HardwareError("reset() the env before stepping it")
+                sample = self._first
+                self._first = None
+            else:
                 sample = self.backend.step(requested)
-            except HardwareError as exc:
+            ek.observe_device(self.state, self.rows, self.config, sample.measured,
+                              sample.applied, self.plant.command_limit, self.dt, fresh, obs, out,
+                              flags)  # fmt: skip
+            if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
+                if not flags[ek.F_TERMINATED, 0]:
+                    out[ek.O_REWARD, 0] -= self.config[ek.C_PENALTY]
+                flags[ek.F_TERMINATED, 0] = True
+            self.last_sample = sample
+            self._account(sample, not fresh[0], 0.0 if fresh[0] else requested, obs, out, flags)
+        except BaseException as exc:
+            self.backend.stop()
+            if isinstance(exc, HardwareError | OSError):
                 self._record_fault(exc)
-                raise
-        ek.observe_device(self.state, self.rows, self.config, sample.measured, sample.applied,
-                          self.plant.command_limit, self.dt, fresh, obs, out, flags)  # fmt: skip
-        if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
-            if not flags[ek.F_TERMINATED, 0]:
-                out[ek.O_REWARD, 0] -= self.config[ek.C_PENALTY]
-            flags[ek.F_TERMINATED, 0] = True
-        self.last_sample = sample
-        self._account(sample, not fresh[0], requested if not fresh[0] else 0.0, obs, out, flags)
+            raise
         if flags[ek.F_TERMINATED, 0]:
             self.backend.stop()
+
+    def stop(self) -> None:
+        """Zero the motor (an error outside :meth:`run`, e.g. a refused action)."""
+        self.backend.stop()
 
     def _account(
         self,
@@ -238,7 +249,7 @@ class DeviceSession(Simulation):
             out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
         ))  # fmt: skip
 
-    def _record_fault(self, error: HardwareError) -> None:
+    def _record_fault(self, error: BaseException) -> None:
         fault = {
             "episode": self.episode,
             "step": int(self.state[0, ek.E_STEPS]) + 1,
@@ -247,7 +258,10 @@ class DeviceSession(Simulation):
         }
         self.faults.append(fault)
         if self.log is not None:
-            self.log.update(faults=self.faults)
+            try:
+                self.log.update(faults=self.faults)
+            except OSError:  # the disk that failed the step's row fails this too: keep the first
+                pass
 
     @property
     def periods(self) -> list[float]:

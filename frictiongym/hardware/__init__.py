@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import importlib
 from typing import Any
-from urllib.parse import parse_qsl, urlsplit
+from urllib.parse import urlsplit
 
 from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import (
@@ -32,6 +32,7 @@ from frictiongym.hardware.errors import (
     SDKNotAvailableError,
     WatchdogTripError,
 )
+from frictiongym.hardware.uri import query_options
 
 __all__ = [
     "KINDS",
@@ -105,6 +106,8 @@ def resolve_backend(spec: object, kind: str) -> Backend | None:
         raise TypeError(f"backend must be a URI string or a Backend, got {spec!r}")
     parts = urlsplit(spec)
     scheme = parts.scheme.lower()
+    if spec.strip().lower() in SIM or scheme == "sim":  # not a port called "SIM"
+        raise ValueError(f"backend {spec!r}: the simulator is 'sim' (lower case) or None")
     if scheme in PYSERIAL_SCHEMES:
         return _backend_class("serial")(spec)
     if not scheme or (len(scheme) == 1 and spec[1:2] == ":"):  # a path, or a Windows drive
@@ -114,7 +117,7 @@ def resolve_backend(spec: object, kind: str) -> Backend | None:
             f"unknown backend {spec!r}; use 'sim', a port path, or one of the schemes "
             f"{sorted([*SCHEMES, *PYSERIAL_SCHEMES])} (e.g. serial:///dev/ttyACM0?baud=1000000)"
         )
-    query = dict(parse_qsl(parts.query, keep_blank_values=True))
+    query = query_options(parts.query, spec)
     path = parts.netloc + parts.path
     if scheme == "emulator":
         path = path or kind

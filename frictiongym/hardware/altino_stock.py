@@ -43,6 +43,7 @@ from frictiongym.hardware.errors import (
     SDKNotAvailableError,
 )
 from frictiongym.hardware.guard import LIMIT_CM, REACTION_PERIODS, DistanceGuard
+from frictiongym.hardware.ports import is_lock_failure, port_busy_error
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.uri import positive, uri_options
 from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET
@@ -129,6 +130,9 @@ class AltinoStockBackend(Backend):
         Request 1 (31-byte reply with the IR sensors) or 10 (56 bytes, everything).
     limit_cm : float, default 1.5
         Closest approach the guard allows, cm (the firmware's: ``guard.LIMIT_CM``).
+    max_age : float, optional
+        Longest wait from a send to its reply a step accepts, s (:attr:`Sample.age`); default
+        max(5 periods, 0.1 s).
     """
 
     def __init__(
@@ -141,7 +145,13 @@ class AltinoStockBackend(Backend):
         timeout: float = 0.5,
         sensor_group: int = 1,
         limit_cm: float = LIMIT_CM,
+        max_age: float | None = None,
     ) -> None:
+        if max_age is not None and not (
+            isinstance(max_age, int | float) and math.isfinite(max_age) and max_age > 0.0
+        ):
+            raise ValueError(f"max_age must be a positive number of seconds, got {max_age!r}")
+        self.max_sample_age = max_age
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a device path or pyserial URL, got {port!r}")
         if isinstance(baud, bool) or not isinstance(baud, int) or baud <= 0:
@@ -186,6 +196,7 @@ class AltinoStockBackend(Backend):
         self._serial_module: Any = None
         self._held = 0
         self._readout = 0.0
+        self._answered_after = 0.0  # s the latest reply took at least (Sample.age)
         self._seq = 0
         self._next = 0.0
         self._origin = 0.0
@@ -195,7 +206,7 @@ class AltinoStockBackend(Backend):
         """Build from ``altino-stock://PATH?baud=115200&rate=20`` (``path`` is the port).
 
         Options: ``baud``, ``rate`` (Hz), ``ir_index``, ``timeout`` (s), ``sensor_group``,
-        ``limit_cm``.
+        ``limit_cm``, ``max_age`` (s).
         """
         uri = f"altino-stock://{path}"
         if not path:
@@ -203,6 +214,7 @@ class AltinoStockBackend(Backend):
         parsers: dict[str, Callable[[str], Any]] = {
             "baud": int, "rate": positive("rate"), "ir_index": int,
             "timeout": positive("timeout"), "sensor_group": int, "limit_cm": positive("limit_cm"),
+            "max_age": positive("max_age"),
         }  # fmt: skip
         options = uri_options(query, parsers, uri)
         if "rate" in options:
@@ -234,11 +246,15 @@ class AltinoStockBackend(Backend):
     def _read_reply(self, deadline: float) -> StockSensors:
         length = REPLY_LENGTHS[self.sensor_group]
         buffer = bytearray()
+        previous_read = latest_read = deadline - self.timeout  # the send
         while True:
             frame = take_reply(buffer, length)
             if frame is not None:
                 sensors = parse_sensor_reply(frame)
                 if sensors.group == self.sensor_group:  # else: the reply to another request
+                    # It had not come when the read before started: the car's least delay
+                    # (a host stalled meanwhile does not count).
+                    self._answered_after = previous_read - (deadline - self.timeout)
                     return sensors
                 continue
             if time.perf_counter() >= deadline:
@@ -247,6 +263,7 @@ class AltinoStockBackend(Backend):
                     f"{self.timeout} s; check that the car is on and runs its stock firmware, "
                     f"the Bluetooth link is up and the baud rate is {self.baud}"
                 )
+            previous_read, latest_read = latest_read, time.perf_counter()
             buffer += self._link(self._serial.read, max(1, length - len(buffer)))
 
     def _transact(self, command: int) -> tuple[float, StockSensors]:
@@ -276,9 +293,11 @@ class AltinoStockBackend(Backend):
         try:
             self._serial = serial.serial_for_url(
                 self.port, baudrate=self.baud, timeout=min(self.timeout, _POLL_S),
-                write_timeout=self.timeout,
+                write_timeout=self.timeout, exclusive=True,
             )  # fmt: skip
         except (serial.SerialException, ValueError, *_LINK_ERRORS) as exc:
+            if is_lock_failure(exc):
+                raise port_busy_error(self.port) from None
             raise DeviceNotFoundError(
                 f"cannot open the Altino's port {self.port!r} ({exc}); check the path (Bluetooth "
                 "SPP: /dev/rfcommN after `rfcomm bind`; cable: /dev/ttyUSBN), that the car is on "
@@ -307,7 +326,7 @@ class AltinoStockBackend(Backend):
         status = Status.LIMIT if self.guard.update(self._readout) else Status(0)
         return Sample(
             measured=self._readout, applied=0.0, tick_us=self._tick_us(sent),
-            host_ns=time.perf_counter_ns(), status=int(status),
+            host_ns=time.perf_counter_ns(), status=int(status), age=self._answered_after,
         )  # fmt: skip
 
     def _wait_tick(self) -> int:
@@ -341,6 +360,7 @@ class AltinoStockBackend(Backend):
         return Sample(
             measured=self._readout, applied=float(held), tick_us=self._tick_us(sent),
             host_ns=time.perf_counter_ns(), seq=self._seq, seq_applied=seq_applied,
+            age=self._answered_after,
             status=int(Status.LIMIT if self.guard.tripped else Status(0)), late=skipped > 0,
             skipped=skipped,
         )  # fmt: skip

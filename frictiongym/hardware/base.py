@@ -4,11 +4,17 @@ A :class:`Backend` opens a link, arms the device, and then, once per control per
 command and returns the next :class:`Sample` of the device's own clock. The base class owns
 the safety rules every backend shares, so a subclass cannot forget one:
 
-* a NaN or infinite command never reaches the device: the motor is zeroed and ``ValueError``
-  raised; a command beyond the device's limit is saturated, as the simulator saturates it;
+* a command must be a real number (``int``, ``float`` or a NumPy integer or floating scalar;
+  not ``bool``, a string, a date or an array) and finite: anything else never reaches the
+  device, the motor is zeroed and ``ValueError`` says what was given; a command beyond the
+  device's limit is saturated, as the simulator saturates it;
+* a sample older than :attr:`Backend.max_sample_age` (:attr:`Sample.age`; default
+  :func:`default_max_sample_age`) zeroes the motor and raises
+  :class:`~frictiongym.hardware.errors.StaleSampleError`: a loop must not steer on old news;
 * the motor is zeroed (and the amplifier disabled where there is one) on :meth:`~Backend.stop`,
-  :meth:`~Backend.close`, any exception or ``KeyboardInterrupt`` inside a step, and at
-  interpreter exit for a backend left open;
+  :meth:`~Backend.close`, any exception inside a step (a refused command, a device error, a
+  ``KeyboardInterrupt``), on ``SIGTERM`` and ``SIGHUP`` (:func:`install_stop_signals`), and
+  at interpreter exit for a backend left open;
 * device-side, the firmware's watchdog zeroes the motor when commands stop (a host that dies
   cannot send a stop).
 
@@ -19,13 +25,18 @@ from __future__ import annotations
 
 import atexit
 import math
+import numbers
+import reprlib
 import time
 import weakref
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
-from frictiongym.hardware.errors import HardwareError
+import numpy as np
+
+from frictiongym.hardware.errors import HardwareError, StaleSampleError
+from frictiongym.hardware.stop_signals import install_stop_signals, release_stop_signals
 
 if TYPE_CHECKING:
     from typing_extensions import Self
@@ -63,6 +74,54 @@ class Sample:
     status: int = 0  #: device status bits (:class:`frictiongym.hardware.protocol.Status`)
     late: bool = False  #: the command of this step arrived too late and an older one was held
     skipped: int = 0  #: device ticks since the previous sample, minus one
+    #: s the device took at least to answer a recent command (:mod:`frictiongym.hardware.echo`;
+    #: time the host was stalled does not count; 0.0: the backend cannot tell)
+    age: float = 0.0
+
+
+#: The default bound of :attr:`Sample.age` is this many device periods ...
+MAX_SAMPLE_AGE_PERIODS = 5.0
+#: ... and at least this long, s: as long as the device's watchdog lets a silent host run.
+MIN_MAX_SAMPLE_AGE = 0.1
+
+
+def default_max_sample_age(rate_hz: float) -> float:
+    """Oldest sample a step accepts by default, s: max(5 periods, 0.1 s).
+
+    Five periods leave twice the room of an ordinary late command (no answer 2.5 periods
+    after the send); 0.1 s is the servo's watchdog time: as long as the device itself lets a
+    silent host drive it, and short enough that at full voltage from rest the disk turns
+    5.7 rad, inside the env's 4 pi limit, on news that old.
+    """
+    return max(MAX_SAMPLE_AGE_PERIODS / rate_hz, MIN_MAX_SAMPLE_AGE)
+
+
+_NOT_COMMANDS = (bool, np.bool_, np.datetime64, np.timedelta64)
+
+
+def real_command(command: object) -> float:
+    """Return ``command`` as a finite float, or raise ``ValueError`` saying what was given.
+
+    Real numbers only: ``int``, ``float``, ``fractions.Fraction`` and NumPy integer or
+    floating scalars. ``bool`` is refused (as the envs refuse a boolean action): ``True`` is
+    more likely a bug than a command of 1 V or 1 motor unit.
+    """
+    if isinstance(command, _NOT_COMMANDS) or not isinstance(command, numbers.Real):
+        raise ValueError(
+            f"command must be a real number (int or float), got {reprlib.repr(command)} "
+            f"({type(command).__name__}); the motor was zeroed and nothing was sent (check the "
+            "controller's output)"
+        )
+    try:
+        value = float(command)
+    except OverflowError:  # an int beyond the float range: as infinite as inf
+        value = math.inf
+    if not math.isfinite(value):
+        raise ValueError(
+            f"command {reprlib.repr(command)} is not a finite number; the motor was zeroed and "
+            "nothing was sent (check the controller's output)"
+        )
+    return value
 
 
 _OPEN: weakref.WeakSet[Backend] = weakref.WeakSet()
@@ -75,6 +134,12 @@ def _stop_all() -> None:
         backend.close()
 
 
+def _stop_open() -> None:
+    """Zero every open device's motor, keeping the links (a signal's handler: never raises)."""
+    for backend in list(_OPEN):
+        backend.stop()
+
+
 class Backend(ABC):
     """A device behind a link; see the module docstring for the contract.
 
@@ -82,6 +147,9 @@ class Backend(ABC):
     """
 
     info: DeviceInfo | None = None
+    #: Oldest :attr:`Sample.age` a step accepts, s (None: :func:`default_max_sample_age` of
+    #: the device's rate); a backend's ``max_age`` setting.
+    max_sample_age: float | None = None
     _armed: bool = False
 
     @property
@@ -99,7 +167,15 @@ class Backend(ABC):
         if self.info is None:
             self.info = self._open()
             _OPEN.add(self)
+            install_stop_signals(_stop_open)
         return self.info
+
+    @property
+    def sample_age_limit(self) -> float:
+        """Oldest sample a step accepts, s (:attr:`max_sample_age`, or the device's default)."""
+        if self.max_sample_age is not None:
+            return self.max_sample_age
+        return default_max_sample_age(self.open().rate_hz)
 
     def start(self, *, zero_position: bool = True) -> Sample:
         """Arm the device with a zero command and return its first sample.
@@ -108,31 +184,41 @@ class Backend(ABC):
         """
         self.open()
         with self._stopping_on_error():
-            sample = self._start(zero_position)
+            sample = self._checked(self._start(zero_position))
         self._armed = True
         return sample
 
     def step(self, command: float) -> Sample:
-        """Hold ``command`` (physical units) for one device period; return the next sample."""
+        """Hold ``command`` (physical units) for one device period; return the next sample.
+
+        Any exception inside (a refused command, a device error, a stale sample, a
+        ``KeyboardInterrupt``) zeroes the motor first.
+        """
         info = self.open()
-        try:
-            value = float(command)
-        except (TypeError, ValueError):
-            value = math.nan
-        if not math.isfinite(value):
-            self.stop()
-            raise ValueError(
-                f"command {command!r} is not a finite number; the motor was zeroed and nothing "
-                "was sent (check the controller's output)"
-            )
-        if not self._armed:
+        with self._stopping_on_error():
+            value = real_command(command)
+        if not self._armed:  # stopped already
             raise HardwareError(
                 "the device is stopped (an episode ended, or an error or a stop() stopped it): "
                 "start() it again (an env: reset())"
             )
         value = min(max(value, -info.command_limit), info.command_limit)
         with self._stopping_on_error():
-            return self._exchange(value)
+            return self._checked(self._exchange(value))
+
+    def _checked(self, sample: Sample) -> Sample:
+        """Return ``sample``, or raise :class:`StaleSampleError` if it is too old."""
+        limit = self.sample_age_limit
+        if sample.age > limit:
+            link = self.info.link if self.info is not None else type(self).__name__
+            raise StaleSampleError(
+                f"{link} took {sample.age * 1000:.0f} ms to answer a command (limit "
+                f"{limit * 1000:.0f} ms): the link delays the device's frames, so a loop would "
+                "steer on old news; the motor was zeroed. Check the link (a Bluetooth or network "
+                "hop, a loaded USB hub), or raise the backend's max_age if the delay is known "
+                "and harmless"
+            )
+        return sample
 
     def place(self, position: float) -> None:
         """Put an emulated plant at rest at ``position`` (rad, or cm from the wall)."""
@@ -164,6 +250,8 @@ class Backend(ABC):
         finally:
             self.info = None
             _OPEN.discard(self)
+            if not _OPEN:
+                release_stop_signals()
 
     def __enter__(self) -> Self:
         self.open()

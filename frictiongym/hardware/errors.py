@@ -20,6 +20,14 @@ class DeviceTimeoutError(HardwareError, TimeoutError):
     """The device did not answer in time (a frame, a handshake or a write)."""
 
 
+class StaleSampleError(DeviceTimeoutError):
+    """The newest sample is older than the backend allows (``max_age``): the link delays it."""
+
+
+class DeviceBusyError(DeviceNotFoundError):
+    """The port is open in another program (or another backend of this one)."""
+
+
 class DeviceDisconnectedError(HardwareError, ConnectionError):
     """The link went away mid-run (cable pulled, emulator stopped, port closed)."""
 

@@ -6,6 +6,16 @@ latency but never changes the sampling period. A command that misses its tick is
 period late and reported (``Sample.late``); a device that stays silent while the host listens
 for ``timeout`` raises :class:`~frictiongym.hardware.errors.DeviceTimeoutError` (time the host
 itself was stalled, by a garbage collection or the scheduler, is not the device's silence).
+
+Each sample's :attr:`~frictiongym.hardware.base.Sample.age` is how long the device took at
+least to answer a recent command (:mod:`frictiongym.hardware.echo`: time the host itself was
+stalled does not count); a step refuses a sample older than ``max_age`` (default: max(5
+periods, 0.1 s)).
+
+A port is opened exclusively where the platform allows it (a ``flock`` on POSIX), so a second
+frictiongym on the same port is refused, naming the process that holds it; a second host that
+does not lock (another program) is recognised by what it does to the stream: a ``Hello``
+nobody here asked for, or the device holding commands this host never sent.
 """
 
 from __future__ import annotations
@@ -16,6 +26,7 @@ from typing import Any
 
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
+from frictiongym.hardware.echo import EchoTimes
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
     DeviceFaultError,
@@ -25,7 +36,8 @@ from frictiongym.hardware.errors import (
     ProtocolError,
     WatchdogTripError,
 )
-from frictiongym.hardware.uri import integer, positive, uri_options
+from frictiongym.hardware.ports import is_lock_failure, port_busy_error
+from frictiongym.hardware.uri import check_socket_url, integer, positive, uri_options
 
 #: Default line rate: the QUBE bridge's (exact on 16 MHz AVRs, room for 500 Hz frames both
 #: ways). Ignored by USB CDC boards, ptys and sockets.
@@ -72,6 +84,9 @@ class SerialBackend(Backend):
         five device periods, at least 0.1 s).
     handshake_timeout : float, default 3.0
         Longest wait for the device's ``Hello`` after opening.
+    max_age : float, optional
+        Oldest sample a step accepts, s (:attr:`Sample.age`: how long the device took at least
+        to answer a recent command); default max(5 device periods, 0.1 s).
     """
 
     def __init__(
@@ -81,13 +96,19 @@ class SerialBackend(Backend):
         baud: int = DEFAULT_BAUD,
         timeout: float | None = None,
         handshake_timeout: float = HANDSHAKE_TIMEOUT,
+        max_age: float | None = None,
     ) -> None:
-        for name, value in (("timeout", timeout), ("handshake_timeout", handshake_timeout)):
+        for name, value in (
+            ("timeout", timeout), ("handshake_timeout", handshake_timeout), ("max_age", max_age)
+        ):  # fmt: skip
             if value is not None and not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
         if not (isinstance(baud, int) and baud > 0):
             raise ValueError(f"baud must be a positive integer, got {baud!r}")
+        if port.lower().startswith("socket:"):
+            check_socket_url(port)
         self.port = port
+        self.max_sample_age = max_age
         self.baud = baud
         self.timeout = timeout
         self.handshake_timeout = handshake_timeout
@@ -96,11 +117,16 @@ class SerialBackend(Backend):
         self._serial: Any = None
         self._seq = 0
         self._last: p.State | None = None
+        self._echoes = EchoTimes()
+        self._echoed = False  # a state of this episode echoed one of our commands
+        self._hellos_due = 0  # our HelloRequests not answered yet
 
     @classmethod
     def from_uri(cls, path: str, query: dict[str, str]) -> SerialBackend:
-        """Build from ``serial://PATH?baud=N&timeout=S`` (or a pyserial URL and its query)."""
-        parsers = {"baud": integer("baud"), "timeout": positive("timeout")}
+        """Build from ``serial://PATH?baud=N&timeout=S&max_age=S`` (or a pyserial URL)."""
+        parsers = {
+            "baud": integer("baud"), "timeout": positive("timeout"), "max_age": positive("max_age")
+        }  # fmt: skip
         return cls(path, **uri_options(query, parsers, f"serial://{path}"))
 
     # -- link -------------------------------------------------------------------------------------
@@ -109,9 +135,12 @@ class SerialBackend(Backend):
         serial = _pyserial()
         try:
             self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baud, timeout=READ_WAIT, write_timeout=0.5
-            )
+                self.port, baudrate=self.baud, timeout=READ_WAIT, write_timeout=0.5,
+                exclusive=True,
+            )  # fmt: skip
         except (serial.SerialException, OSError, ValueError) as exc:
+            if is_lock_failure(exc):
+                raise port_busy_error(self.port) from None
             raise DeviceNotFoundError(
                 f"could not open {self.port!r}: {exc}. Check the path (ls /dev/ttyACM* "
                 "/dev/ttyUSB*), that the device is plugged in and that you may use it (the "
@@ -151,11 +180,21 @@ class SerialBackend(Backend):
         deadline = time.monotonic() + self.handshake_timeout
         next_request = 0.0
         while time.monotonic() < deadline:
-            if time.monotonic() >= next_request:
-                self._write(p.HelloRequest())
-                next_request = time.monotonic() + 0.25
-            for message in self.decoder.feed(self._read_available()):
+            try:
+                if time.monotonic() >= next_request:
+                    self._write(p.HelloRequest())
+                    self._hellos_due += 1
+                    next_request = time.monotonic() + 0.25
+                arrived = self._read_available()
+            except DeviceDisconnectedError:
+                raise DeviceDisconnectedError(
+                    f"{self.port!r} closed the link before answering: a device on TCP (the "
+                    "emulator's --tcp) serves one host at a time and another one is connected, "
+                    "or it stopped; close the other host, or start another emulator"
+                ) from None
+            for message in self.decoder.feed(arrived):
                 if isinstance(message, p.Hello):
+                    self._hellos_due -= 1
                     return self._check_hello(message)
         raise DeviceTimeoutError(
             f"no answer from {self.port!r} within {self.handshake_timeout} s. Check that the "
@@ -211,17 +250,42 @@ class SerialBackend(Backend):
 
     def _states(self, wait: bool) -> list[p.State]:
         """Decode the states that arrived (waiting up to the port timeout if ``wait``)."""
+        self._echoes.reading(time.perf_counter_ns())
         data = self._read_available(wait)
         states = []
         for message in self.decoder.feed(data):
             if isinstance(message, p.State):
                 states.append(message)
             elif isinstance(message, p.Hello):
-                raise DeviceFaultError(
-                    f"the device at {self.port!r} restarted mid-run (it sent a Hello); check its "
-                    "power supply, then start a new episode"
-                )
+                if self._hellos_due > 0:  # the late answer to a request of our handshake
+                    self._hellos_due -= 1
+                    continue
+                # A device sends a Hello only when asked: another program asked.
+                raise self._second_host("it answered a Hello request this host never sent")
         return states
+
+    def _second_host(self, sign: str) -> DeviceFaultError:
+        return DeviceFaultError(
+            f"another program is talking to the device at {self.port!r} ({sign}); two hosts on "
+            "one device both drive its motor. Close the other program (fuser -v "
+            f"{self.port} names it), then start a new episode"
+        )
+
+    def _restarted_or_second_host(self, state: p.State) -> DeviceFaultError | None:
+        """Why ``state`` echoes a command this host never sent (None: it may, before ours)."""
+        if not self._echoed:
+            return None  # states sent before our first command arrived: from before the start
+        last = self._last
+        if state.status & p.Status.DISABLED and (
+            last is None or ((state.seq - last.seq) & 0xFFFF) > 0x8000 or state.tick_us < 1_000_000
+        ):  # off, and its clock or frame counter started over: a reboot
+            return DeviceFaultError(
+                f"the device at {self.port!r} restarted mid-run (its clock started over and it "
+                "is disarmed); check its power supply and cable, then start a new episode"
+            )
+        return self._second_host(
+            f"it holds command {state.seq_applied}, which this host never sent"
+        )
 
     def _await(self, seq: int) -> Sample:
         """Block until the state that echoes command ``seq`` (or report the command late).
@@ -239,6 +303,13 @@ class SerialBackend(Backend):
             started = time.monotonic()
             for state in self._states(wait=True):
                 newest = state
+                if self._echoes.ours(state.seq_applied):
+                    self._echoes.echoed(state.seq_applied)
+                    self._echoed = True
+                else:
+                    error = self._restarted_or_second_host(state)
+                    if error is not None:
+                        raise error
                 if state.seq_applied == seq:
                     return self._sample(state, late=False)
             now = time.monotonic()
@@ -277,6 +348,7 @@ class SerialBackend(Backend):
             status=int(state.status),
             late=late,
             skipped=skipped,
+            age=self._echoes.age(),
         )
 
     def _send(self, command: float, flags: p.Flag) -> int:
@@ -286,6 +358,7 @@ class SerialBackend(Backend):
             -hello.command_limit, min(hello.command_limit, round(command * hello.command_scale))
         )
         self._seq = (self._seq + 1) & 0xFFFF
+        self._echoes.sent(self._seq, time.perf_counter_ns())
         self._write(p.Command(seq=self._seq, command=counts, flags=flags))
         return self._seq
 
@@ -297,6 +370,8 @@ class SerialBackend(Backend):
             flags |= p.Flag.ZERO_POSITION
         self._states(wait=False)  # drop states of before the start
         self._last = None
+        self._echoed = False
+        self._echoes.forget_pending()  # the stops that ended the last episode
         return self._await(self._send(0.0, flags))
 
     def _exchange(self, command: float) -> Sample:
@@ -320,3 +395,5 @@ class SerialBackend(Backend):
             self._serial.close()
             self._serial = None
             self.hello = None
+            self._echoes.clear()
+            self._hellos_due = 0

@@ -8,7 +8,9 @@ it can and keeps the rest in a bounded buffer (a device's UART drops what nobody
   opens the slave path (``os.ttyname``) with pyserial. While no host has the slave open the
   master reads fail with ``EIO``: the link waits and retries.
 * :class:`TcpLink`: one client at a time (``TCP_NODELAY``), back to ``accept`` when it leaves;
-  the host connects with pyserial's ``socket://HOST:PORT``.
+  the host connects with pyserial's ``socket://HOST:PORT``. A second host that connects while
+  one is served is closed at once, so it fails fast and says why instead of waiting for a
+  handshake that never comes.
 """
 
 from __future__ import annotations
@@ -254,6 +256,7 @@ class TcpLink(Link):
         bound_host, bound_port = server.getsockname()[:2]
         self.url = f"socket://{bound_host}:{bound_port}"
         self.clients = 0  #: connections accepted so far
+        self.refused = 0  #: connections closed at once because a host was being served
 
     @property
     def connected(self) -> bool:
@@ -261,12 +264,21 @@ class TcpLink(Link):
         return self._client is not None
 
     def fds(self) -> list[int]:
-        """Return the client's socket, or the server's while nobody is connected."""
+        """Return the client's socket and the server's (a newcomer is refused at once)."""
+        fds = [] if self._server is None else [self._server.fileno()]
         if self._client is not None:
-            return [self._client.fileno()]
-        if self._server is not None:
-            return [self._server.fileno()]
-        return []
+            fds.append(self._client.fileno())
+        return fds
+
+    def _refuse_newcomer(self) -> None:
+        """Close a connection waiting while a host is served (it reads EOF at once)."""
+        assert self._server is not None
+        try:
+            newcomer, _ = self._server.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        newcomer.close()
+        self.refused += 1
 
     def _drop_client(self) -> None:
         if self._client is not None:
@@ -275,7 +287,12 @@ class TcpLink(Link):
         self.discard()
 
     def read(self, ready: list[int]) -> bytes:
-        """Accept a waiting host, or read the connected one."""
+        """Accept a waiting host, or read the connected one (refusing a second one)."""
+        if self._client is not None and self._server is not None:
+            if self._server.fileno() in ready:
+                self._refuse_newcomer()
+            if self._client.fileno() not in ready:
+                return b""
         if self._client is None:
             if self._server is None:
                 return b""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from typing import Any
+from urllib.parse import parse_qsl, urlsplit
 
 
 def positive(name: str) -> Callable[[str], float]:
@@ -46,6 +47,31 @@ def flag(name: str) -> Callable[[str], bool]:
         raise ValueError(f"{name} must be 1 or 0, got {text!r}")
 
     return parse
+
+
+def query_options(query: str, uri: str) -> dict[str, str]:
+    """Return the ``key=value`` pairs of a URI's query; a key given twice is a ``ValueError``."""
+    options: dict[str, str] = {}
+    for key, value in parse_qsl(query, keep_blank_values=True):
+        if key in options:
+            raise ValueError(
+                f"{uri}: option {key} is given twice ({options[key]!r} and {value!r}); keep one"
+            )
+        options[key] = value
+    return options
+
+
+def check_socket_url(url: str) -> tuple[str, int]:
+    """Return the host and port of ``socket://HOST:PORT`` (a ``ValueError`` says what is wrong)."""
+    parts = urlsplit(url)
+    example = "e.g. socket://127.0.0.1:5000 (the URL the emulator printed)"
+    try:
+        port = parts.port
+    except ValueError:
+        raise ValueError(f"{url}: the port must be a number in 0..65535; {example}") from None
+    if not parts.hostname or port is None:
+        raise ValueError(f"{url} names no {'port' if parts.hostname else 'host'}; {example}")
+    return parts.hostname, port
 
 
 def uri_options(
