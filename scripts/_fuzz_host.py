@@ -187,6 +187,61 @@ def _actions_on(
                   "were returned")  # fmt: skip
 
 
+def fuzz_stock(cases: int, seed: int, say: Progress) -> Part:
+    """Hostile commands through the stock Altino backend, to a fake car on a pty."""
+    sys.path.insert(0, str(ROOT / "tests"))  # the fake stock car of the backend's tests
+    from _altino_stock_device import FakeStockAltino  # type: ignore[import-not-found]
+
+    from frictiongym.hardware.altino_frames import GO_LIMIT, STOP_REPEATS
+    from frictiongym.hardware.altino_stock import AltinoStockBackend
+
+    part = Part.named("stock altino")
+    with FakeStockAltino(start_cm=60.0, rate_hz=50.0) as car:
+        backend = AltinoStockBackend(car.port, rate_hz=50.0, timeout=0.3)
+        try:
+            backend.start()
+            for case in range(cases):
+                rng = case_rng(seed, "stock", case)
+                backend.step(rng.uniform(-GO_LIMIT, 0.0))  # away from the wall: no guard
+                what, command, must_refuse = hostile_action(rng, float(GO_LIMIT))
+                if isinstance(command, np.ndarray) and command.size == 1:
+                    command = command.flat[0]  # a backend takes one number, not an array
+                sent = len(car.commands)
+                try:
+                    backend.step(command)  # type: ignore[arg-type]
+                    if must_refuse:
+                        part.fail(f"stock case {case} ({what}): accepted {command!r}")
+                except Exception as exc:
+                    if not isinstance(exc, ValueError):
+                        part.fail(f"stock case {case} ({what}): {type(exc).__name__}: {exc}")
+                    if not _stops_arrive(car, sent, STOP_REPEATS):
+                        part.fail(f"stock case {case} ({what}): no {STOP_REPEATS} stop frames "
+                                  f"after the error: {car.commands[sent:]}")  # fmt: skip
+                    backend.start()
+                if (case + 1) % max(1, cases // 5) == 0:
+                    say(f"stock altino: {case + 1}/{cases} commands, {len(part.failures)} failures")
+        finally:
+            backend.close()
+    beyond = [c for c in car.commands if max(abs(c.left), abs(c.right)) > GO_LIMIT]
+    if beyond or car.bad_frames:
+        part.fail(f"stock: the car received {len(beyond)} wheel values beyond {GO_LIMIT} and "
+                  f"{car.bad_frames} malformed frames")  # fmt: skip
+    part.cases = cases
+    part.notes.append(f"stock altino: the car received {len(car.commands)} frames")
+    return part
+
+
+def _stops_arrive(car: Any, after: int, count: int) -> bool:
+    """Wait up to :data:`STOP_WAIT` for ``count`` stop frames after frame ``after``."""
+    deadline = time.perf_counter() + STOP_WAIT
+    while time.perf_counter() < deadline:
+        new = car.commands[after:]
+        if len(new) >= count:
+            return all(c.stop and c.left == c.right == 0 for c in new[:count])
+        time.sleep(0.002)
+    return False
+
+
 # --- link faults, real time ---------------------------------------------------------------------
 
 
@@ -246,6 +301,7 @@ def _run_into_error(
     raised: dict[str, int],
     first: Callable[[], object],
     first_samples: bool = False,
+    steps: int = 10_000,
 ) -> tuple[float | None, int]:
     """Call ``first()``, then step until an error; return its time and the samples returned.
 
@@ -256,7 +312,7 @@ def _run_into_error(
     try:
         first()
         returned += first_samples
-        for _ in range(10_000):
+        for _ in range(steps):
             env.step(np.array([0.5]))
             returned += 1
     except expected as exc:
@@ -265,7 +321,7 @@ def _run_into_error(
     except Exception as exc:
         part.fail(f"{where}: raised {type(exc).__name__}: {exc}")
         return None, returned
-    part.fail(f"{where}: 10 000 steps into the fault and no error")
+    part.fail(f"{where}: {steps} steps into the fault and no error")
     return None, returned
 
 
@@ -278,13 +334,18 @@ def _check_rows(part: Part, where: str, log: Path, samples: int) -> None:
 def _delayed_link(
     part: Part, where: str, rng: random.Random, log: Path, raised: dict[str, int]
 ) -> float | None:
-    """A link that holds every device frame back by 0.1-0.3 s from the start (stale news)."""
-    faults = Faults(delay=rng.uniform(0.1, 0.3))
-    env = gym.make(SERVO, backend=EmulatedBackend("rotary", faults=faults), log=log)
+    """A link that holds every device frame back by 0.12-0.3 s from the start (stale news).
+
+    The device's watchdog is 1 s here, so that the host, which waits for each delayed sample
+    before it sends the next command, does not trip it: only the sample age can end the run.
+    """
+    faults = Faults(delay=rng.uniform(0.12, 0.3))
+    backend = EmulatedBackend("rotary", faults=faults, watchdog_ms=1000)
+    env = gym.make(SERVO, backend=backend, log=log)
     emulator = env.unwrapped.sim.backend.emulator  # type: ignore[attr-defined]
     try:
         took, returned = _run_into_error(
-            part, where, env, (HardwareError,), raised, lambda: env.reset(seed=0), True
+            part, where, env, (HardwareError,), raised, lambda: env.reset(seed=0), True, 25
         )
         if _motor_zero_within(emulator, STOP_WAIT) is None:
             part.fail(f"{where}: the motor was not zeroed after the error")

@@ -65,12 +65,19 @@ WHAT: dict[str, tuple[str, str]] = {
         "command beyond its limit; non-numbers, non-finite and wrong shapes are refused; the "
         "run log holds every step that returned",
     ),
+    "stock altino": (
+        "the stock Altino backend driving a fake car on a pty at 50 Hz, each ordinary "
+        "command followed by a hostile one (as for the actions)",
+        "a refused command raises ValueError and the car receives the stop frames at once; "
+        "no wheel value beyond 1000 and no malformed frame ever reaches the car",
+    ),
     "faults": (
         "the servo env on the real-time emulator (500 Hz) stepped 20-200 times, then: the "
-        "device unplugged, the device frozen (no more frames), its frames delayed by "
-        "0.1-0.3 s, or the host silent",
-        "unplug/freeze raise DeviceDisconnectedError/DeviceTimeoutError, a delay a "
-        "HardwareError with the motor zeroed, each with the log holding every step; after "
+        "device unplugged, the device frozen (no more frames), or the host silent; and "
+        "a link delaying every frame by 0.12-0.3 s (the device's watchdog at 1 s)",
+        "unplug/freeze raise DeviceDisconnectedError/DeviceTimeoutError, the delayed link a "
+        "HardwareError within 25 steps with the motor zeroed, each with the log holding "
+        "every step returned; after "
         "host silence the device's watchdog zeroes the motor within its time plus a period, "
         "and the next step raises WatchdogTripError",
     ),

@@ -16,16 +16,19 @@ Parts (``--part``, default all):
 * ``actions``: hostile actions (NaN, inf, huge, wrong types and shapes) through device envs on
   the lock-step emulator: refused with ``ValueError``, the motor zeroed after each, never a
   command beyond the limit on the wire, the run log complete.
-* ``faults``: the real-time emulator unplugged, frozen, or left without commands: the time to
-  the error, the log complete, the watchdog's stop in device time.
+* ``stock``: the same hostile commands through the stock Altino backend to a fake car on a
+  pty: refused, followed by the stop frames, never a wheel value beyond 1000 on the wire.
+* ``faults``: the real-time emulator unplugged, frozen, left without commands, or behind a
+  link that delays its frames: the time to the error, the log complete, the motor zeroed, the
+  watchdog's stop in device time.
 * ``models``: hostile copies of the shipped residual model through ``load_policy``: nothing
   runs, only ``ValueError``.
 * ``params``: mutated ``friction.json`` files through ``load_params``: only
   ``ParamsFileError``, and what loads is in range.
 
 ``--cases N`` sets the frame streams and Altino replies; the other parts scale with it
-(watchdog timelines and actions N/20, model files N/200, params files N/10, at least a few
-each; fault rounds ``--fault-rounds``). The default (20 000) takes about two minutes on two
+(watchdog timelines and actions N/20, stock Altino commands and model files N/200, params
+files N/10, at least a few each; fault rounds ``--fault-rounds``). The default (20 000) takes about two minutes on two
 cores; ``--cases 200000`` decodes about 900 000 frames. Every case is drawn from its own
 generator seeded by ``--seed``, the part and the case number, so a reported case replays
 alone. Exits 1 if anything failed, 2 on a usage error.
@@ -45,7 +48,7 @@ from pathlib import Path
 import _fuzz_host as host
 import _fuzz_wire as wire
 
-PARTS = ("frames", "altino", "watchdog", "actions", "faults", "models", "params")
+PARTS = ("frames", "altino", "watchdog", "actions", "stock", "faults", "models", "params")
 #: Failures printed per part (the rest are counted).
 SHOWN_FAILURES = 20
 
@@ -59,8 +62,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--cases", type=int, default=20_000,
                         help="frame streams and Altino replies (default 20000); the other parts "
-                        "scale with it: watchdog timelines and actions N/20, model files "
-                        "N/200, params files N/10")  # fmt: skip
+                        "scale with it: watchdog timelines and actions N/20, stock Altino "
+                        "commands and model files N/200, params files N/10")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="seed of every case (default 0)")
     parser.add_argument(
         "--part",
@@ -105,6 +108,7 @@ def run_parts(args: argparse.Namespace) -> list[tuple[wire.Part, float]]:
         "altino": lambda: wire.fuzz_altino(n, seed, say),
         "watchdog": lambda: wire.fuzz_watchdog(max(20, n // 20), seed, harness, say),
         "actions": lambda: host.fuzz_actions(max(40, n // 20), seed, say),
+        "stock": lambda: host.fuzz_stock(max(10, n // 200), seed, say),
         "faults": lambda: host.fuzz_faults(args.fault_rounds, seed, say),
         "models": lambda: host.fuzz_models(max(10, n // 200), seed, say),
         "params": lambda: host.fuzz_params(max(50, n // 10), seed, say),

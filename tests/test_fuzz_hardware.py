@@ -11,8 +11,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "fuzz_hardware.py"
-PARTS = ("frames", "altino replies", "watchdog", "actions", "faults", "model files",
-         "params files")  # fmt: skip
+PARTS = ("frames", "altino replies", "watchdog", "actions", "stock altino", "faults",
+         "model files", "params files")  # fmt: skip
 CRC_CHECK = "if (fg_crc16(data, (size_t)n - 2u) != get_u16(data + n - 2)) {"
 needs_cc = pytest.mark.skipif(
     shutil.which("cc") is None and shutil.which("gcc") is None,
