@@ -207,3 +207,28 @@ def test_frozen_objects_are_thawed_when_their_last_owner_lets_go():
     thaw_heap(second)
     thaw_heap(second)  # idempotent
     assert gc.get_freeze_count() == 0
+
+
+def test_echo_times_bound_the_answer_from_below_and_ignore_host_stalls():
+    from frictiongym.hardware.echo import EchoTimes
+
+    ms = 1_000_000
+    echoes = EchoTimes()
+    echoes.sent(1, 0)
+    echoes.reading(1 * ms)  # nothing of command 1 in this read
+    echoes.reading(300 * ms)  # the host stalled 299 ms; the echo was waiting in this read
+    echoes.echoed(1)
+    assert echoes.age() == pytest.approx(0.001)  # it had not come at 1 ms: no more is known
+    echoes.sent(2, 400 * ms)
+    echoes.sent(3, 402 * ms)
+    echoes.reading(650 * ms)  # neither answered by 650 ms: command 2 waited at least 250 ms
+    assert echoes.age() == pytest.approx(0.25)
+    echoes.reading(660 * ms)
+    echoes.echoed(3)  # answers 2 as well (the device held the newer one)
+    assert echoes.age() == pytest.approx(0.248)
+    assert echoes.ours(2)
+    assert not echoes.ours(40000)
+    echoes.sent(4, 700 * ms)
+    echoes.forget_pending()  # an episode's stops are not waited for
+    echoes.reading(900 * ms)
+    assert echoes.age() == 0.0
