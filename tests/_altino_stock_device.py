@@ -88,6 +88,9 @@ class FakeStockAltino:
         self.replies: list[int | None] = []  #: IR[1] answered to each frame (None: no reply)
         self.answering = True  #: False: receive and drive, never reply
         self.corrupt = 0  #: number of next replies sent with a wrong checksum
+        #: IR[1] readouts the next replies carry instead of the car's, first first (with a
+        #: valid checksum: a corruption the 8-bit sum lets through).
+        self.forged: list[int] = []
         self.bad_frames = 0  #: frames that failed parsing
         self._master, self._slave = os.openpty()
         tty.setraw(self._master)
@@ -129,8 +132,9 @@ class FakeStockAltino:
         self.commands.append(command)
         self.replies.append(None)
         if command.request in (1, 10) and self.answering:
-            self.replies[-1] = self.car.readout
-            ir = (0, self.car.readout, 0, 0, 0, 0)
+            readout = self.forged.pop(0) if self.forged else self.car.readout
+            self.replies[-1] = readout
+            ir = (0, readout, 0, 0, 0, 0)
             reply = bytearray(sensor_reply(StockSensors(group=command.request, ir=ir)))
             if self.corrupt > 0:
                 self.corrupt -= 1

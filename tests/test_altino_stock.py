@@ -7,6 +7,7 @@ import time
 from collections.abc import Iterator
 
 import gymnasium as gym
+import numpy as np
 import pytest
 from _altino_stock_device import FakeStockAltino, StepSim
 
@@ -34,6 +35,7 @@ from frictiongym.hardware.errors import (
     HardwareError,
     ProtocolError,
 )
+from frictiongym.hardware.guard import CarBounds, readout_jump_possible
 from frictiongym.hardware.protocol import Status
 
 ALTINO_ID = "frictiongym/AltinoDistance-v0"
@@ -310,6 +312,40 @@ def test_a_bad_checksum_is_retried_once_then_refused(
     with pytest.raises(ProtocolError, match="failed their checksum"):
         backend.step(0.0)
     assert backend.bad_replies == 3
+
+
+def test_readout_jumps_beyond_what_the_car_can_move_are_impossible() -> None:
+    travel = CarBounds().top_speed(1000.0) * 0.05  # 77.7 cm/s over a 20 Hz period: 3.89 cm
+    assert not readout_jump_possible(342, 86, travel)  # 2.50 -> 7.37 cm: two flipped bits
+    assert not readout_jump_possible(86, 342, travel)
+    assert readout_jump_possible(342, 300, travel)  # 2.50 -> 2.80 cm
+    assert readout_jump_possible(86, 110, travel)  # 7.37 -> 6.23 cm
+    assert not readout_jump_possible(0, 86, travel)  # from beyond 21.2 cm to 7.4 cm
+    assert not readout_jump_possible(86, 0, travel)
+    assert readout_jump_possible(0, 3, travel)  # 20.1 cm: just inside the range
+    assert readout_jump_possible(0, 0, travel)
+    assert readout_jump_possible(342, 86, 4.9)  # a car that can cover 4.9 cm could do it
+
+
+def test_a_checksum_passing_jump_never_reaches_the_guard_or_controller() -> None:
+    with FakeStockAltino(start_cm=966.0 / 387.0, rate_hz=20.0) as fake:  # IR 342: 2.50 cm
+        env = gym.make(ALTINO_ID, backend=AltinoStockBackend(fake.port, timeout=0.3))
+        backend = env.unwrapped.sim.backend
+        obs, _ = env.reset()
+        assert obs[0] == 342
+        fake.forged = [86]  # 7.37 cm, checksum valid: the wall would look 4.9 cm farther
+        obs, *_ = env.step(np.array([0.0]))
+        assert obs[0] == 342, "the controller sees the car, not the corruption"
+        assert backend.guard.predicted_stop() == pytest.approx(966.0 / 387.0)
+        assert (backend.implausible_replies, backend.bad_replies) == (1, 1)
+        assert fake.replies[-2:] == [86, 342], "refused, and the request sent again"
+        fake.forged = [86, 86]
+        with pytest.raises(ProtocolError, match="jump from 342 to 86, farther than the car"):
+            env.step(np.array([0.0]))
+        assert backend.implausible_replies == 3
+        settle(fake, len(fake.commands) + STOP_REPEATS)
+        assert all(c.stop for c in fake.commands[-STOP_REPEATS:])
+        env.close()
 
 
 def test_uri_and_env() -> None:

@@ -211,6 +211,16 @@ class BadReply(Exception):
     """A reply-shaped frame that fails its end byte or checksum."""
 
 
+class ImplausibleReply(BadReply):
+    """A reply that passes its checksum but whose readout the car cannot have produced.
+
+    The 8-bit additive checksum lets about 0.5 % of two-bit corruptions through (a bit set in
+    one byte and cleared in another at the same position sum alike); half of them make the wall
+    look farther (IR 342 -> 86: 2.5 cm read as 7.4 cm). A readout that jumps farther than the
+    car can move between two replies is taken for one of them.
+    """
+
+
 def take_reply(buffer: bytearray, length: int) -> bytes | None:
     """Pop the first reply of ``length`` bytes from ``buffer``, dropping garbage before it.
 

@@ -28,6 +28,7 @@ from frictiongym.hardware.altino_frames import (
     STOCK_MAX_RATE_HZ,
     STOP_REPEATS,
     BadReply,
+    ImplausibleReply,
     StockSensors,
     go_frame,
     parse_sensor_reply,
@@ -42,7 +43,12 @@ from frictiongym.hardware.errors import (
     ProtocolError,
     SDKNotAvailableError,
 )
-from frictiongym.hardware.guard import LIMIT_CM, REACTION_PERIODS, DistanceGuard
+from frictiongym.hardware.guard import (
+    LIMIT_CM,
+    REACTION_PERIODS,
+    DistanceGuard,
+    readout_jump_possible,
+)
 from frictiongym.hardware.ports import is_lock_failure, port_busy_error
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.uri import positive, uri_options
@@ -107,7 +113,10 @@ class AltinoStockBackend(Backend):
       commands, with ``Status.LIMIT`` in every sample until :meth:`start` re-arms it. A reply
       that trips it is followed at once by the brake, not a tick later;
     * no sequence numbers and an 8-bit checksum: a bad reply is counted
-      (:attr:`bad_replies`) and the request sent again once; a second bad one raises
+      (:attr:`bad_replies`) and the request sent again once, and so is a reply whose IR
+      readout jumps farther than the car can move since the last one (its top speed over a
+      period, plus one count: :attr:`implausible_replies`; a corruption the checksum let
+      through, refused before the guard or the controller sees it); a second bad one raises
       :class:`ProtocolError`. No reply within ``timeout`` raises :class:`DeviceTimeoutError`, a
       vanished port :class:`DeviceDisconnectedError`; all stop the car first.
 
@@ -187,7 +196,10 @@ class AltinoStockBackend(Backend):
         self.sensor_group = sensor_group
         self.limit_cm = float(limit_cm)
         self.missed_ticks = 0  #: whole periods skipped because a step came late
-        self.bad_replies = 0  #: replies that failed their checksum or end byte
+        self.bad_replies = 0  #: replies that failed their checksum or end byte, or implausible
+        #: Replies whose IR readout jumped farther than the car can move (counted in both).
+        self.implausible_replies = 0
+        self._last_reading: tuple[float, float] | None = None  # (readout, send time) accepted
         self.guard = DistanceGuard(
             self.period, float(GO_LIMIT), self.limit_cm, STOCK_REACTION_PERIODS
         )
@@ -275,15 +287,41 @@ class AltinoStockBackend(Backend):
             sent = time.perf_counter()
             try:
                 sensors = self._read_reply(sent + self.timeout)
+                self._check_readout(sensors, sent)
+            except ImplausibleReply as exc:
+                self.bad_replies += 1
+                self.implausible_replies += 1
+                why = str(exc)
+                continue
             except BadReply:
                 self.bad_replies += 1
+                why = "failed their checksum"
                 continue
             self.last_sensors = sensors
             return sent, sensors
         raise ProtocolError(
-            f"two replies in a row from {self.port} failed their checksum: check the baud rate "
-            f"({self.baud}) and that the port is the Altino's, on its stock firmware"
+            f"two replies in a row from {self.port} {why}: check the baud rate ({self.baud}), "
+            "that the port is the Altino's, on its stock firmware, and the link's quality"
         )
+
+    def _check_readout(self, sensors: StockSensors, sent: float) -> None:
+        """Refuse a readout the car cannot reach from the last one (:class:`ImplausibleReply`).
+
+        Bound: the car's top speed (the guard's bounds) over the time since that reply, at least
+        a period, plus one count of quantization.
+        """
+        readout = float(sensors.ir[self.ir_index])
+        if self._last_reading is not None:
+            previous, when = self._last_reading
+            top = self.guard.car.top_speed(self.guard.car.command_limit)
+            travel = top * max(sent - when, self.period)
+            if not readout_jump_possible(previous, readout, travel):
+                raise ImplausibleReply(
+                    f"gave IR readouts that jump from {previous:g} to {readout:g}, farther than "
+                    f"the car can move between them ({travel:.2f} cm at {top:.1f} cm/s): a "
+                    "corruption the 8-bit checksum let through"
+                )
+        self._last_reading = (readout, sent)
 
     def _tick_us(self, at: float) -> int:
         return int((at - self._origin) * 1e6) % 2**32
@@ -352,7 +390,7 @@ class AltinoStockBackend(Backend):
         held, self._held = self._held, value
         self._readout = float(sensors.ir[self.ir_index])
         was_tripped = self.guard.tripped
-        if self.guard.update(self._readout) and not was_tripped:
+        if self.guard.update(self._readout, held) and not was_tripped:
             brake = round(self.guard.command(value))  # at once, not a tick later
             if brake != value:
                 self._transact(brake)

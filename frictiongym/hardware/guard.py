@@ -76,6 +76,22 @@ def readout_distance(readout: float) -> float | None:
     return float(ir_estimate(readout)) if readout > 0 else None
 
 
+def readout_jump_possible(previous: float, readout: float, travel_cm: float) -> bool:
+    """Whether the IR readout can go from ``previous`` to ``readout``, the car moving ``travel_cm``.
+
+    One count of quantization is allowed on top, that of the farther (coarser) reading; a
+    readout of 0 (out of range) stands for "at least :data:`EDGE_CM`".
+    """
+    far_readout, near_readout = sorted((previous, readout))  # the larger readout is nearer
+    if near_readout <= 0:
+        return True  # both out of range
+    near = float(ir_estimate(near_readout))
+    if far_readout <= 0:  # out of range on one side: at least EDGE_CM away
+        return EDGE_CM - near <= travel_cm + EDGE_CM - float(ir_estimate(1))
+    far = float(ir_estimate(far_readout))
+    return far - near <= travel_cm + far - float(ir_estimate(far_readout + 1))
+
+
 @dataclass(frozen=True)
 class CarBounds:
     """What the guard assumes of a car it cannot weigh: bounds that hold for every plausible car.
