@@ -29,7 +29,7 @@ Parts (``--part``, default all):
 ``--cases N`` sets the frame streams and Altino replies; the other parts scale with it
 (watchdog timelines and actions N/20, stock Altino commands and model files N/200, params
 files N/10, at least a few each; fault rounds ``--fault-rounds``). The default (20 000) takes
-about a minute on two cores; ``--cases 200000`` decodes about 900 000 frames. Every case is
+about half a minute on two cores; ``--cases 200000`` decodes about 900 000 frames. Every case is
 drawn from its own generator seeded by ``--seed``, the part and the case number, so a
 reported case replays alone. Exits 1 if anything failed, 2 on a usage error.
 
