@@ -232,3 +232,11 @@ def test_echo_times_bound_the_answer_from_below_and_ignore_host_stalls():
     echoes.forget_pending()  # an episode's stops are not waited for
     echoes.reading(900 * ms)
     assert echoes.age() == 0.0
+
+
+def test_place_takes_a_finite_real_number_only():
+    with EmulatedBackend("rotary", lockstep=True) as backend:
+        for bad in ("3", True, math.nan, np.datetime64("2020-01-01")):
+            with pytest.raises(ValueError, match="position must be a finite real number"):
+                backend.place(bad)
+        backend.place(np.float32(0.5))

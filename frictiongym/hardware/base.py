@@ -228,7 +228,14 @@ class Backend(ABC):
                 f"{info.link or type(self).__name__} cannot be placed: only the emulator can; "
                 "put the device at its start by hand"
             )
-        self._place(position)
+        try:
+            value = real_command(position)
+        except ValueError:
+            raise ValueError(
+                f"position must be a finite real number, got {reprlib.repr(position)} "
+                f"({type(position).__name__})"
+            ) from None
+        self._place(value)
 
     def stop(self) -> None:
         """Zero the motor and disable it (idempotent; best effort, never raises)."""
