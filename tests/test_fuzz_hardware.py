@@ -14,6 +14,7 @@ SCRIPT = ROOT / "scripts" / "fuzz_hardware.py"
 PARTS = ("frames", "altino replies", "watchdog", "actions", "stock altino", "faults",
          "model files", "params files")  # fmt: skip
 CRC_CHECK = "if (fg_crc16(data, (size_t)n - 2u) != get_u16(data + n - 2)) {"
+BOUND_CHECK = "if (dec->len < FG_MAX_FRAME) {"
 needs_cc = pytest.mark.skipif(
     shutil.which("cc") is None and shutil.which("gcc") is None,
     reason="no C compiler: the C decoder cannot be built (apt-get install gcc)",
@@ -41,19 +42,34 @@ def test_every_part_holds_at_a_tiny_size():
     assert "frames: 60/60 streams" in done.stderr  # progress goes to stderr
 
 
-@needs_cc
-def test_a_c_decoder_that_skips_its_crc_check_is_caught(tmp_path):
+def broken_firmware(tmp_path: Path, line: str, replacement: str) -> Path:
+    """A copy of firmware/ with ``line`` of fg_protocol.c replaced."""
     firmware = tmp_path / "firmware"
     shutil.copytree(ROOT / "firmware", firmware)
     source = firmware / "common" / "fg_protocol.c"
     text = source.read_text()
-    assert CRC_CHECK in text
-    source.write_text(text.replace(CRC_CHECK, "if (0) {"))
+    assert line in text
+    source.write_text(text.replace(line, replacement))
+    return firmware
+
+
+@needs_cc
+def test_a_c_decoder_that_skips_its_crc_check_is_caught(tmp_path):
+    firmware = broken_firmware(tmp_path, CRC_CHECK, "if (0) {")
     done = fuzz("--part", "frames", "--cases", "300", "--firmware", str(firmware))
     assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-2000:]
-    assert "frames: " in done.stdout
     assert "C decoded" in done.stdout
     assert "FAILED" in done.stdout
+
+
+@needs_cc
+def test_a_c_decoder_writing_past_its_buffer_is_caught(tmp_path):
+    firmware = broken_firmware(tmp_path, BOUND_CHECK, "if (dec->len < FG_MAX_FRAME + 8u) {")
+    done = fuzz("--part", "frames", "--cases", "300", "--firmware", str(firmware))
+    assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-2000:]
+    if "(no sanitizers)" in done.stderr:
+        pytest.skip("this compiler has no sanitizers: only the C == Python check ran")
+    assert "out of bounds" in done.stdout
 
 
 def test_usage_errors_exit_2_with_one_line():
