@@ -71,7 +71,9 @@ void fg_device_init(fg_device *dev, const fg_device_config *cfg)
     dev->sensor = 0;
     dev->distance = -1.0f; /* no sample yet */
     dev->speed = 0.0f;
+    dev->measured = 0.0f;
     dev->bound = 0.0f; /* the car boots at rest */
+    dev->dt = 1.0f / (float)cfg->rate_hz;
     dev->held_peak = 0;
     for (i = 0; i < FG_GUARD_REACTION_PERIODS; i++) {
         dev->held[i] = 0;
@@ -92,6 +94,12 @@ static float car_accel(const fg_car_bounds *car, float command, float v, float m
         mass = net > 0.0f ? car->mass_min : car->mass_max;
     }
     return net / mass;
+}
+
+/* guard.py _count: the distance one IR count spans at d cm (Eq. (1): d^2 / (966 + d)). */
+static float ir_count(float d)
+{
+    return d * d / (FG_IR_NUMERATOR + d);
 }
 
 /* guard.py CarBounds.top_speed, at least v (1e30: no viscous term, no top speed). */
@@ -154,7 +162,7 @@ static float stop_point(const fg_device *dev, float d, float speed, float t, flo
  * already on its way over the reaction time, fail to stop short of the limit braking then? */
 static uint8_t guard_trips(const fg_device *dev, int16_t command)
 {
-    float dt = 1.0f / (float)dev->cfg.rate_hz;
+    float dt = dev->dt;
     float t = (float)FG_GUARD_REACTION_PERIODS * dt;
     float stop;
     int i;
@@ -186,6 +194,7 @@ static void guard_judge(fg_device *dev)
 static void guard_update(fg_device *dev, int32_t readout)
 {
     float distance = -1.0f; /* readout 0: out of range */
+    float fast;
     int16_t command;
     int i;
     if (!(dev->cfg.capabilities & FG_CAP_DISTANCE_LIMIT)) {
@@ -197,15 +206,23 @@ static void guard_update(fg_device *dev, int32_t readout)
         command = dev->held[i] > command ? dev->held[i] : command;
     }
     dev->held[FG_GUARD_REACTION_PERIODS - 1] = dev->held_peak;
-    dev->bound = car_advance(&dev->cfg.car, dev->bound, (float)command,
-                             1.0f / (float)dev->cfg.rate_hz);
+    dev->bound = car_advance(&dev->cfg.car, dev->bound, (float)command, dev->dt);
     if (readout > 0) {
         distance = FG_IR_NUMERATOR / ((float)readout + FG_IR_OFFSET);
     }
     if (distance < 0.0f || dev->distance < 0.0f) {
-        dev->speed = dev->bound; /* no two readings: the fastest the car can be */
+        dev->speed = dev->measured = dev->bound; /* no two readings: the fastest it can be */
     } else {
-        dev->speed = (dev->distance - distance) * (float)dev->cfg.rate_hz; /* / dt */
+        /* the mean speed over the period; the car may be faster now by half a count of each
+         * reading and half a period of acceleration (guard.py _now_at_most), not above the
+         * bound unless the readings themselves are */
+        dev->measured = (dev->distance - distance) / dev->dt;
+        fast = dev->measured > 0.0f ? dev->measured : 0.0f;
+        fast = car_accel(&dev->cfg.car, (float)command, fast, 0.0f) * dev->dt;
+        fast = dev->measured + 0.5f * ((fast > 0.0f ? fast : 0.0f) +
+                                       (ir_count(dev->distance) + ir_count(distance)) / dev->dt);
+        fast = fast < dev->bound ? fast : dev->bound;
+        dev->speed = fast > dev->measured ? fast : dev->measured;
     }
     dev->distance = distance;
     dev->sampled = 1;
@@ -228,7 +245,7 @@ static void update_motor(fg_device *dev)
         dev->latched |= FG_STATUS_LIMIT; /* the forward command is not let through */
     }
     if (dev->latched & FG_STATUS_LIMIT) {
-        if (dev->distance >= 0.0f && dev->speed > FG_GUARD_STOPPED_SPEED) {
+        if (dev->distance >= 0.0f && dev->measured > FG_GUARD_STOPPED_SPEED) {
             motor = (int16_t)-dev->cfg.command_limit; /* the brake (never blind) */
         } else if (motor > 0) {
             motor = 0; /* backing away (negative) still passes */

@@ -59,7 +59,9 @@ enum fg_action {
  *   bound: upper bound of the approach speed, advanced every tick under the largest command
  *          held over the last FG_GUARD_REACTION_PERIODS periods (0 at boot: the car at rest),
  *          speeding up as mass_min, slowing down as mass_max
- *   v = (d_prev - d) / dt, cm/s toward the wall if both samples have a distance, else bound
+ *   v = (d_prev - d) / dt, cm/s toward the wall if both samples have a distance (the brake
+ *       decision), judged as v + half a count of each reading (d^2 / (966 + d)) / dt + half a
+ *       period of acceleration a(u, v) dt / 2 (at most bound, unless v itself is); else bound
  *   a(u, v) = (u - friction - viscous v) / M
  *   over T: travel = min(v T + a T^2 / 2, max(v, v_top) T), v_T = min(v + a T, v_top),
  *           (a <= 0: travel = v T, v_T = v); v_top = (u - friction) / viscous
@@ -74,7 +76,7 @@ enum fg_action {
  * that command is not let through (REARM clears LIMIT, unless the latest sample trips it again
  * at once). Before the first sample forward commands are refused (not latched). While LIMIT
  * is latched the motor gets -command_limit (full reverse: the brake) while the car is in range
- * and v > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed, forward is
+ * and v (unjudged) > FG_GUARD_STOPPED_SPEED, then min(command, 0): backing away is allowed, forward is
  * refused. The brake acts even when the device is disarmed (e-stop, watchdog, fault): a car
  * that still approaches must not coast into the wall. Maths in binary32 (AVR's double); the
  * Python reference uses binary64, so results can differ only at the boundary. */
@@ -138,7 +140,9 @@ typedef struct {
     int32_t sensor;           /* last sample */
     float distance;           /* guard: distance of the last sample, cm; < 0: out of range */
     float speed;              /* guard: approach speed judged, cm/s (toward the wall > 0) */
+    float measured;           /* guard: approach speed the readings show (else the bound) */
     float bound;              /* guard: upper bound of the approach speed, cm/s */
+    float dt;                 /* guard: the period, s */
     int16_t held_peak;        /* guard: largest output since the last tick, counts */
     int16_t held[FG_GUARD_REACTION_PERIODS]; /* guard: largest output of the last periods */
     uint8_t sampled;          /* guard: a sample has come (before it, forward is refused) */

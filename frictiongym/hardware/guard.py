@@ -17,7 +17,10 @@ end of the range is the worst). A car that does not accelerate travels at most `
 last term bounds the distance full reverse needs to stop the car, the viscous force taken at
 the mean speed of the stop (it overestimates). The speed *v*:
 
-* two readings in the IR range: their difference over ``dt``;
+* two readings in the IR range: their difference over ``dt`` (the mean speed over the
+  period), plus half a count of each reading's quantization and the half period of
+  acceleration the car may have had since the mean (at most the bound below); whether a
+  tripped guard brakes is decided on the difference alone;
 * the first reading in range, or none (out of range): :attr:`DistanceGuard.bound`, an upper
   bound on the speed the car can have, integrated every period from the commands the motor
   held (the largest of the last ``reaction_periods``, for the dead time) with the same bounds.
@@ -90,6 +93,11 @@ def readout_jump_possible(previous: float, readout: float, travel_cm: float) -> 
         return EDGE_CM - near <= travel_cm + EDGE_CM - float(ir_estimate(1))
     far = float(ir_estimate(far_readout))
     return far - near <= travel_cm + far - float(ir_estimate(far_readout + 1))
+
+
+def _count(distance: float) -> float:
+    """Distance one IR count spans at ``distance`` cm (Eq. (1): d² / (966 + d))."""
+    return distance * distance / (IR_NUMERATOR + distance)
 
 
 @dataclass(frozen=True)
@@ -280,6 +288,7 @@ class DistanceGuard:
         self.reaction_periods = reaction_periods
         self.tripped = False
         self.speed = 0.0  #: approach speed judged, cm/s (positive toward the wall)
+        self.measured = 0.0  #: approach speed the readings show (the bound before two), cm/s
         self.bound = 0.0  #: upper bound of the approach speed, cm/s (the car starts at rest)
         self.sampled = False  #: a readout has come (before it, forward is refused)
         #: Commands held over the last periods: those a car with dead time may still feel.
@@ -319,13 +328,25 @@ class DistanceGuard:
         self.bound = self.car.advance(self.bound, max(self._held), self.dt)
         distance = readout_distance(readout)
         if distance is None or self._distance is None:
-            self.speed = self.bound  # no two readings: the fastest the car can be
+            self.speed = self.measured = self.bound  # no two readings: the fastest it can be
         else:
-            self.speed = (self._distance - distance) / self.dt
+            self.measured = (self._distance - distance) / self.dt
+            self.speed = self._now_at_most(self._distance, distance)
         self._distance = distance
         self.sampled = True
         self.tripped |= self._trips(0.0)
         return self.tripped
+
+    def _now_at_most(self, before: float, now: float) -> float:
+        """The fastest the car can be now, from two readings ``before`` and ``now`` (cm).
+
+        Their difference is the mean speed over the period, off by up to half a count at each
+        reading; the car may have gained half a period of acceleration since the mean. Never
+        above the bound, unless the readings themselves are.
+        """
+        half_counts = 0.5 * (_count(before) + _count(now)) / self.dt
+        gain = max(self.car.accel(max(self._held), max(self.measured, 0.0)), 0.0) * self.dt / 2
+        return max(self.measured, min(self.bound, self.measured + half_counts + gain))
 
     def command(self, requested: float) -> float:
         """Return what the motor may hold next: the request, or a brake and then zero once tripped.
@@ -340,5 +361,5 @@ class DistanceGuard:
             self.tripped = self._trips(requested)
         if not self.tripped:
             return requested
-        approaching = self._distance is not None and self.speed > STOPPED_SPEED
+        approaching = self._distance is not None and self.measured > STOPPED_SPEED
         return self.brake if approaching else min(requested, 0.0)
