@@ -338,7 +338,7 @@ class DistanceGuard:
         return self.tripped
 
     def _now_at_most(self, before: float, now: float) -> float:
-        """The fastest the car can be now, from two readings ``before`` and ``now`` (cm).
+        """Return the fastest the car can be now, from two readings ``before`` and ``now`` (cm).
 
         Their difference is the mean speed over the period, off by up to half a count at each
         reading; the car may have gained half a period of acceleration since the mean. Never
