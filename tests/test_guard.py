@@ -163,3 +163,30 @@ def test_scan_summary_counts_contacts() -> None:
     rows = list(scan.summary([scan.Outcome(case, -0.0, False), scan.Outcome(case, 2.0, True)]))
     assert rows[2] == "| paper | 2 | 1 | 1 | -0.00 | 5.5, 30, +1000 | -0.00 |"
     assert math.isfinite(float(rows[2].split("|")[5]))
+
+
+def test_emulate_guard_mass_option(
+    capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from frictiongym.hardware.command import main
+    from frictiongym.hardware.emulator import Emulator
+
+    with pytest.raises(SystemExit) as exited:
+        main(["--device", "altino", "--guard-mass", "5.5:1.1"])
+    assert exited.value.code == 2
+    assert "--guard-mass takes MIN:MAX" in capsys.readouterr().err
+    given: list[CarBounds] = []
+    monkeypatch.setattr(Emulator, "set_car_bounds", lambda self, car: given.append(car))
+    args = ["--device", "altino", "--guard-mass", "0.5:9", "--duration", "0.1", "--quiet"]
+    assert main([*args, "--no-realtime", "--friction", "none"]) == 0
+    assert capsys.readouterr().out.startswith("/dev/")
+    assert given == [CarBounds(mass_min=0.5, mass_max=9.0, friction=0.0, viscous=0.0)]
+
+
+def test_emulator_set_car_bounds_under_its_lock() -> None:
+    from frictiongym.hardware.emulator import Emulator
+
+    with Emulator("altino", lockstep=True) as emu:
+        emu.set_car_bounds(CarBounds(mass_min=0.5, mass_max=9.0))
+        assert emu.firmware.guard is not None
+        assert emu.firmware.guard.car.mass_max == 9.0
