@@ -214,7 +214,7 @@ class DeviceSession(Simulation):
             self.last_sample = sample
             self._account(sample, not fresh[0], 0.0 if fresh[0] else requested, obs, out, flags)
         except BaseException as exc:
-            self.backend.stop()
+            self.stop()
             if isinstance(exc, HardwareError | OSError):
                 self._record_fault(exc)
             raise
@@ -222,8 +222,9 @@ class DeviceSession(Simulation):
             self.backend.stop()
 
     def stop(self) -> None:
-        """Zero the motor (an error outside :meth:`run`, e.g. a refused action)."""
-        self.backend.stop()
+        """Zero the motor after an error, unless a stop already did (the backend's own)."""
+        if self.backend.armed:
+            self.backend.stop()
 
     def _account(
         self,
