@@ -353,6 +353,17 @@ def test_a_second_host_is_named_not_blamed_on_the_power_supply(
     assert wait_until(lambda: emulator.motor == 0.0)
 
 
+def test_a_late_answer_to_our_own_handshake_is_not_a_second_host(served: Any) -> None:
+    """A booting board may answer two of the handshake's repeated requests."""
+    emulator, backend = served
+    backend._hellos_due, backend._late_hellos_until = 1, time.monotonic() + 0.5
+    _intruder(backend.port, p.HelloRequest())  # its answer stands for our second one
+    for _ in range(5):
+        backend.step(1.0)
+    assert backend._hellos_due == 0
+    assert emulator.motor == 1.0
+
+
 def test_a_restarted_device_is_still_called_restarted() -> None:
     backend = SerialBackend("/dev/null")
     backend._echoed = True

@@ -47,6 +47,8 @@ DEFAULT_BAUD = 1_000_000
 HANDSHAKE_TIMEOUT = 3.0
 #: A command with no echo after this many periods counts as late (it missed its tick).
 LATE_AFTER_PERIODS = 2.5
+#: How long after the handshake a Hello may still answer one of its repeated requests, s.
+LATE_HELLO = 0.5
 #: Longest single wait for input, s: a wait that returns later than this was stalled on the
 #: host, and counts as this long towards the timeout.
 READ_WAIT = 0.05
@@ -120,6 +122,7 @@ class SerialBackend(Backend):
         self._echoes = EchoTimes()
         self._echoed = False  # a state of this episode echoed one of our commands
         self._hellos_due = 0  # our HelloRequests not answered yet
+        self._late_hellos_until = 0.0  # monotonic time until which a Hello may answer one
 
     @classmethod
     def from_uri(cls, path: str, query: dict[str, str]) -> SerialBackend:
@@ -195,6 +198,7 @@ class SerialBackend(Backend):
             for message in self.decoder.feed(arrived):
                 if isinstance(message, p.Hello):
                     self._hellos_due -= 1
+                    self._late_hellos_until = time.monotonic() + LATE_HELLO
                     return self._check_hello(message)
         raise DeviceTimeoutError(
             f"no answer from {self.port!r} within {self.handshake_timeout} s. Check that the "
@@ -257,7 +261,8 @@ class SerialBackend(Backend):
             if isinstance(message, p.State):
                 states.append(message)
             elif isinstance(message, p.Hello):
-                if self._hellos_due > 0:  # the late answer to a request of our handshake
+                if self._hellos_due > 0 and time.monotonic() < self._late_hellos_until:
+                    # the late answer to a second request of our handshake
                     self._hellos_due -= 1
                     continue
                 # A device sends a Hello only when asked: another program asked.
