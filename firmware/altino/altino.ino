@@ -123,6 +123,8 @@ static void car_rx(uint8_t byte)
 void setup()
 {
     fg_device_config cfg = fg_config_altino();
+    /* The distance guard assumes any mass 1.1-5.5 and the paper's least friction (cfg.car); on
+     * a surface with less friction set cfg.car.friction / .viscous here (or -DFG_GUARD_*). */
     fg_device_init(&dev, &cfg);
     period_us = 1000000UL / cfg.rate_hz;
     CAR.begin(CAR_BAUD);
