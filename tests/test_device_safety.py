@@ -325,6 +325,16 @@ def test_a_second_open_of_a_port_is_refused_and_names_who_holds_it(served: Any) 
     assert emulator.motor == 1.5
 
 
+def test_a_second_open_of_a_stock_altino_is_refused_too() -> None:
+    with FakeStockAltino(rate_hz=STOCK_RATE) as fake:
+        with AltinoStockBackend(fake.port, rate_hz=STOCK_RATE) as first:
+            first.start()
+            with pytest.raises(DeviceBusyError, match="in use by another program"):
+                AltinoStockBackend(fake.port, rate_hz=STOCK_RATE).open()
+            first.step(-100.0)
+            assert wait_until(lambda: fake.commands[-1].left == -100)
+
+
 def _intruder(port: str, message: p.Message) -> None:
     """Another program that opens the port without a lock and writes ``message``."""
     fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
