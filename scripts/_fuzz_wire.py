@@ -481,8 +481,8 @@ def fuzz_altino(cases: int, seed: int, say: Progress) -> Part:
     part.cases = cases
     rates = ", ".join(f"{k}: {n} of {t}" for k, (t, n) in passed.items())
     part.notes.append(
-        "altino: damaged replies the 8-bit additive checksum let through (a known limit of "
-        f"the stock protocol; the backend's plausibility check is meant to catch them): {rates}"
+        "altino: damaged replies the 8-bit additive checksum let through (a limit of the "
+        f"vendor's protocol; the stock backend also refuses implausible readout jumps): {rates}"
     )
     return part
 
