@@ -8,13 +8,13 @@ the safety rules every backend shares, so a subclass cannot forget one:
   not ``bool``, a string, a date or an array) and finite: anything else never reaches the
   device, the motor is zeroed and ``ValueError`` says what was given; a command beyond the
   device's limit is saturated, as the simulator saturates it;
-* a sample older than :attr:`Backend.max_sample_age` (:attr:`Sample.age`; default
-  :func:`default_max_sample_age`) zeroes the motor and raises
+* a sample older than :attr:`Backend.max_sample_age` (:attr:`Sample.age`; a backend's
+  ``max_age``, default :func:`default_max_sample_age`) zeroes the motor and raises
   :class:`~frictiongym.hardware.errors.StaleSampleError`: a loop must not steer on old news;
 * the motor is zeroed (and the amplifier disabled where there is one) on :meth:`~Backend.stop`,
   :meth:`~Backend.close`, any exception inside a step (a refused command, a device error, a
-  ``KeyboardInterrupt``), on ``SIGTERM`` and ``SIGHUP`` (:func:`install_stop_signals`), and
-  at interpreter exit for a backend left open;
+  ``KeyboardInterrupt``), on ``SIGTERM`` and ``SIGHUP``
+  (:mod:`~frictiongym.hardware.stop_signals`), and at interpreter exit for a backend left open;
 * device-side, the firmware's watchdog zeroes the motor when commands stop (a host that dies
   cannot send a stop).
 
