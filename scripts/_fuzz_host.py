@@ -23,7 +23,7 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from _fuzz_wire import Part, Progress, case_rng
+from _fuzz_wire import Part, Progress, case_rng, progress
 
 import frictiongym  # noqa: F401  (registers the ids)
 from frictiongym import params as fp
@@ -112,17 +112,18 @@ class CommandSpy:
         firmware.feed = spied
 
 
-def fuzz_actions(cases: int, seed: int, say: Progress) -> Part:
+def fuzz_actions(cases: range, seed: int, say: Progress) -> Part:
     """Hostile and ordinary actions through device envs on the lock-step emulator."""
     part = Part.named("actions")
     refused: dict[str, int] = {}
     stops: list[float] = []
     with tempfile.TemporaryDirectory(prefix="fuzz-actions-") as folder:
         for env_id in (SERVO, ALTINO):
-            share = cases // 2 if env_id == SERVO else cases - cases // 2
+            half = cases.start + len(cases) // 2  # the servo's cases, then the Altino's
+            share = range(cases.start, half) if env_id == SERVO else range(half, cases.stop)
             _actions_on(part, env_id, share, seed, Path(folder) / KIND[env_id], refused, stops)
             say(f"actions: {env_id} done, {len(part.failures)} failures")
-    part.cases = cases
+    part.cases = len(cases)
     if stops:
         part.notes.append(
             f"actions: {sum(refused.values())} refused ({', '.join(sorted(refused))}); the "
@@ -134,7 +135,7 @@ def fuzz_actions(cases: int, seed: int, say: Progress) -> Part:
 def _actions_on(
     part: Part,
     env_id: str,
-    cases: int,
+    cases: range,
     seed: int,
     log: Path,
     refused: dict[str, int],
@@ -147,7 +148,7 @@ def _actions_on(
     counts_limit = emulator.firmware.hello.command_limit
     env.reset(seed=seed)
     returned = 1  # samples the log must hold: the reset's and every step's that returned
-    for case in range(cases):
+    for case in cases:
         rng = case_rng(seed, f"actions-{KIND[env_id]}", case)
         action: object
         if rng.random() < 0.5:
@@ -187,7 +188,7 @@ def _actions_on(
                   "were returned")  # fmt: skip
 
 
-def fuzz_stock(cases: int, seed: int, say: Progress) -> Part:
+def fuzz_stock(cases: range, seed: int, say: Progress) -> Part:
     """Hostile commands through the stock Altino backend, to a fake car on a pty."""
     sys.path.insert(0, str(ROOT / "tests"))  # the fake stock car of the backend's tests
     from _altino_stock_device import FakeStockAltino  # type: ignore[import-not-found]
@@ -200,7 +201,7 @@ def fuzz_stock(cases: int, seed: int, say: Progress) -> Part:
         backend = AltinoStockBackend(car.port, rate_hz=50.0, timeout=0.3)
         try:
             backend.start()
-            for case in range(cases):
+            for case in cases:
                 rng = case_rng(seed, "stock", case)
                 backend.step(rng.uniform(-GO_LIMIT, 0.0))  # away from the wall: no guard
                 what, command, must_refuse = hostile_action(rng, float(GO_LIMIT))
@@ -218,15 +219,14 @@ def fuzz_stock(cases: int, seed: int, say: Progress) -> Part:
                         part.fail(f"stock case {case} ({what}): no {STOP_REPEATS} stop frames "
                                   f"after the error: {car.commands[sent:]}")  # fmt: skip
                     backend.start()
-                if (case + 1) % max(1, cases // 5) == 0:
-                    say(f"stock altino: {case + 1}/{cases} commands, {len(part.failures)} failures")
+                progress(say, part, cases, case, "commands")
         finally:
             backend.close()
     beyond = [c for c in car.commands if max(abs(c.left), abs(c.right)) > GO_LIMIT]
     if beyond or car.bad_frames:
         part.fail(f"stock: the car received {len(beyond)} wheel values beyond {GO_LIMIT} and "
                   f"{car.bad_frames} malformed frames")  # fmt: skip
-    part.cases = cases
+    part.cases = len(cases)
     part.notes.append(f"stock altino: the car received {len(car.commands)} frames")
     return part
 
@@ -459,7 +459,7 @@ def _hostile_zip(rng: random.Random, marker: Path, target: Path) -> str:
     return "+".join(ways)
 
 
-def fuzz_models(cases: int, seed: int, say: Progress) -> Part:
+def fuzz_models(cases: range, seed: int, say: Progress) -> Part:
     """Hostile copies of the shipped model through ResidualController's loader."""
     from stable_baselines3 import PPO
 
@@ -468,7 +468,7 @@ def fuzz_models(cases: int, seed: int, say: Progress) -> Part:
     part = Part.named("model files")
     watch, outcomes = AuditWatch(), {"loaded": 0, "refused": 0}
     with tempfile.TemporaryDirectory(prefix="fuzz-models-") as folder:
-        for case in range(cases):
+        for case in cases:
             rng = case_rng(seed, "models", case)
             marker = Path(folder) / f"ran-{case}"
             target = Path(folder) / f"model-{case}.zip"
@@ -492,9 +492,8 @@ def fuzz_models(cases: int, seed: int, say: Progress) -> Part:
                 part.fail(f"{where}: {watch.seen[0]}")
                 watch.seen.clear()
             target.unlink()
-            if (case + 1) % max(1, cases // 5) == 0:
-                say(f"models: {case + 1}/{cases} files, {len(part.failures)} failures")
-    part.cases = cases
+            progress(say, part, cases, case, "files")
+    part.cases = len(cases)
     part.notes.append(f"models: {outcomes['loaded']} loaded (pickles ignored), "
                       f"{outcomes['refused']} refused with ValueError")  # fmt: skip
     return part
@@ -542,22 +541,21 @@ def _mutated_params(rng: random.Random, text: str) -> tuple[str, bytes]:
     return how, bytes(raw)
 
 
-def fuzz_params(cases: int, seed: int, say: Progress) -> Part:
+def fuzz_params(cases: range, seed: int, say: Progress) -> Part:
     """Mutated friction.json files through load_params."""
     part = Part.named("params files")
     texts = [path.read_text() for path in PARAMS_FILES]
     loaded = 0
     with tempfile.TemporaryDirectory(prefix="fuzz-params-") as folder:
         target = Path(folder) / "friction.json"
-        for case in range(cases):
+        for case in cases:
             rng = case_rng(seed, "params", case)
             how, content = _mutated_params(rng, rng.choice(texts))
             target.write_bytes(content)
             loaded += _load_params(part, f"params case {case} ({how})", target)
-            if (case + 1) % max(1, cases // 5) == 0:
-                say(f"params: {case + 1}/{cases} files, {len(part.failures)} failures")
-    part.cases = cases
-    part.notes.append(f"params: {loaded} of {cases} mutated files loaded (all in range), the "
+            progress(say, part, cases, case, "files")
+    part.cases = len(cases)
+    part.notes.append(f"params: {loaded} of {len(cases)} mutated files loaded (all in range), the "
                       "rest refused with ParamsFileError")  # fmt: skip
     return part
 

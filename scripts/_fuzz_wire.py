@@ -120,6 +120,13 @@ class Part:
         self.failures.append(message)
 
 
+def progress(say: Progress, part: Part, cases: range, case: int, unit: str) -> None:
+    """Say how far ``part`` got, ten times over its ``cases`` (``case`` just done)."""
+    done = case + 1 - cases.start
+    if done % max(1, len(cases) // 10) == 0:
+        say(f"{part.name}: {done}/{len(cases)} {unit}, {len(part.failures)} failures")
+
+
 def case_rng(seed: int, part: str, case: int) -> random.Random:
     """The generator of one case: a case can be replayed from its seed, part and number."""
     return random.Random(f"{seed}:{part}:{case}")
@@ -346,13 +353,13 @@ def _check_python_frame(part: Part, case: str, frame: bytes) -> None:
         part.fail(f"{case}: decode accepted {frame.hex()}, which is not how {message!r} encodes")
 
 
-def fuzz_frames(cases: int, seed: int, harness: CHarness | None, say: Progress) -> Part:
+def fuzz_frames(cases: range, seed: int, harness: CHarness | None, say: Progress) -> Part:
     """Random and damaged frame streams through protocol.py and fg_protocol.c."""
     part = Part.named("frames")
     frames = damaged = collided = 0
     requests: list[str] = []
     expected: list[list[str]] = []
-    for case in range(cases):
+    for case in cases:
         rng = case_rng(seed, "frames", case)
         stream, made = random_stream(rng)
         frames += len(made)
@@ -364,15 +371,14 @@ def fuzz_frames(cases: int, seed: int, harness: CHarness | None, say: Progress) 
         if harness is not None:
             requests.append(f"stream {stream.hex() or '-'}")
             expected.append(lines)
-            if len(requests) == BATCH or case == cases - 1:
+            if len(requests) == BATCH or case == cases[-1]:
                 _compare_with_c(part, harness, requests, expected, case + 1 - len(requests))
                 requests, expected = [], []
-        if (case + 1) % max(1, cases // 10) == 0:
-            say(f"frames: {case + 1}/{cases} streams, {len(part.failures)} failures")
-    part.cases = cases
+        progress(say, part, cases, case, "streams")
+    part.cases = len(cases)
     c_side = "C (ASan+UBSan)" if harness and harness.sanitized else "C" if harness else "no C"
     part.notes.append(
-        f"frames: {frames} frames ({damaged} damaged) in {cases} streams; {c_side}; frames "
+        f"frames: {frames} frames ({damaged} damaged) in {len(cases)} streams; {c_side}; frames "
         f"damaged by bit flips, truncation, extension or a replaced byte that still formed a "
         f"valid frame (a CRC-16 collision, which the decoders must accept): {collided}"
     )
@@ -454,11 +460,11 @@ def _well_formed(frame: bytes, group: bool = True) -> bool:
     )  # fmt: skip
 
 
-def fuzz_altino(cases: int, seed: int, say: Progress) -> Part:
+def fuzz_altino(cases: range, seed: int, say: Progress) -> Part:
     """Damaged stock Altino replies through parse_sensor_reply and take_reply."""
     part = Part.named("altino replies")
     passed = {k: [0, 0] for k in ("1 bit", "2 bits", "3 bits")}
-    for case in range(cases):
+    for case in cases:
         rng = case_rng(seed, "altino", case)
         sensors = _random_sensors(rng)
         intact = af.sensor_reply(sensors)
@@ -476,9 +482,8 @@ def fuzz_altino(cases: int, seed: int, say: Progress) -> Part:
             passed[how][0] += 1
             passed[how][1] += parsed is not None
         _check_take_reply(part, case, rng, frame, intact)
-        if (case + 1) % max(1, cases // 10) == 0:
-            say(f"altino: {case + 1}/{cases} replies, {len(part.failures)} failures")
-    part.cases = cases
+        progress(say, part, cases, case, "replies")
+    part.cases = len(cases)
     rates = ", ".join(f"{k}: {n} of {t}" for k, (t, n) in passed.items())
     part.notes.append(
         "altino: damaged replies the 8-bit additive checksum let through (a limit of the "
@@ -543,12 +548,12 @@ def _watchdog_events(rng: random.Random) -> tuple[int, list[tuple[str, int]], in
     return watchdog_ms, events, silent_from
 
 
-def fuzz_watchdog(cases: int, seed: int, harness: CHarness | None, say: Progress) -> Part:
+def fuzz_watchdog(cases: range, seed: int, harness: CHarness | None, say: Progress) -> Part:
     """The firmware watchdog against random command timelines, in C and in the Python twin."""
     part = Part.named("watchdog")
     delays: list[float] = []
     requests, timelines = [], []
-    for case in range(cases):
+    for case in cases:
         rng = case_rng(seed, "watchdog", case)
         watchdog_ms, events, silent_from = _watchdog_events(rng)
         command = rng.choice([-1, 1]) * rng.randint(100, 10_000)
@@ -566,11 +571,10 @@ def fuzz_watchdog(cases: int, seed: int, harness: CHarness | None, say: Progress
         requests.append(lines)
         timelines.append((case, watchdog_ms, events, silent_from, python))
         _check_watchdog(part, case, watchdog_ms, events, silent_from, python, delays)
-        if (case + 1) % max(1, cases // 10) == 0:
-            say(f"watchdog: {case + 1}/{cases} timelines, {len(part.failures)} failures")
+        progress(say, part, cases, case, "timelines")
     if harness is not None:
         _compare_watchdog_with_c(part, harness, requests, timelines)
-    part.cases = cases
+    part.cases = len(cases)
     if delays:
         part.notes.append(
             f"watchdog: motor 0 within {min(delays):.1f}-{max(delays):.1f} ms past the "

@@ -31,10 +31,13 @@ Parts (``--part``, default all):
 files N/10, at least a few each; fault rounds ``--fault-rounds``). The default (20 000) takes
 about half a minute on two cores; ``--cases 200000`` decodes about 900 000 frames. Every case is
 drawn from its own generator seeded by ``--seed``, the part and the case number, so a
-reported case replays alone. Exits 1 if anything failed, 2 on a usage error.
+reported case of the frames, altino, watchdog, models or params parts replays alone with
+``--part P --first K --cases 1`` (the actions and stock parts step one device through all
+their cases, so a case there replays only with those before it). Exits 1 if anything
+failed, 2 on a usage error.
 
 Usage: python scripts/fuzz_hardware.py [--cases 20000] [--seed 0] [--part frames,actions]
-       [--fault-rounds 5] [--no-c] [--firmware DIR]
+       [--first K] [--fault-rounds 5] [--no-c] [--firmware DIR]
 """
 
 from __future__ import annotations
@@ -70,6 +73,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         default=",".join(PARTS),
         help=f"comma-separated parts to run (default all: {','.join(PARTS)})",
     )
+    parser.add_argument("--first", type=int, default=None,
+                        help="replay: run exactly --cases cases of each chosen part, numbered "
+                        "from this one (e.g. --part frames --first 3131 --cases 1); the "
+                        "actions and stock parts carry state from case to case, so their "
+                        "cases replay only from the start")  # fmt: skip
     parser.add_argument("--fault-rounds", type=int, default=5,
                         help="rounds of the three real-time faults (default 5)")  # fmt: skip
     parser.add_argument("--no-c", action="store_true",
@@ -82,8 +90,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     unknown = sorted(set(parts) - set(PARTS))
     if unknown:
         parser.error(f"unknown --part {', '.join(unknown)}; choose from {', '.join(PARTS)}")
-    if args.cases < 1 or args.fault_rounds < 1:
-        parser.error("--cases and --fault-rounds must be at least 1")
+    if args.cases < 1 or args.fault_rounds < 1 or (args.first is not None and args.first < 0):
+        parser.error("--cases and --fault-rounds must be at least 1, --first at least 0")
     if not args.no_c and not (args.firmware / "common" / "fg_protocol.c").is_file():
         parser.error(f"--firmware {args.firmware} holds no common/fg_protocol.c; give the "
                      "firmware folder of a frictiongym checkout")  # fmt: skip
@@ -99,19 +107,26 @@ def say(message: str) -> None:
 def run_parts(args: argparse.Namespace) -> list[tuple[wire.Part, float]]:
     """Run the chosen parts; return each with its wall time, s."""
     n, seed = args.cases, args.seed
+
+    def size(share: int, least: int) -> range:
+        """The cases of a part: its share of N (at least ``least``), or N from ``--first``."""
+        if args.first is None:
+            return range(max(least, n // share))
+        return range(args.first, args.first + n)
+
     needs_c = not args.no_c and {"frames", "watchdog"} & set(args.parts)
     harness, folder = wire.build_harness(args.firmware if needs_c else None)
     if harness is not None:
         say(f"C harness built{' with ASan+UBSan' if harness.sanitized else ' (no sanitizers)'}")
     runners: dict[str, Callable[[], wire.Part]] = {
-        "frames": lambda: wire.fuzz_frames(n, seed, harness, say),
-        "altino": lambda: wire.fuzz_altino(n, seed, say),
-        "watchdog": lambda: wire.fuzz_watchdog(max(20, n // 20), seed, harness, say),
-        "actions": lambda: host.fuzz_actions(max(40, n // 20), seed, say),
-        "stock": lambda: host.fuzz_stock(max(10, n // 200), seed, say),
+        "frames": lambda: wire.fuzz_frames(size(1, 1), seed, harness, say),
+        "altino": lambda: wire.fuzz_altino(size(1, 1), seed, say),
+        "watchdog": lambda: wire.fuzz_watchdog(size(20, 20), seed, harness, say),
+        "actions": lambda: host.fuzz_actions(size(20, 40), seed, say),
+        "stock": lambda: host.fuzz_stock(size(200, 10), seed, say),
         "faults": lambda: host.fuzz_faults(args.fault_rounds, seed, say),
-        "models": lambda: host.fuzz_models(max(10, n // 200), seed, say),
-        "params": lambda: host.fuzz_params(max(50, n // 10), seed, say),
+        "models": lambda: host.fuzz_models(size(200, 10), seed, say),
+        "params": lambda: host.fuzz_params(size(10, 50), seed, say),
     }
     results = []
     try:

@@ -72,6 +72,13 @@ def test_a_c_decoder_writing_past_its_buffer_is_caught(tmp_path):
     assert "out of bounds" in done.stdout
 
 
+def test_a_case_replays_alone():
+    done = fuzz("--part", "params", "--first", "46", "--cases", "1", "--no-c")
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+    assert "\n| params files | 1 | " in done.stdout
+    assert "params files: 1/1 files" in done.stderr
+
+
 def test_usage_errors_exit_2_with_one_line():
     done = fuzz("--part", "frames,nonsense")
     assert done.returncode == 2
@@ -82,5 +89,6 @@ def test_usage_errors_exit_2_with_one_line():
 def test_help_names_every_option():
     done = fuzz("--help")
     assert done.returncode == 0, done.stderr
-    for option in ("--cases", "--seed", "--part", "--fault-rounds", "--no-c", "--firmware"):
+    for option in ("--cases", "--seed", "--part", "--first", "--fault-rounds", "--no-c",
+                   "--firmware"):  # fmt: skip
         assert option in done.stdout
