@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from frictiongym.cli import main
+from frictiongym.hardware.errors import DeviceTimeoutError
 from frictiongym.controllers import PIDGains
 from frictiongym.sim2real import fit_percent, rmse, run_sim2real, write_report
 
@@ -110,6 +111,10 @@ def test_a_reference_beyond_the_safety_limit_is_refused_up_front(tmp_path, capsy
     assert not out.exists()
     with pytest.raises(ValueError, match="at or behind the safety limit of 0 cm"):
         run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=-2.0, log=False)
+    # Beyond the IR sensor's farthest reading the car never sees the target (it backed away
+    # blind at full reverse for the whole run, and the report said "complete").
+    with pytest.raises(ValueError, match="beyond the IR sensor's range .* at most 21 cm"):
+        run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=30.0, log=False)
 
 
 def test_runs_the_safety_limit_ends_are_reported_not_compared(tmp_path, capsys):
@@ -184,6 +189,84 @@ def test_a_watchdog_trip_marks_its_run_and_the_others_go_on(tmp_path, monkeypatc
     assert data["runs"][1]["ended"] == "watchdog"
     (fault,) = json.loads((tmp_path / "log" / "meta.json").read_text())["faults"]
     assert (fault["episode"], fault["error"]) == (1, "WatchdogTripError")
+
+
+class _FreezingController(_StallingController):
+    """The paper's controller; at one step of one run the device sends nothing until the host
+    has given up on that step (a stalled emulator or link, which then recovers)."""
+
+    def __init__(self, controller, env, run, step):
+        super().__init__(controller, run, step, 0.0)
+        backend = env.unwrapped.sim.backend
+        self.emulator, step_on_device = backend.emulator, backend.step
+
+        def step_then_thaw(command):
+            try:
+                return step_on_device(command)
+            except DeviceTimeoutError:
+                self.emulator._frozen = False
+                raise
+
+        backend.step = step_then_thaw
+
+    def __call__(self, obs):
+        self.steps += 1
+        if (self.runs, self.steps) == (self.run, self.step):
+            self.emulator.freeze()
+        return self.controller(obs)
+
+
+def test_a_link_fault_marks_its_run_and_the_others_go_on(tmp_path, monkeypatch, capsys):
+    """No state frame in time in run 2 (a stalled emulator or link): that run is marked and
+    left out, the others run, and the report says so (before, the whole command failed)."""
+    import frictiongym.sim2real.run as run_module
+
+    original = run_module.build_controller
+    monkeypatch.setattr(
+        run_module, "build_controller",
+        lambda env, kind, gains: _FreezingController(original(env, kind, gains), env, 2, 50),
+    )  # fmt: skip
+    out = tmp_path / "out"
+    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+                   "--repeats", "3", "--steps", "200", "--out", str(out), "--no-figures"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert status == 0
+    assert "device run 2 ended by the link after 49 steps: no state frame" in err
+    data = json.loads((out / "sim2real.json").read_text())
+    assert [run["ended"] for run in data["runs"]] == ["complete", "link", "complete"]
+    assert data["complete_runs"] == 2
+    text = (out / "report.md").read_text()
+    assert "| 2 | 49 | **link**: no state frame" in text
+    assert "A link fault means no state frame came in time" in text
+
+
+def test_a_device_gone_mid_run_ends_the_runs_and_keeps_the_report(tmp_path, monkeypatch, capsys):
+    import frictiongym.sim2real.run as run_module
+
+    class Unplugging(_StallingController):
+        def __call__(self, obs):
+            self.steps += 1
+            if (self.runs, self.steps) == (self.run, self.step):
+                self.controller.env_unplug()
+            return self.controller(obs)
+
+    original = run_module.build_controller
+
+    def build(env, kind, gains):
+        controller = original(env, kind, gains)
+        controller.env_unplug = env.unwrapped.sim.backend.emulator.unplug
+        return Unplugging(controller, 2, 30, 0.0)
+
+    monkeypatch.setattr(run_module, "build_controller", build)
+    out = tmp_path / "out"
+    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
+                   "--repeats", "3", "--steps", "100", "--out", str(out), "--no-figures"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert status == 0, err
+    assert "device run 2 ended by a disconnect after 29 steps" in err
+    data = json.loads((out / "sim2real.json").read_text())
+    assert [run["ended"] for run in data["runs"]] == ["complete", "disconnect"]
+    assert "the runs after it were not tried" in (out / "report.md").read_text()
 
 
 class _CollectingController(_StallingController):

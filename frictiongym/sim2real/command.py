@@ -26,10 +26,12 @@ steady-state error, and the timing of the device loop. The paper's claim is that
 modelling closes most of the gap; the report says how much.
 
 A device run can end early: the device's watchdog stops the motor when the host loop stalls
-for longer than its watchdog time (100 ms on the servo), and the env's safety limit ends a run
-that goes beyond it. Such a run is listed in the report with how and when it ended, left out
-of the comparison, and the other runs go on; with no complete run the command exits 1. A
---reference beyond the safety limit is refused before the device moves. The device runs take
+for longer than its watchdog time (100 ms on the servo), the link when no state frame comes in
+time (or one too old), and the env's safety limit ends a run that goes beyond it. Such a run
+is listed in the report with how and when it ended, left out of the comparison, and the other
+runs go on (a device that goes away ends the runs); with no complete run the command exits 1.
+A --reference beyond the safety limit, or on the Altino beyond its IR sensor's range, is
+refused before the device moves. The device runs take
 real-time priority (SCHED_FIFO) where the system permits it; the report says what they got.
 
 Writes to --out: report.md, sim2real.json, overlay.png, timing.png; the device run's log

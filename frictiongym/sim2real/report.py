@@ -17,6 +17,9 @@ from frictiongym.hardware.runlog import write_json_atomic
 from frictiongym.sim2real.run import (
     COMPLETE,
     DEVICE_LIMIT,
+    DISCONNECTED,
+    FAULT_TEXT,
+    LINK,
     SAFETY_LIMIT,
     SIGNALS,
     WATCHDOG,
@@ -109,11 +112,12 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
 
 
 def stops(result: Sim2RealResult) -> str:
-    """Return how many device runs ended early and by what, e.g. "2 by the watchdog"."""
+    """Return how many device runs ended early and by what, e.g. "2 by the device's watchdog"."""
     counts: dict[str, int] = {}
     for run in result.stopped:
         counts[run.ended] = counts.get(run.ended, 0) + 1
-    return ", ".join(f"{n} by the {ended}" for ended, n in counts.items()) or "none"
+    names = {SAFETY_LIMIT: "the safety limit", DEVICE_LIMIT: "the device limit", **FAULT_TEXT}
+    return ", ".join(f"{n} by {names[ended]}" for ended, n in counts.items()) or "none"
 
 
 def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
@@ -134,6 +138,13 @@ def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
                       "device's watchdog time (a stalled host, or lost frames): the device "
                       "zeroed its motor, and the next run re-armed it (docs/hardware.md, "
                       '"Timing and the watchdog").']  # fmt: skip
+        if any(run.ended == LINK for run in stopped):
+            lines += ["", "A link fault means no state frame came in time, or one came too old "
+                      "(a stalled host or emulator, a slow or lossy link): the motor was zeroed "
+                      "and the next run started afresh."]  # fmt: skip
+        if any(run.ended == DISCONNECTED for run in stopped):
+            lines += ["", "The device went away (cable, power, emulator stopped): the runs "
+                      "after it were not tried."]  # fmt: skip
         if any(run.ended in (SAFETY_LIMIT, DEVICE_LIMIT) for run in stopped):
             lines += ["", "A run ended by a limit went where the limit forbids: a reference "
                       "near it, or a controller that overshoots."]  # fmt: skip

@@ -26,7 +26,11 @@ import numpy.typing as npt
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
 from frictiongym.envs import ENV_IDS
 from frictiongym.envs import _kernel as ek
-from frictiongym.hardware.errors import WatchdogTripError
+from frictiongym.hardware.errors import (
+    DeviceDisconnectedError,
+    DeviceTimeoutError,
+    WatchdogTripError,
+)
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
@@ -36,6 +40,7 @@ from frictiongym.plants.presets import (
     ALTINO_PAPER_GAINS_KI10,
     ROTARY_PAPER_GAINS,
 )
+from frictiongym.plants.sensors import ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -50,11 +55,14 @@ CONTROLLERS = ("pid", "compensated")
 #: Signals compared, as (name, unit key): the controller's view of the loop.
 SIGNALS = ("output", "velocity", "command")
 #: How a device run ended (:attr:`DeviceRun.ended`): its full length; the env's safety limit;
-#: the device's own limit (the Altino's distance guard); the device's watchdog.
+#: the device's own limit (the Altino's distance guard); the device's watchdog; the link (no
+#: state frame in time, or one too old); the device gone (the runs after it are not tried).
 COMPLETE = "complete"
 SAFETY_LIMIT = "safety limit"
 DEVICE_LIMIT = "device limit"
 WATCHDOG = "watchdog"
+LINK = "link"
+DISCONNECTED = "disconnect"
 
 
 @dataclass(frozen=True)
@@ -87,7 +95,7 @@ class DeviceRun:
 
     run: int  #: 1 for the first
     steps: int  #: steps done
-    ended: str  #: ``"complete"``, ``"safety limit"``, ``"device limit"`` or ``"watchdog"``
+    ended: str  #: one of :data:`COMPLETE`, :data:`SAFETY_LIMIT`, ... :data:`DISCONNECTED`
     detail: str  #: one line: what ended it
     trace: Trace | None
 
@@ -95,6 +103,28 @@ class DeviceRun:
     def complete(self) -> bool:
         """Whether the run lasted its full length."""
         return self.ended == COMPLETE
+
+
+#: How the progress line and the report name each fault that ends a run.
+FAULT_TEXT = {
+    WATCHDOG: "the device's watchdog",
+    LINK: "the link",
+    DISCONNECTED: "a disconnect",
+}
+
+
+def _fault_kind(error: BaseException) -> str:
+    """Return how a device error ends a run (:data:`WATCHDOG`, :data:`LINK`, ...)."""
+    if isinstance(error, WatchdogTripError):
+        return WATCHDOG
+    return LINK if isinstance(error, DeviceTimeoutError) else DISCONNECTED
+
+
+def _steps_before_fault(session: Any, faults_before: int) -> int:
+    """Return the steps a run completed before its fault (0 when it came in the reset)."""
+    if len(session.faults) <= faults_before:  # not recorded by a step
+        return 0
+    return max(int(session.faults[-1]["step"]) - 1, 0)
 
 
 def record(env: Any, controller: Controller, steps: int) -> Trace:
@@ -211,6 +241,13 @@ def check_reference(env_id: str, reference: float) -> float:
             f"reference {reference:g} cm is at or behind the safety limit of {limit:g} cm from "
             f"the wall, which ends a run: give a distance above {limit:g} cm"
         )
+    farthest = float(ir_estimate(1))  # readout 0 means "out of range", not a distance
+    if not encoder and reference > farthest:
+        raise ValueError(
+            f"reference {reference:g} cm is beyond the IR sensor's range (its farthest reading "
+            f"is {farthest:.3g} cm): the car would not see when it got there and would keep "
+            f"backing away; give a distance above {limit:g} and at most {farthest:.3g} cm"
+        )
     return limit
 
 
@@ -304,12 +341,17 @@ def run_sim2real(
         with realtime_priority() as priority:
             for r in range(1, repeats + 1):
                 say(f"device run {r}/{repeats}")
+                faults_before = len(session.faults)
                 try:
                     trace = record(device_env, ctrl, n)
-                except WatchdogTripError as exc:  # the host stalled: this run only
-                    done = int(session.faults[-1]["step"]) - 1 if session.faults else 0
-                    runs.append(DeviceRun(r, done, WATCHDOG, str(exc), None))
-                    say(f"device run {r} stopped by the device's watchdog after {done} steps")
+                except (WatchdogTripError, DeviceTimeoutError, DeviceDisconnectedError) as exc:
+                    # A host stall or a link fault ends this run only; a device gone, the rest.
+                    ended = _fault_kind(exc)
+                    done = _steps_before_fault(session, faults_before)
+                    runs.append(DeviceRun(r, done, ended, str(exc), None))
+                    say(f"device run {r} ended by {FAULT_TEXT[ended]} after {done} steps: {exc}")
+                    if ended == DISCONNECTED:
+                        break
                     continue
                 if trace.terminated:
                     ended, detail = _ended_early(session, trace, limit, encoder)
