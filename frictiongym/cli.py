@@ -183,10 +183,15 @@ def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents
     )
 
 
+#: The largest seed every library we seed takes (numpy's legacy ``np.random.seed``, which
+#: Stable-Baselines3 calls, stops at 2**32 - 1).
+MAX_SEED = 2**32 - 1
+
+
 def check_seed(value: int, option: str = "--seed") -> None:
-    """Raise ``ValueError`` unless ``value`` can seed numpy and gymnasium (a whole number >= 0)."""
-    if value < 0:
-        raise ValueError(f"{option} must be a whole number >= 0, got {value}")
+    """Raise ``ValueError`` unless ``value`` can seed numpy, gymnasium and SB3 (0..2**32 - 1)."""
+    if not 0 <= value <= MAX_SEED:
+        raise ValueError(f"{option} must be a whole number from 0 to {MAX_SEED}, got {value}")
 
 
 #: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).

@@ -328,9 +328,11 @@ def test_ctrl_c_on_training_saves_a_checkpoint_that_resume_continues(tmp_path, c
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["identify", "--env", SERVO, "--seed", "-1"], "--seed must be a whole number >= 0"),
-        (["train", "--env", SERVO, "--seed", "-1"], "--seed must be a whole number >= 0"),
-        (["tune", "--seed", "-1"], "--seed must be a whole number >= 0"),
+        (["identify", "--env", SERVO, "--seed", "-1"], "--seed must be a whole number from 0"),
+        (["train", "--env", SERVO, "--seed", "-1"], "--seed must be a whole number from 0"),
+        (["train", "--env", SERVO, "--seed", str(2**32)], "from 0 to 4294967295, got 4294967296"),
+        (["tune", "--seed", "-1"], "--seed must be a whole number from 0"),
+        (["tune", "--seed", str(2**32)], "from 0 to 4294967295, got 4294967296"),
         (["train", "--env", SERVO, "--sb3", "bogus=1"], "--sb3 bogus: PPO takes no such argument"),
         (["train", "--env", SERVO, "--sb3", "seed=3"], "--sb3 seed: frictiongym train sets it"),
         (["train", "--env", SERVO, "--sb3", "n_steps=-1"], "--sb3 n_steps=-1: PPO refused them"),
@@ -348,7 +350,9 @@ def test_bad_values_get_one_line(argv, message, tmp_path, capsys):
 
 def test_emulate_refuses_a_negative_seed(capsys):
     assert main(["emulate", "--device", "rotary", "--seed", "-1"]) == 2
-    assert _one_line(capsys.readouterr().err) == "error: --seed must be a whole number >= 0, got -1"
+    assert _one_line(capsys.readouterr().err) == (
+        "error: --seed must be a whole number from 0 to 4294967295, got -1"
+    )
 
 
 def test_demo_bad_values_show_the_demo_usage(capsys):

@@ -298,7 +298,7 @@ def test_cli_friction_model_and_params_file(tmp_path, capsys):
         (["--horizon", "-1"], "--horizon must be a number of seconds longer than"),
         (["--horizon", "nan"], "--horizon"),
         (["--chunk", "0"], "--chunk must be at least 1"),
-        (["--seed", "-3"], "--seed must be a whole number >= 0"),
+        (["--seed", "-3"], "--seed must be a whole number from 0"),
         (["--params", "missing.json"], "no such file"),
     ],
 )

@@ -143,8 +143,10 @@ def check_settings(settings: TrainSettings) -> None:
     ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
     if settings.env_id not in ids:
         raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
-    if settings.seed < 0:
-        raise TrainingError(f"--seed must be a whole number >= 0, got {settings.seed}")
+    if not 0 <= settings.seed <= 2**32 - 1:  # numpy's legacy seeding, which SB3 calls
+        raise TrainingError(
+            f"--seed must be a whole number from 0 to {2**32 - 1}, got {settings.seed}"
+        )
     if settings.overwrite and settings.resume is not None:
         raise TrainingError(
             "--overwrite replaces an earlier run and --resume continues it: give one of them"
