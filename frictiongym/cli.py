@@ -6,9 +6,13 @@ import argparse
 import math
 import os
 import shlex
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
+from types import FrameType
 from typing import Any
 
 from frictiongym import __version__
@@ -282,25 +286,67 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class Terminated(KeyboardInterrupt):
+    """A ``SIGTERM`` or ``SIGHUP`` (``kill``, ``timeout``, a closed terminal, a CI cancel).
+
+    A command ends on it as on a Ctrl-C, its cleanup included (partial outputs removed,
+    ``train``'s checkpoint saved, a device's motor stopped), with status 128 + the signal.
+    """
+
+    def __init__(self, signum: int) -> None:
+        super().__init__()  # no text: the cleanup may add what it kept, as for a Ctrl-C
+        self.signum = signum
+
+
+def _terminate(signum: int, frame: FrameType | None) -> None:
+    raise Terminated(signum)
+
+
+@contextmanager
+def _terminate_like_ctrl_c() -> Iterator[None]:
+    """Turn ``SIGTERM``/``SIGHUP`` into :class:`Terminated` while a command runs.
+
+    Only signals left at their default action are taken (an ignored one, as under ``nohup``,
+    stays ignored), only from the main thread, and the earlier handlers come back after.
+    """
+    taken: dict[int, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for name in ("SIGTERM", "SIGHUP"):
+            sig = getattr(signal, name, None)
+            if sig is not None and signal.getsignal(sig) is signal.SIG_DFL:
+                taken[sig] = signal.signal(sig, _terminate)
+    try:
+        yield
+    finally:
+        for sig, previous in taken.items():
+            signal.signal(sig, previous)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; return the exit status.
 
-    A Ctrl-C ends a command with one line on stderr and status 130; the command's own
-    cleanup (``frictiongym._io.OutputDir``) has by then removed its partial outputs.
+    A Ctrl-C ends a command with one line on stderr and status 130, a ``SIGTERM`` or
+    ``SIGHUP`` likewise with 143 or 129 (:class:`Terminated`); the command's own cleanup
+    (``frictiongym._io.OutputDir``) has by then removed its partial outputs.
     """
     words = list(sys.argv[1:] if argv is None else argv)
     prog = "frictiongym"
     try:
-        parser = build_parser()
-        args = parser.parse_args(words)
-        args.command_line = shlex.join(["frictiongym", *words])
-        if args.command is None:
-            parser.print_help()
-            return 0
-        prog = f"frictiongym {args.command}"
-        status: int = args.func(args)
+        with _terminate_like_ctrl_c():
+            parser = build_parser()
+            args = parser.parse_args(words)
+            args.command_line = shlex.join(["frictiongym", *words])
+            if args.command is None:
+                parser.print_help()
+                return 0
+            prog = f"frictiongym {args.command}"
+            status: int = args.func(args)
     except KeyboardInterrupt as interrupt:
         detail = f"; {interrupt}" if interrupt.args else ""
+        if isinstance(interrupt, Terminated):
+            name = signal.Signals(interrupt.signum).name
+            print(f"{prog}: terminated by {name}{detail}", file=sys.stderr, flush=True)
+            return 128 + interrupt.signum
         print(f"{prog}: interrupted{detail}", file=sys.stderr, flush=True)
         return 130
     except OutputError as error:  # an --out or --plot that cannot be written, found up front

@@ -255,15 +255,21 @@ def _wait_for(chunks, pattern, proc, timeout=180.0):
     pytest.fail(f"no {pattern!r} on stderr in {timeout} s: {''.join(chunks)[-500:]}")
 
 
-def _interrupt(proc, chunks):
-    proc.send_signal(signal.SIGINT)
+def _interrupt(proc, chunks, sig=signal.SIGINT):
+    proc.send_signal(sig)
     status = proc.wait(timeout=120)
     time.sleep(0.2)  # the reader thread's last chunks
     return status, "".join(chunks)
 
 
-@pytest.mark.parametrize("earlier", [False, True], ids=["new-out", "earlier-results"])
-def test_ctrl_c_on_a_running_benchmark(tmp_path, earlier):
+@pytest.mark.parametrize(
+    ("earlier", "sig"),
+    [(False, signal.SIGINT), (True, signal.SIGINT), (False, signal.SIGTERM), (True, signal.SIGHUP)],
+    ids=["new-out", "earlier-results", "sigterm-new-out", "sighup-earlier-results"],
+)
+def test_ctrl_c_on_a_running_benchmark(tmp_path, earlier, sig):
+    """A Ctrl-C, a ``kill`` or a closed terminal: one line, no partial outputs (a SIGTERM had
+    left --out/.frictiongym-partial-* behind)."""
     out = tmp_path / "results"
     argv = ["frictiongym", "benchmark", "--out", str(out)]
     if earlier:
@@ -274,13 +280,19 @@ def test_ctrl_c_on_a_running_benchmark(tmp_path, earlier):
     try:
         chunks = _read_stderr(proc)
         _wait_for(chunks, r"\b[1-9]\d*/\d+ \[", proc)  # mid-run: a scenario is done
-        status, err = _interrupt(proc, chunks)
+        status, err = _interrupt(proc, chunks, sig)
     finally:
         proc.kill()
-    assert status == 130
     assert "Traceback" not in err
     kept = "left as it was" if earlier else "not created"
-    assert err.splitlines()[-1] == f"frictiongym benchmark: interrupted; --out {out} {kept}"
+    if sig == signal.SIGINT:
+        assert status == 130
+        assert err.splitlines()[-1] == f"frictiongym benchmark: interrupted; --out {out} {kept}"
+    else:
+        assert status == 128 + sig
+        assert err.splitlines()[-1] == (
+            f"frictiongym benchmark: terminated by {sig.name}; --out {out} {kept}"
+        )
     if earlier:
         assert sorted(p.name for p in out.iterdir()) == ["results.json"]
         assert (out / "results.json").read_text() == "earlier run"

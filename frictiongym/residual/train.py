@@ -561,9 +561,10 @@ def _train(
             callback=CallbackList(callbacks),
             reset_num_timesteps=resumed_from is None,
         )
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as interrupt:  # a Ctrl-C, or the CLI's SIGTERM (a subclass)
         bar.close()
-        raise KeyboardInterrupt(_checkpoint_on_interrupt(model, out, algo)) from None
+        interrupt.args = (_checkpoint_on_interrupt(model, out, algo),)
+        raise interrupt.with_traceback(None) from None
     learn_time = time.perf_counter() - learn_start
     training_time = learn_time - (validate.seconds if validate is not None else 0.0)
     save_model(model, out / "model.zip", None if algo == "ppo" else out / "replay_buffer.pkl")
