@@ -225,7 +225,8 @@ class OutputDir:
                 folder.mkdir()
                 self._created.append(folder)
             if self.staged:
-                self.path = out / f"{STAGING_PREFIX}{secrets.token_hex(4)}"
+                _remove_abandoned_staging(out)
+                self.path = out / f"{STAGING_PREFIX}{os.getpid()}-{secrets.token_hex(4)}"
                 self.path.mkdir()
             _probe(self.path)
         except OSError as error:
@@ -288,6 +289,28 @@ class OutputDir:
         if isinstance(error, KeyboardInterrupt) and not error.args:
             kept = "left as it was" if self.out.exists() else "not created"
             error.args = (f"{self.option} {self.out} {kept}",)
+
+
+def _remove_abandoned_staging(out: Path) -> None:
+    """Remove staging folders of runs that were killed outright (``SIGKILL``, a power cut).
+
+    A staging folder is named after its process; one whose process no longer runs is
+    abandoned. Folders of live processes (another run into the same ``out``) stay.
+    """
+    for path in out.glob(f"{STAGING_PREFIX}*"):
+        owner = path.name.removeprefix(STAGING_PREFIX).partition("-")[0]
+        if owner.isdigit() and not _process_alive(int(owner)) and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+
+
+def _process_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError):  # another user's process; or not a pid at all
+        return True
+    return True
 
 
 def _remove(path: Path) -> None:
