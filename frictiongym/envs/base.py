@@ -336,6 +336,11 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         reproducible through later unseeded resets.
         """
         super().reset(seed=seed if isinstance(seed, int) else None)
+        if options is not None and "reset_mask" in options:
+            raise ValueError(
+                "reset_mask is not supported: this vector env resets every env on reset() and "
+                "each ended env on its next step (autoreset mode NEXT_STEP)"
+            )
         if isinstance(seed, int):
             seed = [seed + i for i in range(self.num_envs)]
         elif seed is None:
@@ -368,10 +373,10 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                     f"{command.dtype}"
                 )
             command = command.astype(np.float64)
-        if command.size != self.num_envs:
+        if command.shape not in ((self.num_envs, 1), (self.num_envs,)):
             raise ValueError(
-                f"actions must hold one command per env, shape ({self.num_envs}, 1); "
-                f"got shape {command.shape}"
+                f"actions must hold one command per env, shape ({self.num_envs}, 1) (or "
+                f"({self.num_envs},)); got shape {command.shape}"
             )
         command = command.reshape(self.num_envs)
         fresh = self._done
