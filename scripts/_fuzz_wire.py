@@ -51,9 +51,9 @@ WHAT: dict[str, tuple[str, str]] = {
         "which the parser checks); the reader always finds the intact reply after",
     ),
     "watchdog": (
-        "the servo firmware (fg_device.c and firmware.py) armed, sent commands at random "
-        "times closer than its watchdog (0 = default 100 ms, 5-50 ms, 100-400 ms), then "
-        "silence; clocks near the 32-bit µs wrap too",
+        "the servo and Altino firmware (fg_device.c and firmware.py) armed, sent commands "
+        "at random times closer than its watchdog (the default, 5-50 ms or 100-400 ms; the "
+        "Altino's driving away from the wall), then silence; clocks near the 32-bit µs wrap",
         "the motor holds while commands come and is 0 from the first tick at or past the "
         "watchdog time after the last command; C and Python agree tick by tick",
     ),
@@ -522,27 +522,29 @@ def _check_take_reply(
 
 # --- the device watchdog: C firmware and Python twin ------------------------------------------
 
-PERIOD_US = 2000  # the servo's
+#: Per device: its period (µs), default watchdog (ms), largest command (counts) and the signs
+#: of the commands held (the Altino's drive away from the wall: its distance guard never acts).
+WATCHDOG_DEVICES = {"rotary": (2000, 100, 10_000, (-1, 1)), "altino": (50_000, 150, 1000, (-1,))}
 
 
-def _watchdog_events(rng: random.Random) -> tuple[int, list[tuple[str, int]], int]:
+def _watchdog_events(rng: random.Random, device: str) -> tuple[int, list[tuple[str, int]], int]:
     """A watchdog setting and a timeline: commands at odd µs, then silence; ticks every period.
 
     Command times are odd and tick times even, so no tick falls exactly on a deadline (the
     C firmware counts µs, its Python twin seconds in floating point).
     """
+    period, default_ms, *_ = WATCHDOG_DEVICES[device]
     watchdog_ms = rng.choice([0, rng.randint(5, 50), rng.randint(100, 400)])
     start = rng.choice([rng.randrange(1 << 20), (1 << 32) - rng.randrange(1, 400_000)])
-    start -= start % PERIOD_US
-    limit = watchdog_ms * 1000 if watchdog_ms else 100_000
-    events, t, seq = [], start + 1, 0
+    start -= start % period
+    limit = (watchdog_ms or default_ms) * 1000
+    events, t = [], start + 1
     for _ in range(rng.randint(1, 12)):  # commands closer together than the watchdog time
-        t += rng.randrange(1, min(limit, 4 * PERIOD_US) // 2) * 2
+        t += rng.randrange(1, min(limit, 4 * period) // 2) * 2
         events.append(("cmd", t))
-        seq += 1
     silent_from = t
-    end = silent_from + 2 * limit + 4 * PERIOD_US
-    ticks = range(start + PERIOD_US, end, PERIOD_US)
+    end = silent_from + 2 * limit + 4 * period
+    ticks = range(start + period, end, period)
     events += [("tick", k) for k in ticks]
     events.sort(key=lambda e: (e[1], e[0] == "tick"))
     return watchdog_ms, events, silent_from
@@ -551,14 +553,16 @@ def _watchdog_events(rng: random.Random) -> tuple[int, list[tuple[str, int]], in
 def fuzz_watchdog(cases: range, seed: int, harness: CHarness | None, say: Progress) -> Part:
     """The firmware watchdog against random command timelines, in C and in the Python twin."""
     part = Part.named("watchdog")
-    delays: list[float] = []
+    delays: dict[str, list[float]] = {}
     requests, timelines = [], []
     for case in cases:
         rng = case_rng(seed, "watchdog", case)
-        watchdog_ms, events, silent_from = _watchdog_events(rng)
-        command = rng.choice([-1, 1]) * rng.randint(100, 10_000)
-        python = _python_motor(watchdog_ms, events, command)
-        lines = [f"dev_init rotary {watchdog_ms}"]
+        device = rng.choice(sorted(WATCHDOG_DEVICES))
+        watchdog_ms, events, silent_from = _watchdog_events(rng, device)
+        _, default_ms, largest, signs = WATCHDOG_DEVICES[device]
+        command = rng.choice(signs) * rng.randint(100, largest)
+        python = _python_motor(device, watchdog_ms, events, command)
+        lines = [f"dev_init {device} {watchdog_ms}"]
         seq = 0
         for kind, t in events:
             if kind == "cmd":
@@ -570,21 +574,25 @@ def fuzz_watchdog(cases: range, seed: int, harness: CHarness | None, say: Progre
                 lines.append(f"dev_tick {t & 0xFFFFFFFF} 0 0 0")
         requests.append(lines)
         timelines.append((case, watchdog_ms, events, silent_from, python))
-        _check_watchdog(part, case, watchdog_ms, events, silent_from, python, delays)
+        deadline = silent_from + (watchdog_ms or default_ms) * 1000
+        _check_watchdog(part, case, deadline, events, python, delays.setdefault(device, []))
         progress(say, part, cases, case, "timelines")
     if harness is not None:
         _compare_watchdog_with_c(part, harness, requests, timelines)
     part.cases = len(cases)
-    if delays:
+    for device, late in sorted(delays.items()):
+        period = WATCHDOG_DEVICES[device][0] / 1000
         part.notes.append(
-            f"watchdog: motor 0 within {min(delays):.1f}-{max(delays):.1f} ms past the "
-            "watchdog time (one period: 2 ms)"
+            f"watchdog: {device}: {len(late)} timelines, motor 0 within {min(late):.1f}-"
+            f"{max(late):.1f} ms past the watchdog time (its period: {period:g} ms)"
         )
     return part
 
 
-def _python_motor(watchdog_ms: int, events: list[tuple[str, int]], command: int) -> list[int]:
-    firmware = Firmware("rotary", watchdog_ms=watchdog_ms or None)
+def _python_motor(
+    device: str, watchdog_ms: int, events: list[tuple[str, int]], command: int
+) -> list[int]:
+    firmware = Firmware(device, watchdog_ms=watchdog_ms or None)
     motors, seq, origin = [], 0, events[0][1]
     for kind, t in events:
         now = (t - origin) / 1e6  # seconds from the first event: no float wrap
@@ -601,13 +609,11 @@ def _python_motor(watchdog_ms: int, events: list[tuple[str, int]], command: int)
 def _check_watchdog(
     part: Part,
     case: int,
-    watchdog_ms: int,
+    deadline: int,
     events: list[tuple[str, int]],
-    silent_from: int,
     motors: list[int],
     delays: list[float],
 ) -> None:
-    deadline = silent_from + (watchdog_ms or 100) * 1000
     ticks = [t for kind, t in events if kind == "tick"]
     first_cmd = next(t for kind, t in events if kind == "cmd")
     for t, motor in zip(ticks, motors, strict=True):

@@ -15,6 +15,7 @@ PARTS = ("frames", "altino replies", "watchdog", "actions", "stock altino", "fau
          "model files", "params files")  # fmt: skip
 CRC_CHECK = "if (fg_crc16(data, (size_t)n - 2u) != get_u16(data + n - 2)) {"
 BOUND_CHECK = "if (dec->len < FG_MAX_FRAME) {"
+WATCHDOG_CHECK = "(uint32_t)(now_us - dev->last_command_us) >= dev->watchdog_us"
 needs_cc = pytest.mark.skipif(
     shutil.which("cc") is None and shutil.which("gcc") is None,
     reason="no C compiler: the C decoder cannot be built (apt-get install gcc)",
@@ -42,11 +43,13 @@ def test_every_part_holds_at_a_tiny_size():
     assert "frames: 60/60 streams" in done.stderr  # progress goes to stderr
 
 
-def broken_firmware(tmp_path: Path, line: str, replacement: str) -> Path:
-    """A copy of firmware/ with ``line`` of fg_protocol.c replaced."""
+def broken_firmware(
+    tmp_path: Path, line: str, replacement: str, file: str = "fg_protocol.c"
+) -> Path:
+    """A copy of firmware/ with ``line`` of ``common/<file>`` replaced."""
     firmware = tmp_path / "firmware"
     shutil.copytree(ROOT / "firmware", firmware)
-    source = firmware / "common" / "fg_protocol.c"
+    source = firmware / "common" / file
     text = source.read_text()
     assert line in text
     source.write_text(text.replace(line, replacement))
@@ -70,6 +73,16 @@ def test_a_c_decoder_writing_past_its_buffer_is_caught(tmp_path):
     if "(no sanitizers)" in done.stderr:
         pytest.skip("this compiler has no sanitizers: only the C == Python check ran")
     assert "out of bounds" in done.stdout
+
+
+@needs_cc
+def test_a_c_watchdog_that_waits_twice_as_long_is_caught(tmp_path):
+    late = WATCHDOG_CHECK.replace(">= dev->watchdog_us", ">= 2u * dev->watchdog_us")
+    firmware = broken_firmware(tmp_path, WATCHDOG_CHECK, late, "fg_device.c")
+    done = fuzz("--part", "watchdog", "--cases", "400", "--firmware", str(firmware))
+    assert done.returncode == 1, done.stdout[-3000:] + done.stderr[-2000:]
+    assert "watchdog case" in done.stdout
+    assert ": C motor " in done.stdout
 
 
 def test_a_case_replays_alone():
