@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 from frictiongym.cli import main
-from frictiongym.hardware.errors import DeviceTimeoutError
 from frictiongym.controllers import PIDGains
+from frictiongym.hardware.errors import DeviceTimeoutError
 from frictiongym.sim2real import fit_percent, rmse, run_sim2real, write_report
 
 SERVO = "frictiongym/RotaryServo-v0"
@@ -113,7 +113,7 @@ def test_a_reference_beyond_the_safety_limit_is_refused_up_front(tmp_path, capsy
         run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=-2.0, log=False)
     # Beyond the IR sensor's farthest reading the car never sees the target (it backed away
     # blind at full reverse for the whole run, and the report said "complete").
-    with pytest.raises(ValueError, match="beyond the IR sensor's range .* at most 21 cm"):
+    with pytest.raises(ValueError, match=r"beyond the IR sensor's range .* at most 21 cm"):
         run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=30.0, log=False)
 
 
@@ -126,7 +126,7 @@ def test_runs_the_safety_limit_ends_are_reported_not_compared(tmp_path, capsys):
                    "--no-figures"])  # fmt: skip
     err = capsys.readouterr().err
     assert status == 1
-    assert "error: none of the 2 device runs completed (2 by the safety limit)" in err
+    assert "error: no device run completed (2 by the safety limit)" in err
     data = json.loads((out / "sim2real.json").read_text())
     assert data["complete_runs"] == 0
     assert [run["ended"] for run in data["runs"]] == ["safety limit"] * 2
@@ -182,8 +182,8 @@ def test_a_watchdog_trip_marks_its_run_and_the_others_go_on(tmp_path, monkeypatc
     path = write_report(result, tmp_path / "out", "frictiongym sim2real ...", figures=False)
     text = path.read_text()
     assert "| 2 | 99 | **watchdog**:" in text
-    assert "1 of 3 runs (2) ended early" in text
-    assert "the 2 complete runs" in text
+    assert "1 of 3 runs (2) ended early and is left out" in text
+    assert "the 2 runs that completed" in text
     data = json.loads((tmp_path / "out" / "sim2real.json").read_text())
     assert (data["repeats"], data["complete_runs"]) == (3, 2)
     assert data["runs"][1]["ended"] == "watchdog"
@@ -227,8 +227,8 @@ def test_a_link_fault_marks_its_run_and_the_others_go_on(tmp_path, monkeypatch, 
         lambda env, kind, gains: _FreezingController(original(env, kind, gains), env, 2, 50),
     )  # fmt: skip
     out = tmp_path / "out"
-    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-                   "--repeats", "3", "--steps", "200", "--out", str(out), "--no-figures"])  # fmt: skip
+    argv = ["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1"]
+    status = main([*argv, "--repeats", "3", "--steps", "200", "--out", str(out), "--no-figures"])
     err = capsys.readouterr().err
     assert status == 0
     assert "device run 2 ended by the link after 49 steps: no state frame" in err
@@ -259,8 +259,8 @@ def test_a_device_gone_mid_run_ends_the_runs_and_keeps_the_report(tmp_path, monk
 
     monkeypatch.setattr(run_module, "build_controller", build)
     out = tmp_path / "out"
-    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-                   "--repeats", "3", "--steps", "100", "--out", str(out), "--no-figures"])  # fmt: skip
+    argv = ["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1"]
+    status = main([*argv, "--repeats", "3", "--steps", "100", "--out", str(out), "--no-figures"])
     err = capsys.readouterr().err
     assert status == 0, err
     assert "device run 2 ended by a disconnect after 29 steps" in err

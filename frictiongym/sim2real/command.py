@@ -13,7 +13,7 @@ from frictiongym.controllers import PIDGains
 from frictiongym.hardware import SIM
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.params import ParamsFileError
-from frictiongym.sim2real.report import stops, summary, write_report
+from frictiongym.sim2real.report import runs_text, stops, summary, write_report
 from frictiongym.sim2real.run import CONTROLLERS, run_sim2real
 
 DESCRIPTION = """\
@@ -152,15 +152,16 @@ def run(args: argparse.Namespace, command_line: str) -> int:
                                       figures=not args.no_figures))  # fmt: skip
         out.commit()
     if not result.device:
-        print(f"error: none of the {len(result.runs)} device runs completed ({stops(result)}): "
+        print(f"error: no device run completed ({stops(result)}): "
               f"nothing to compare; {path} says how each ended", file=sys.stderr)  # fmt: skip
         return 1
     if not args.quiet:
         data = summary(result)
         if result.stopped:
-            print(f"note: {len(result.stopped)} of {data['repeats']} device runs ended early "
-                  f"({stops(result)}); the comparison uses the {data['complete_runs']} complete "
-                  "ones", file=sys.stderr)  # fmt: skip
+            print(f"note: {len(result.stopped)} of {runs_text(data['repeats'])} on the device "
+                  f"ended early ({stops(result)}); the comparison uses the "
+                  f"{runs_text(data['complete_runs'])} that completed",
+                  file=sys.stderr)  # fmt: skip
         for name in result.models:
             gap = data["gap"][name]["output"]
             print(f"{name:>12}: output RMSE {gap['rmse']:.4g}, fit {gap['fit_pct']:.3g} %")

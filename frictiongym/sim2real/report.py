@@ -111,6 +111,11 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
     return data
 
 
+def runs_text(n: int) -> str:
+    """Return "1 run" or "n runs"."""
+    return f"{n} run" if n == 1 else f"{n} runs"
+
+
 def stops(result: Sim2RealResult) -> str:
     """Return how many device runs ended early and by what, e.g. "2 by the device's watchdog"."""
     counts: dict[str, int] = {}
@@ -130,9 +135,11 @@ def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
     stopped = result.stopped
     if stopped:
         names = ", ".join(str(run.run) for run in stopped)
-        lines += ["", f"{len(stopped)} of {data['repeats']} runs ({names}) ended early and are "
-                  "left out of the comparison" + (f": the figures below use the "
-                  f"{data['complete_runs']} complete runs." if result.device else ".")]  # fmt: skip
+        are = "is" if len(stopped) == 1 else "are"
+        lines += ["", f"{len(stopped)} of {runs_text(data['repeats'])} ({names}) ended early "
+                  f"and {are} left out of the comparison" + (f": the figures below use the "
+                  f"{runs_text(data['complete_runs'])} that completed." if result.device
+                  else ".")]  # fmt: skip
         if any(run.ended == WATCHDOG for run in stopped):
             lines += ["", "A watchdog trip means the host loop sent no command for the "
                       "device's watchdog time (a stalled host, or lost frames): the device "
@@ -169,7 +176,7 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
         "",
         f"Reproduce: `{command}`",
         "",
-        f"Device: `{result.backend}`, {data['repeats']} runs of {steps} steps, "
+        f"Device: `{result.backend}`, {runs_text(data['repeats'])} of {steps} steps, "
         f"{data['complete_runs']} complete (log: `{result.log_dir}`). Gains: "
         f"Kp={result.gains['kp']:g}, Ki={result.gains['ki']:g}, Kd={result.gains['kd']:g}.",
         "",
