@@ -73,13 +73,14 @@ WHAT: dict[str, tuple[str, str]] = {
     ),
     "faults": (
         "the servo env on the real-time emulator (500 Hz) stepped 20-200 times, then: the "
-        "device unplugged, the device frozen (no more frames), or the host silent; and "
-        "a link delaying every frame by 0.12-0.3 s (the device's watchdog at 1 s)",
+        "device unplugged, the device frozen (no more frames), or the host silent; a link "
+        "delaying every frame by 0.12-0.3 s (the device's watchdog at 1 s); a link damaging "
+        "1-10 % of the frames and dropping bytes, over 500 steps",
         "unplug/freeze raise DeviceDisconnectedError/DeviceTimeoutError, the delayed link a "
         "HardwareError within 25 steps with the motor zeroed, each with the log holding "
-        "every step returned; after "
-        "host silence the device's watchdog zeroes the motor within its time plus a period, "
-        "and the next step raises WatchdogTripError",
+        "every step returned; after host silence the device's watchdog zeroes the motor "
+        "within its time plus a period and the next step raises WatchdogTripError; over the "
+        "damaging link every sample returned is the device's own state at its tick",
     ),
     "model files": (
         "copies of models/residual/rotary.zip carrying pickles (an added data entry, SB3's "

@@ -10,17 +10,18 @@ Parts (``--part``, default all):
   ``FrameError``, every accepted frame exactly a valid encoding, C == Python on every stream.
 * ``altino``: damaged stock Altino replies through ``parse_sensor_reply`` and the stream
   reader ``take_reply`` (``frictiongym/hardware/altino_frames.py``).
-* ``watchdog``: the servo firmware in C and its Python twin (``firmware.py``), armed, then
-  commands at random times, then silence: the motor stops at the first tick past the
-  watchdog time, and C and Python agree tick by tick.
+* ``watchdog``: the servo and Altino firmware in C and its Python twin (``firmware.py``),
+  armed, then commands at random times, then silence: the motor stops at the first tick past
+  the watchdog time, and C and Python agree tick by tick.
 * ``actions``: hostile actions (NaN, inf, huge, wrong types and shapes) through device envs on
   the lock-step emulator: refused with ``ValueError``, the motor zeroed after each, never a
   command beyond the limit on the wire, the run log complete.
 * ``stock``: the same hostile commands through the stock Altino backend to a fake car on a
   pty: refused, followed by the stop frames, never a wheel value beyond 1000 on the wire.
-* ``faults``: the real-time emulator unplugged, frozen, left without commands, or behind a
-  link that delays its frames: the time to the error, the log complete, the motor zeroed, the
-  watchdog's stop in device time.
+* ``faults``: the real-time emulator unplugged, frozen, left without commands, behind a link
+  that delays its frames, or behind one that damages them: the time to the error, the log
+  complete, the motor zeroed, the watchdog's stop in device time, and every sample taken over
+  the damaging link equal to the device's own record of its tick.
 * ``models``: hostile copies of the shipped residual model through ``load_policy``: nothing
   runs, only ``ValueError``.
 * ``params``: mutated ``friction.json`` files through ``load_params``: only
