@@ -52,6 +52,18 @@ def test_single_env_observations_are_clean(env_id: str, kwargs: dict) -> None:
     assert unclean(np.array(seen)) == (0, 0)
 
 
+@pytest.mark.parametrize(
+    "options",
+    [{"velocity": -1e-30}, {"position": -1e-40}, {"position": -1e-300}, {"reference": -1e-40}],
+)
+def test_an_ideal_sensor_near_zero_gives_clean_observations(options: dict) -> None:
+    """With ``quantize=False`` the angle is the true one, as near 0 as a start makes it."""
+    env = gym.make(SERVO, quantize=False)
+    seen = [env.reset(seed=0, options=options)[0]]
+    seen += [env.step(np.zeros(1, np.float32))[0] for _ in range(3)]
+    assert unclean(np.array(seen)) == (0, 0)
+
+
 def test_a_stuck_servo_reports_exactly_zero_velocity() -> None:
     # One push, then nothing: the disk stops, and its estimate must reach +0.0, not decay on.
     env = gym.make(SERVO)

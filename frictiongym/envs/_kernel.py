@@ -155,6 +155,22 @@ def _env_element(
     flags[F_STUCK, i] = state[i, pk.S_STUCK] != 0.0
 
 
+#: The smallest normal float32: an observation below it would be subnormal (slow to compute
+#: with on x86) or round to -0.0.
+FLOAT32_TINY = float(np.finfo(np.float32).tiny)
+
+
+@njit(cache=True, inline="always")
+def _float32_normal(value: float) -> float:
+    """Return ``value``, or +0.0 where float32 would hold it as subnormal or -0.0.
+
+    An ideal sensor (``quantize=False``) passes on the true angle, or an IR readout that is
+    not rounded, which can come as close to 0 as a start makes them (1e-40 rad: no sensor
+    resolves it); the rounded counts never do.
+    """
+    return value if abs(value) >= FLOAT32_TINY else 0.0
+
+
 @njit(cache=True, inline="always")
 def _observe(
     i: int,
@@ -219,12 +235,12 @@ def _observe(
             reward -= config[C_PENALTY]
         truncated = 0.0 < config[C_MAX_STEPS] <= state[i, E_STEPS]
 
-    # Adding 0.0 turns a -0.0 (an ideal sensor at -0.0, a reference of -0.0) into 0.0.
     if config[C_SENSOR] == SENSOR_ENCODER:
-        obs[i, 0], obs[i, 1], obs[i, 2] = measured + 0.0, estimated_velocity, reference + 0.0
+        obs[i, 0], obs[i, 1] = _float32_normal(measured), estimated_velocity
+        obs[i, 2] = _float32_normal(reference)
     else:
-        obs[i, 0], obs[i, 1] = measured + 0.0, estimate
-        obs[i, 2], obs[i, 3] = estimated_velocity, reference + 0.0
+        obs[i, 0], obs[i, 1] = _float32_normal(measured), estimate
+        obs[i, 2], obs[i, 3] = estimated_velocity, _float32_normal(reference)
     out[O_REWARD, i] = reward
     out[O_POSITION, i] = position
     out[O_VELOCITY, i] = velocity
