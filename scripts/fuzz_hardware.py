@@ -49,8 +49,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-import _fuzz_host as host
-import _fuzz_wire as wire
+import _fuzz_common as common
+import _fuzz_decoders as decoders
+import _fuzz_device as device
+import _fuzz_faults as faults
+import _fuzz_files as files
 
 PARTS = ("frames", "altino", "watchdog", "actions", "stock", "faults", "models", "params")
 #: Failures printed per part (the rest are counted).
@@ -83,7 +86,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="rounds of the three real-time faults (default 5)")  # fmt: skip
     parser.add_argument("--no-c", action="store_true",
                         help="skip the C side (no compiler needed)")  # fmt: skip
-    parser.add_argument("--firmware", type=Path, default=wire.FIRMWARE,
+    parser.add_argument("--firmware", type=Path, default=common.FIRMWARE,
                         help="firmware tree to build the C harness from (default: the "
                         "repository's firmware/)")  # fmt: skip
     args = parser.parse_args(argv)
@@ -105,7 +108,7 @@ def say(message: str) -> None:
     print(message, file=sys.stderr, flush=True)
 
 
-def run_parts(args: argparse.Namespace) -> list[tuple[wire.Part, float]]:
+def run_parts(args: argparse.Namespace) -> list[tuple[common.Part, float]]:
     """Run the chosen parts; return each with its wall time, s."""
     n, seed = args.cases, args.seed
 
@@ -116,18 +119,18 @@ def run_parts(args: argparse.Namespace) -> list[tuple[wire.Part, float]]:
         return range(args.first, args.first + n)
 
     needs_c = not args.no_c and {"frames", "watchdog"} & set(args.parts)
-    harness, folder = wire.build_harness(args.firmware if needs_c else None)
+    harness, folder = common.build_harness(args.firmware if needs_c else None)
     if harness is not None:
         say(f"C harness built{' with ASan+UBSan' if harness.sanitized else ' (no sanitizers)'}")
-    runners: dict[str, Callable[[], wire.Part]] = {
-        "frames": lambda: wire.fuzz_frames(size(1, 1), seed, harness, say),
-        "altino": lambda: wire.fuzz_altino(size(1, 1), seed, say),
-        "watchdog": lambda: wire.fuzz_watchdog(size(20, 20), seed, harness, say),
-        "actions": lambda: host.fuzz_actions(size(20, 40), seed, say),
-        "stock": lambda: host.fuzz_stock(size(200, 10), seed, say),
-        "faults": lambda: host.fuzz_faults(args.fault_rounds, seed, say),
-        "models": lambda: host.fuzz_models(size(200, 10), seed, say),
-        "params": lambda: host.fuzz_params(size(10, 50), seed, say),
+    runners: dict[str, Callable[[], common.Part]] = {
+        "frames": lambda: decoders.fuzz_frames(size(1, 1), seed, harness, say),
+        "altino": lambda: decoders.fuzz_altino(size(1, 1), seed, say),
+        "watchdog": lambda: device.fuzz_watchdog(size(20, 20), seed, harness, say),
+        "actions": lambda: device.fuzz_actions(size(20, 40), seed, say),
+        "stock": lambda: device.fuzz_stock(size(200, 10), seed, say),
+        "faults": lambda: faults.fuzz_faults(args.fault_rounds, seed, say),
+        "models": lambda: files.fuzz_models(size(200, 10), seed, say),
+        "params": lambda: files.fuzz_params(size(10, 50), seed, say),
     }
     results = []
     try:
@@ -140,7 +143,7 @@ def run_parts(args: argparse.Namespace) -> list[tuple[wire.Part, float]]:
     return results
 
 
-def summary(results: list[tuple[wire.Part, float]]) -> str:
+def summary(results: list[tuple[common.Part, float]]) -> str:
     """The Markdown table of the parts, their notes, and the first failures of each."""
     lines = ["| part | cases | what was tried | what had to hold | failures | time |",
              "|---|---:|---|---|---:|---:|"]  # fmt: skip
@@ -162,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
     command = "python scripts/fuzz_hardware.py " + " ".join(argv or sys.argv[1:])
     try:
         results = run_parts(args)
-    except wire.HarnessBuildError as exc:  # the firmware does not compile: a failure too
+    except common.HarnessBuildError as exc:  # the firmware does not compile: a failure too
         print(f"error: {exc}", file=sys.stderr)
         return 1
     print(f"\n{command.strip()}\n")
