@@ -4,8 +4,10 @@ torch and Stable-Baselines3 are imported inside the tests that train, never at i
 """
 
 import json
+import pathlib
 import subprocess
 import sys
+from types import SimpleNamespace
 
 import gymnasium as gym
 import numpy as np
@@ -22,6 +24,7 @@ from frictiongym.residual import (
     make_base,
     residual_observation,
 )
+from frictiongym.residual.selection import METRICS
 
 SERVO = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
@@ -312,3 +315,47 @@ def test_help_explains_the_options(capsys):
     for option in ("--env", "--algo", "--steps", "--seed", "--out", "--randomize", "--quick",
                    "--resume", "--n-envs", "--checkpoint-every", "--quiet", "--scale"):  # fmt: skip
         assert option in out
+
+
+class _FakeModel:
+    """What the validation callback uses of an SB3 model."""
+
+    def __init__(self, steps: int) -> None:
+        self.num_timesteps = steps
+        self.logger = type("Logger", (), {"record": lambda *args: None})()
+
+    def get_env(self) -> None:
+        return None
+
+    def save(self, path) -> None:
+        pathlib.Path(path).write_bytes(b"model")
+
+
+@pytest.mark.parametrize("validated_before", [False, True])
+def test_a_run_resumed_on_a_validation_step_validates_there_once(tmp_path, validated_before):
+    """A Ctrl-C during the validation at 6 144 steps saved a checkpoint there, and the resumed
+    run went on to 8 192 with no row for 6 144. Now it validates first, unless the row is
+    there already (a checkpoint taken after it)."""
+    pytest.importorskip("stable_baselines3")
+    from frictiongym.residual.train import _validation_callback
+
+    scores = iter([3.0, 2.0, 1.0])
+
+    def validation(model):
+        ratios = {f"{p}/{m}": 1.0 for p in ("nominal", "randomised") for m in METRICS}
+        return SimpleNamespace(score=next(scores), ratios=ratios, terminated=0)
+
+    model = _FakeModel(6144)
+    if validated_before:  # a run from 4 000 validates at 6 144, then saves its checkpoint
+        model.num_timesteps = 4000
+        first = _validation_callback(validation, 2048, tmp_path, lambda _: None)
+        first.init_callback(model)
+        first.on_training_start({}, {})
+        model.num_timesteps = 6144
+        first.on_step()
+    resumed = _validation_callback(validation, 2048, tmp_path, lambda _: None)
+    resumed.init_callback(model)
+    resumed.on_training_start({}, {})
+    rows = (tmp_path / "validation.csv").read_text().splitlines()[1:]
+    assert [int(row.split(",")[0]) for row in rows] == [6144]
+    assert resumed.due == 8192

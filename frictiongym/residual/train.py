@@ -341,9 +341,14 @@ def _validation_callback(
     class Validate(BaseCallback):
         def _on_training_start(self) -> None:
             self.best, self.seconds = _best_score(table), 0.0
-            self.due = (self.num_timesteps // every + 1) * every
             if not table.is_file():
                 table.write_text(",".join(["steps", "score", *names, "terminated"]) + "\n")
+            done = self.num_timesteps
+            self.due = max(-(-done // every) * every, every)
+            if self.due == done:  # resumed on a validation step
+                self.due += every
+                if done not in _validated_steps(table):  # a Ctrl-C came during it
+                    self.validate()
 
         def _on_step(self) -> bool:
             if self.num_timesteps >= self.due:
@@ -394,12 +399,21 @@ def _checkpoint_on_interrupt(model: Any, out: Path, algo: str) -> str:
     return f"checkpoint of {steps} steps saved as {path}; continue with --resume"
 
 
+def _validation_rows(table: Path) -> list[list[str]]:
+    """Return the rows of a validation CSV (none if there is no file)."""
+    if not table.is_file():
+        return []
+    return [line.split(",") for line in table.read_text().splitlines()[1:] if line]
+
+
 def _best_score(table: Path) -> float:
     """Return the lowest score in a validation CSV (infinity if none)."""
-    if not table.is_file():
-        return math.inf
-    lines = table.read_text().splitlines()[1:]
-    return min((float(line.split(",")[1]) for line in lines if line), default=math.inf)
+    return min((float(row[1]) for row in _validation_rows(table)), default=math.inf)
+
+
+def _validated_steps(table: Path) -> set[int]:
+    """Return the steps a validation CSV has a row for."""
+    return {int(float(row[0])) for row in _validation_rows(table)}
 
 
 def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> dict[str, Any]:
