@@ -81,11 +81,15 @@ def test_vector_env_refuses_non_numbers() -> None:
 
 
 @pytest.mark.parametrize("env_id", IDS)
-def test_unwrapped_env_refuses_a_step_before_reset(env_id: str) -> None:
+def test_unwrapped_env_refuses_a_step_or_a_frame_before_reset(env_id: str) -> None:
     with pytest.raises(gym.error.ResetNeeded):
         gym.make(env_id).unwrapped.step(np.array([0.0], np.float32))
     with pytest.raises(gym.error.ResetNeeded):
         make_vec(env_id, 2).step(np.zeros((2, 1), np.float32))
+    with pytest.raises(gym.error.ResetNeeded):  # it drew a made-up state
+        gym.make(env_id, render_mode="rgb_array").unwrapped.render()
+    with pytest.raises(gym.error.ResetNeeded):
+        make_vec(env_id, 2, render_mode="rgb_array").render()
 
 
 @pytest.mark.parametrize("make", [gym.make, lambda i, **kw: make_vec(i, 2, **kw)])

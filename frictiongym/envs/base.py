@@ -196,6 +196,8 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
                 "render_mode='rgb_array'))"
             )
             return None
+        if self._needs_reset:  # no state to draw yet (as gymnasium's order check says)
+            raise gym.error.ResetNeeded("Cannot call env.render() before calling env.reset()")
         if self._window is not None and not self._window.shown:
             return None  # no display (the window warned once): skip drawing unseen frames
         frame = _frame(self.sim, 0)
@@ -393,4 +395,6 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         if self.render_mode is None:
             gym.logger.warn("render() called without render_mode='rgb_array'")
             return None
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call render() before calling reset()")
         return tuple(_frame(self.sim, i) for i in range(self.num_envs))
