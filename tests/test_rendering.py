@@ -190,3 +190,15 @@ def test_window_shows_frames_with_dummy_driver(monkeypatch):
     finally:
         window.close()
     window.close()  # idempotent
+
+
+@pytest.mark.parametrize(("width", "height"), [(600, 200), (400, 400), (256, 96)])
+def test_the_ruler_numbers_are_whole_not_cut_by_the_frame_or_the_wall(width, height):
+    """The left edge of the ruler's label row holds no ink (a "35" was cut to "5"), and the
+    wall's "0" stands beside it, left of the wall's face."""
+    frame = draw_altino(distance_cm=50.0, target_cm=5.0, width=width, height=height)
+    wall_x, ground, line = rendering._layout(width, height)
+    labels = frame[int(ground + 0.08 * height) : int(ground + 0.08 * height) + 7]
+    ink = np.abs(labels.astype(int) - np.array(rendering.PANEL)).sum(axis=2) > 60
+    assert not ink[:, 0].any()
+    assert ink[:, int(wall_x - 3 * line) - 12 : int(wall_x - line)].any()  # the "0"

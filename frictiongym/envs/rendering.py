@@ -367,8 +367,10 @@ def _altino_base(width: int, height: int, view_cm: float) -> _F:
         x = wall_x - k * every * cm
         _line(canvas, (x, ground + line), (x, ground + 0.06 * h), 0.5 * line, INK)
         label = f"{k * every:g}" + (" cm" if k == 1 else "")
-        width_px = 6 * scale * len(f"{k * every:g}")  # centre the number on its tick
-        _text(canvas, x - width_px / 2, ground + 0.08 * h, label, scale)
+        width_px = 6 * scale * len(f"{k * every:g}")  # centre the number on its tick,
+        left = x - width_px / 2 if k else x - line - width_px - scale  # 0 beside the wall
+        if left >= 0.0:  # a number cut by the frame's edge would misread
+            _text(canvas, left, ground + 0.08 * h, label, scale)
     canvas.flags.writeable = False
     return canvas
 
