@@ -25,8 +25,9 @@ from frictiongym.hardware.runlog import read_steps
 
 SERVO, ALTINO = "frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0"
 KIND = {SERVO: "rotary", ALTINO: "altino"}
-#: Longest wait for the emulator to show a zeroed motor after an error, s.
-STOP_WAIT = 1.0
+#: Longest wait for the emulator to show a zeroed motor after an error, s: well under the
+#: lock-step emulator's 1 s watchdog, which would otherwise stop a motor the host left running.
+STOP_WAIT = 0.5
 
 
 def motor_zero_within(emulator: Any, seconds: float) -> float | None:
