@@ -158,7 +158,7 @@ def _delayed_link(
         took, returned = _run_into_error(
             part, where, env, (HardwareError,), tally, lambda: env.reset(seed=0), True, 25
         )
-        if motor_zero_within(emulator, STOP_WAIT) is None:
+        if took is not None and motor_zero_within(emulator, STOP_WAIT) is None:
             part.fail(f"{where}: the motor was not zeroed after the error")
     finally:
         env.close()
