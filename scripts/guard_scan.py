@@ -12,10 +12,15 @@ tick per command) and once with the C firmware (``firmware/common`` through
 are the device's own (:meth:`CarBounds.from_law`: the plausible mass range and the least
 friction of the law the emulator runs), set in C with ``fg_device_set_car``.
 
-Prints, per implementation and law, the runs, how many touched the wall (true distance 0),
-how many tripped the guard, and the closest approach with its case; exits 1 on any contact.
+A third pass runs the stock-firmware backend's host guard (``AltinoStockBackend``, one period
+more of reaction) against an emulated stock car on a virtual clock, the host stopping on
+``LIMIT`` as an env does.
 
-Usage: python scripts/guard_scan.py [--quick] [--only python|c]
+Prints, per implementation and law, the runs, how many touched the wall (true distance 0),
+how many tripped the guard, and the closest approach with its case; exits 1 on any contact
+of the firmware guards (the stock link's are reported: docs/hardware-vendor.md).
+
+Usage: python scripts/guard_scan.py [--quick] [--only python|c|stock]
 """
 
 from __future__ import annotations
@@ -31,7 +36,9 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from frictiongym.hardware import altino_stock
 from frictiongym.hardware import protocol as p
+from frictiongym.hardware.altino_frames import StockSensors, parse_go_frame, sensor_reply
 from frictiongym.hardware.firmware import Firmware
 from frictiongym.hardware.guard import EDGE_CM
 
@@ -105,10 +112,15 @@ class _Run:
         return p.Command(k + 1, command, flags)
 
     def after_tick(self, limit: bool) -> bool:
-        """Record the tick; return whether the run is over."""
+        """Record the tick; return whether the run is over.
+
+        Over: at rest for a while, or tripped and not approaching for a while (the host then
+        sends nothing forward, so the car cannot come back: a frictionless one recedes for ever).
+        """
         self.closest = min(self.closest, self.fw.position)
         self.tripped |= limit
-        self.still = self.still + 1 if self.fw.velocity == 0.0 else 0
+        done = self.fw.velocity == 0.0 or (self.tripped and self.fw.velocity > 0.0)
+        self.still = self.still + 1 if done else 0
         return self.still >= REST_TICKS
 
 
@@ -182,10 +194,94 @@ def run_c(case: Case, c: CFirmware) -> Outcome:
     return Outcome(case, run.closest, run.tripped)
 
 
+class _VirtualTime:
+    """``time`` for the stock backend in lock-step: sleeping advances the clock at once."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def perf_counter(self) -> float:
+        return self.now
+
+    def perf_counter_ns(self) -> int:
+        return round(self.now * 1e9)
+
+    def sleep(self, seconds: float) -> None:
+        self.now += max(seconds, 0.0)
+
+
+class _StockCar:
+    """A stock car's serial port in-process (as tests/_altino_stock_device.py's fake): each Go
+    frame is answered with the IR readout now, then the car holds its command for a period."""
+
+    SerialException = OSError
+    SerialTimeoutException = TimeoutError
+
+    def __init__(self, fw: Firmware) -> None:
+        self.fw = fw
+        self._out = bytearray()
+
+    def serial_for_url(self, *args: object, **kwargs: object) -> _StockCar:
+        return self
+
+    def reset_input_buffer(self) -> None:
+        self._out.clear()
+
+    def write(self, frame: bytes) -> int:
+        command = parse_go_frame(frame)
+        ir = (0, self.fw.sensor, 0, 0, 0, 0)
+        self._out += sensor_reply(StockSensors(group=command.request, ir=ir))
+        self.fw.hold(command.left)
+        return len(frame)
+
+    def read(self, size: int) -> bytes:
+        data = bytes(self._out[:size])
+        del self._out[:size]
+        return data
+
+    def flush(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def run_stock(case: Case) -> Outcome:
+    """``case`` through :class:`AltinoStockBackend` (its host guard) on an emulated stock car.
+
+    Lock-step: the backend's clock is virtual. As an env does, the host stops on ``LIMIT``
+    (the backend keeps braking while the car approaches); the car then coasts to rest.
+    """
+    fw = plant(case)
+    car, clock = _StockCar(fw), _VirtualTime()
+    real_time, real_serial = altino_stock.time, altino_stock._import_serial
+    altino_stock.time, altino_stock._import_serial = clock, lambda: car  # type: ignore
+    try:
+        backend = altino_stock.AltinoStockBackend(
+            "emulated", rate_hz=1.0 / fw.dt, car_bounds=fw.car_bounds
+        )
+        run = _Run(fw)
+        backend.start()
+        for _ in range(round(MAX_SECONDS / fw.dt)):
+            sample = backend.step(float(case.command))
+            if run.after_tick(bool(sample.status & p.Status.LIMIT)) or run.tripped:
+                break  # the env's episode ends on LIMIT
+        backend.close()  # as an env ends its episode: the backend brakes, then stops the car
+        for _ in range(round(MAX_SECONDS / fw.dt)):  # it coasts on
+            if run.after_tick(run.tripped):
+                break
+            fw.hold(0)
+    finally:
+        altino_stock.time, altino_stock._import_serial = real_time, real_serial
+    return Outcome(case, run.closest, run.tripped)
+
+
 def scan(implementation: str, todo: list[Case], root: Path = ROOT) -> list[Outcome]:
-    """Run ``todo`` on ``"python"`` or ``"c"`` (the C firmware of the checkout at ``root``)."""
+    """Run ``todo`` on ``"python"``, ``"c"`` (the C firmware of ``root``) or ``"stock"``."""
     if implementation == "python":
         return [run_python(case) for case in todo]
+    if implementation == "stock":
+        return [run_stock(case) for case in todo]
     c = CFirmware(root)
     try:
         return [run_c(case, c) for case in todo]
@@ -209,11 +305,20 @@ def summary(outcomes: list[Outcome]) -> Iterator[str]:
                f"{min(far, default=math.nan):.2f} |")  # fmt: skip
 
 
+#: What each implementation is, for the printout.
+IMPLEMENTATIONS = {
+    "python": "the emulator's firmware (the Python guard, lock-step)",
+    "c": "the C firmware (firmware/common via host_harness.c)",
+    "stock": "AltinoStockBackend's host guard on an emulated stock car (virtual clock); the "
+    "host stops on LIMIT and then watches the car for at most BRAKE_AT_STOP_S",
+}
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the scan; return 1 if any run touched the wall."""
+    """Run the scan; return 1 if any run of the firmware guards (Python, C) touched the wall."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="masses 1.1 and 5.5, fewer starts")
-    parser.add_argument("--only", choices=("python", "c"), help="one implementation")
+    parser.add_argument("--only", choices=tuple(IMPLEMENTATIONS), help="one implementation")
     args = parser.parse_args(argv)
     todo = (
         cases((1.1, 5.5), starts=(2, 5, 10, 21, 30, 100, 176.5, 260), commands=(300, 1000))
@@ -221,15 +326,17 @@ def main(argv: list[str] | None = None) -> int:
         else cases()
     )
     contacts = 0
-    for implementation in ("python", "c") if args.only is None else (args.only,):
+    for implementation in IMPLEMENTATIONS if args.only is None else (args.only,):
         began = time.perf_counter()
         outcomes = scan(implementation, todo)
         took = time.perf_counter() - began
-        print(f"\n{implementation}: {len(outcomes)} runs in {took:.0f} s")
+        print(f"\n{implementation}: {IMPLEMENTATIONS[implementation]}")
+        print(f"{len(outcomes)} runs in {took:.0f} s")
         for row in summary(outcomes):
             print(row)
-        contacts += sum(o.closest <= 0.0 for o in outcomes)
-    print(f"\ncontacts: {contacts}")
+        if implementation != "stock":  # the stock link's limits: docs/hardware-vendor.md
+            contacts += sum(o.closest <= 0.0 for o in outcomes)
+    print(f"\ncontacts of the firmware guards (python, c): {contacts}")
     return 1 if contacts else 0
 
 

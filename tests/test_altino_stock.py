@@ -35,8 +35,9 @@ from frictiongym.hardware.errors import (
     HardwareError,
     ProtocolError,
 )
-from frictiongym.hardware.guard import CarBounds, readout_jump_possible
+from frictiongym.hardware.guard import STOPPED_SPEED, CarBounds, readout_jump_possible
 from frictiongym.hardware.protocol import Status
+from frictiongym.plants._kernel import S_V
 
 ALTINO_ID = "frictiongym/AltinoDistance-v0"
 RATE = 50.0  # Hz: fast enough for short tests, within the stock link's 66 Hz
@@ -312,6 +313,26 @@ def test_a_bad_checksum_is_retried_once_then_refused(
     with pytest.raises(ProtocolError, match="failed their checksum"):
         backend.step(0.0)
     assert backend.bad_replies == 3
+
+
+@pytest.mark.parametrize("mass_factor", [1.0, 2.5])  # the model's 2.2 and the heaviest 5.5
+def test_the_brake_outlasts_the_end_of_the_episode(mass_factor: float) -> None:
+    randomize = {"inertia": (mass_factor, mass_factor)}
+    with FakeStockAltino(start_cm=20.0, rate_hz=20.0, randomize=randomize) as fake:
+        env = gym.make(ALTINO_ID, backend=AltinoStockBackend(fake.port, timeout=0.3))
+        env.reset()
+        for _ in range(100):
+            if env.step(np.array([1000.0]))[2]:  # LIMIT ends the episode: the env stops
+                break
+        settle(fake, len(fake.commands) + STOP_REPEATS, timeout=2.0)
+        first_brake = next(i for i, c in enumerate(fake.commands) if c.left < 0)
+        after = [c.left for c in fake.commands[first_brake:]]
+        brakes = after.index(0)
+        assert brakes >= 2, f"the stop cancelled the brake at once: {after}"
+        assert after == [-1000] * brakes + [0] * STOP_REPEATS
+        assert fake.car.sim.state[0, S_V] <= STOPPED_SPEED, "still approaching at the stop"
+        assert fake.car.position > 1.5
+        env.close()
 
 
 def test_readout_jumps_beyond_what_the_car_can_move_are_impossible() -> None:

@@ -46,6 +46,7 @@ from frictiongym.hardware.errors import (
 from frictiongym.hardware.guard import (
     LIMIT_CM,
     REACTION_PERIODS,
+    CarBounds,
     DistanceGuard,
     readout_jump_possible,
 )
@@ -77,6 +78,11 @@ except ImportError:  # pragma: no cover  (Windows)
 #: The guard's reaction on the stock link: one period more than the firmware's, as a reply
 #: arrives while the next command starts (a command acts a tick late).
 STOCK_REACTION_PERIODS = REACTION_PERIODS + 1
+#: Longest a stop keeps watching a tripped guard's car that may still approach, s: the
+#: heaviest plausible car at the guard's top speed brakes to rest within
+#: 77.7 / ((1000 + 150.4) / 5.5) = 0.37 s; one that coasts in from beyond the IR range at the
+#: fastest the guard let it drive there (about 60 cm/s with no friction) needs seconds more.
+BRAKE_AT_STOP_S = 5.0
 #: Longest single blocking read, s: reads loop until the reply or the timeout (assumed: short
 #: enough that a timeout is never overshot by much, long enough not to spin).
 _POLL_S = 0.01
@@ -111,7 +117,9 @@ class AltinoStockBackend(Backend):
       this link's latency): when the car, braking now, would stop within ``limit_cm`` of the
       wall, it brakes at full reverse while the car approaches and then refuses forward
       commands, with ``Status.LIMIT`` in every sample until :meth:`start` re-arms it. A reply
-      that trips it is followed at once by the brake, not a tick later;
+      that trips it is followed at once by the brake, not a tick later, and a stop (the end
+      of the episode, an error, close) keeps the guard at work while the car may approach,
+      up to :data:`BRAKE_AT_STOP_S`, before its stop frames;
     * no sequence numbers and an 8-bit checksum: a bad reply is counted
       (:attr:`bad_replies`) and the request sent again once, and so is a reply whose IR
       readout jumps farther than the car can move since the last one (its top speed over a
@@ -142,6 +150,10 @@ class AltinoStockBackend(Backend):
     max_age : float, optional
         Longest wait from a send to its reply a step accepts, s (:attr:`Sample.age`); default
         max(5 periods, 0.1 s).
+    car_bounds : CarBounds, optional
+        What the guard assumes of the car (default: any mass 1.1-5.5 and the paper's least
+        friction, :class:`~frictiongym.hardware.guard.CarBounds`); a car on a surface with
+        less friction needs its own.
     """
 
     def __init__(
@@ -155,6 +167,7 @@ class AltinoStockBackend(Backend):
         sensor_group: int = 1,
         limit_cm: float = LIMIT_CM,
         max_age: float | None = None,
+        car_bounds: CarBounds | None = None,
     ) -> None:
         if max_age is not None and not (
             isinstance(max_age, int | float) and math.isfinite(max_age) and max_age > 0.0
@@ -200,9 +213,12 @@ class AltinoStockBackend(Backend):
         #: Replies whose IR readout jumped farther than the car can move (counted in both).
         self.implausible_replies = 0
         self._last_reading: tuple[float, float] | None = None  # (readout, send time) accepted
-        self.guard = DistanceGuard(
-            self.period, float(GO_LIMIT), self.limit_cm, STOCK_REACTION_PERIODS
-        )
+        if car_bounds is None:
+            car_bounds = CarBounds(command_limit=float(GO_LIMIT))
+        if not isinstance(car_bounds, CarBounds):
+            raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
+        self.car_bounds = car_bounds
+        self.guard = self._new_guard()
         self.last_sensors: StockSensors | None = None  #: the latest reply, every field
         self._serial: Any = None
         self._serial_module: Any = None
@@ -250,7 +266,9 @@ class AltinoStockBackend(Backend):
             ) from exc
 
     def _new_guard(self) -> DistanceGuard:
-        return DistanceGuard(self.period, float(GO_LIMIT), self.limit_cm, STOCK_REACTION_PERIODS)
+        return DistanceGuard(
+            self.period, float(GO_LIMIT), self.limit_cm, STOCK_REACTION_PERIODS, self.car_bounds
+        )
 
     def _frame(self, command: int) -> bytes:
         return go_frame(command, command, request=self.sensor_group)
@@ -356,9 +374,7 @@ class AltinoStockBackend(Backend):
     def _start(self, zero_position: bool) -> Sample:
         sent, sensors = self._transact(0)
         self._held, self._seq = 0, 0
-        self.guard = DistanceGuard(
-            self.period, float(GO_LIMIT), self.limit_cm, STOCK_REACTION_PERIODS
-        )  # re-armed
+        self.guard = self._new_guard()  # re-armed
         self._readout = float(sensors.ir[self.ir_index])
         self._next = sent + self.period
         status = Status.LIMIT if self.guard.update(self._readout) else Status(0)
@@ -403,9 +419,33 @@ class AltinoStockBackend(Backend):
             skipped=skipped,
         )  # fmt: skip
 
+    def _brake_to_rest(self) -> None:
+        """Keep a tripped guard at work until the car cannot approach, as the firmware does.
+
+        The stock car has no guard of its own: stop frames right after a trip would cancel the
+        brake and let the car coast on (an env ends its episode on the trip, and stops). So
+        while the car may still approach (its readings, or out of range the speed bound) the
+        guard keeps braking it in range and watching it out of range, for at most
+        :data:`BRAKE_AT_STOP_S`.
+        """
+        deadline = time.perf_counter() + BRAKE_AT_STOP_S
+        held = self._held
+        while self.guard.tripped and self.guard.may_approach():
+            if time.perf_counter() >= deadline:
+                return
+            value = round(self.guard.command(0.0))  # full reverse in range, 0 out of it
+            self._wait_tick()
+            _, sensors = self._transact(value)
+            self.guard.update(float(sensors.ir[self.ir_index]), held)
+            self._held = held = value
+
     def _stop(self) -> None:
         if self._serial is None:
             return
+        try:
+            self._brake_to_rest()
+        except HardwareError:
+            pass  # the stop frames follow; a link that failed fails them too
         self._held = 0
         frame = self._frame(0)
         for i in range(STOP_REPEATS):  # each one tried even if another fails

@@ -348,6 +348,17 @@ class DistanceGuard:
         gain = max(self.car.accel(max(self._held), max(self.measured, 0.0)), 0.0) * self.dt / 2
         return max(self.measured, min(self.bound, self.measured + half_counts + gain))
 
+    def may_approach(self) -> bool:
+        """Whether the car may still approach the wall.
+
+        Out of range: by the speed bound. In range: the readings say it moves, or a command
+        that can move it (beyond the least friction) is still on its way (the dead time).
+        """
+        if self._distance is None:
+            return self.bound > STOPPED_SPEED
+        pushed = max(self._held) > self.car.friction
+        return self.measured > STOPPED_SPEED or pushed
+
     def command(self, requested: float) -> float:
         """Return what the motor may hold next: the request, or a brake and then zero once tripped.
 
