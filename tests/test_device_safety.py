@@ -26,7 +26,10 @@ from frictiongym.envs import device as device_module
 from frictiongym.hardware import (
     DeviceDisconnectedError,
     DeviceFaultError,
+    DeviceNotFoundError,
     resolve_backend,
+    stop_devices_on_signals,
+    stop_signals,
 )
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.altino_frames import STOP_REPEATS
@@ -294,13 +297,87 @@ def test_an_ignored_hangup_stays_ignored_and_threads_install_nothing() -> None:
             except BaseException as exc:  # reported below
                 errors.append(exc)
 
-        thread = threading.Thread(target=open_in_a_thread)
-        thread.start()
-        thread.join()
+        def run_in_a_thread() -> None:
+            thread = threading.Thread(target=open_in_a_thread)
+            thread.start()
+            thread.join()
+
+        stop_signals._warned = False  # warned once per process: maybe by an earlier test
+        with pytest.warns(RuntimeWarning, match="stop_devices_on_signals"):
+            run_in_a_thread()
         assert not errors
         assert signal.getsignal(signal.SIGTERM) is handlers
     finally:
         signal.signal(signal.SIGHUP, before)
+
+
+THREAD_DRIVER = """
+import sys, threading, time
+from frictiongym.hardware import stop_devices_on_signals
+from frictiongym.hardware.altino_stock import AltinoStockBackend
+
+stop_devices_on_signals()  # in the main thread, before the worker opens the device
+
+
+def drive():
+    backend = AltinoStockBackend(sys.argv[1], rate_hz=50.0)
+    backend.start()
+    backend.step(-250.0)
+    print("driving", flush=True)
+    while True:
+        backend.step(-250.0)
+
+
+threading.Thread(target=drive, daemon=True).start()
+while True:
+    time.sleep(0.05)
+"""
+
+
+def test_a_device_opened_in_a_worker_thread_stops_on_sigterm() -> None:
+    """A stock Altino opened outside the main thread kept driving after SIGTERM (no handler
+    could be installed there); the main thread can now install one for good beforehand."""
+    with FakeStockAltino() as car:
+        child = subprocess.Popen(
+            [sys.executable, "-c", THREAD_DRIVER, car.port], stdout=subprocess.PIPE, text=True,
+            cwd=Path(frictiongym.__file__).parents[1],
+        )  # fmt: skip
+        try:
+            assert child.stdout is not None
+            assert child.stdout.readline() == "driving\n"
+            assert wait_until(lambda: car.commands[-1].left == -250)
+            child.send_signal(signal.SIGTERM)
+            assert child.wait(10) == 128 + signal.SIGTERM
+        finally:
+            child.kill()
+            child.wait()
+        assert wait_until(lambda: car.commands[-1].stop and car.commands[-1].left == 0)
+
+
+def test_stop_devices_on_signals_keeps_its_handlers_and_refuses_other_threads() -> None:
+    before = {sig: signal.getsignal(sig) for sig in STOP_SIGNALS}
+    try:
+        stop_devices_on_signals()
+        with EmulatedBackend("rotary", lockstep=True):
+            pass
+        assert all(signal.getsignal(sig) is not before[sig] for sig in STOP_SIGNALS)
+        errors: list[BaseException] = []
+        thread = threading.Thread(target=lambda: _capture(stop_devices_on_signals, errors))
+        thread.start()
+        thread.join()
+        assert isinstance(errors[0], RuntimeError)
+    finally:
+        stop_signals._kept = False
+        stop_signals.release_stop_signals()
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+
+
+def _capture(function: Any, errors: list[BaseException]) -> None:
+    try:
+        function()
+    except BaseException as exc:  # reported by the caller
+        errors.append(exc)
 
 
 # -- item 7: one host per port -----------------------------------------------------------------
@@ -414,6 +491,9 @@ def test_a_second_client_of_a_tcp_emulator_is_told_at_once() -> None:
         ("emulator://rotary?seed=1&seed=2", "option seed is given twice"),
         ("SIM", "the simulator is 'sim'"),
         ("Sim://", "the simulator is 'sim'"),
+        ("socket://127.0.0.1:5000?max_age=abc", "max_age must be a positive number, got 'abc'"),
+        ("socket://127.0.0.1:5000?max_age=", "max_age must be a positive number, got ''"),
+        ("socket://127.0.0.1:5000?bogus=1", "unknown option.* bogus in socket://127.0.0.1:5000"),
     ],
 )
 def test_uris_say_what_is_wrong(spec: str, match: str) -> None:
@@ -425,9 +505,35 @@ def test_uris_of_the_simulator_and_of_sockets_still_work() -> None:
     assert resolve_backend("sim", "rotary") is None
     backend = resolve_backend("socket://127.0.0.1:5000", "rotary")
     assert isinstance(backend, SerialBackend)
+    # The backend's own options on a network link (they went to pyserial, which refused them
+    # with its internals); pyserial's own stay in its URL.
+    backend = resolve_backend("socket://127.0.0.1:5000?max_age=0.5&logging=debug", "rotary")
+    assert (backend.port, backend.max_sample_age) == ("socket://127.0.0.1:5000?logging=debug", 0.5)
     assert gym.make(SERVO, backend="sim").unwrapped.on_device is False
     with pytest.raises(ValueError, match="the simulator is 'sim'"):
         gym.make(SERVO, backend="SIM")
+
+
+def test_a_refused_connection_and_a_second_reader_are_named() -> None:
+    import serial
+
+    backend = resolve_backend("socket://127.0.0.1:1", "rotary")  # nothing listens on port 1
+    with pytest.raises(DeviceNotFoundError, match=r"could not connect to .* the emulator"):
+        backend.open()
+
+    class Shared:  # what pyserial says when another program took the bytes first
+        in_waiting = 0
+
+        def read(self, size: int) -> bytes:
+            raise serial.SerialException(
+                "device reports readiness to read but returned no data (device disconnected "
+                "or multiple access on port?)"
+            )
+
+    reader = SerialBackend("/dev/ttyX")
+    reader._serial = Shared()
+    with pytest.raises(DeviceDisconnectedError, match="another program is probably reading"):
+        reader._read_available()
 
 
 def test_a_slow_host_is_not_a_stale_link() -> None:

@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import importlib
 from typing import Any
-from urllib.parse import urlsplit
+from urllib.parse import urlencode, urlsplit, urlunsplit
 
-from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
+from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample, stop_devices_on_signals
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
     DeviceFaultError,
@@ -53,6 +53,7 @@ __all__ = [
     "SerialBackend",
     "WatchdogTripError",
     "resolve_backend",
+    "stop_devices_on_signals",
 ]
 
 #: Classes imported on first use (pyserial, the emulator's simulation): name -> module.
@@ -78,8 +79,14 @@ SCHEMES = {
     "quanser-hil": ("frictiongym.hardware.quanser_hil", "QuanserHILBackend"),
     "emulator": ("frictiongym.hardware.emulated", "EmulatedBackend"),
 }
-#: pyserial's own URL handlers, passed to :class:`SerialBackend` whole.
-PYSERIAL_SCHEMES = ("socket", "rfc2217", "spy", "loop")
+#: pyserial's own URL handlers, passed to :class:`SerialBackend` with the query options pyserial
+#: takes for each; the others (``baud``, ``timeout``, ``max_age``) are the backend's.
+PYSERIAL_SCHEMES = {
+    "socket": ("logging",),
+    "rfc2217": ("logging", "ign_set_control", "poll_modem", "timeout"),
+    "spy": ("file", "color", "raw", "all"),
+    "loop": ("logging",),
+}
 SIM = ("sim", "sim://")
 
 
@@ -108,8 +115,13 @@ def resolve_backend(spec: object, kind: str) -> Backend | None:
     scheme = parts.scheme.lower()
     if spec.strip().lower() in SIM or scheme == "sim":  # not a port called "SIM"
         raise ValueError(f"backend {spec!r}: the simulator is 'sim' (lower case) or None")
-    if scheme in PYSERIAL_SCHEMES:
-        return _backend_class("serial")(spec)
+    if scheme in PYSERIAL_SCHEMES:  # pyserial's options stay in its URL, ours are taken out
+        query = query_options(parts.query, spec)
+        theirs = {k: v for k, v in query.items() if k in PYSERIAL_SCHEMES[scheme]}
+        url = urlunsplit(parts._replace(query=urlencode(theirs)))
+        ours = {k: v for k, v in query.items() if k not in theirs}
+        serial_backend: Backend = _backend_class("serial").from_uri(url, ours)
+        return serial_backend
     if not scheme or (len(scheme) == 1 and spec[1:2] == ":"):  # a path, or a Windows drive
         return _backend_class("serial")(spec)
     if scheme not in SCHEMES:

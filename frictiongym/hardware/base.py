@@ -27,6 +27,7 @@ import atexit
 import math
 import numbers
 import reprlib
+import threading
 import time
 import weakref
 from abc import ABC, abstractmethod
@@ -138,6 +139,18 @@ def _stop_open() -> None:
     """Zero every open device's motor, keeping the links (a signal's handler: never raises)."""
     for backend in list(_OPEN):
         backend.stop()
+
+
+def stop_devices_on_signals() -> None:
+    """Stop every open device on ``SIGTERM`` and ``SIGHUP`` from now on, whichever thread opens it.
+
+    Call it from the main thread before a worker thread opens a device: Python lets only the
+    main thread set signal handlers, so a device opened elsewhere is otherwise stopped on
+    these signals only if a device was open in the main thread at the time.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        raise RuntimeError("call stop_devices_on_signals() from the main thread")
+    install_stop_signals(_stop_open, keep=True)
 
 
 class Backend(ABC):

@@ -130,7 +130,8 @@ class SerialBackend(Backend):
         parsers = {
             "baud": integer("baud"), "timeout": positive("timeout"), "max_age": positive("max_age")
         }  # fmt: skip
-        return cls(path, **uri_options(query, parsers, f"serial://{path}"))
+        uri = path if "://" in path else f"serial://{path}"  # a pyserial URL names itself
+        return cls(path, **uri_options(query, parsers, uri))
 
     # -- link -------------------------------------------------------------------------------------
 
@@ -144,6 +145,12 @@ class SerialBackend(Backend):
         except (serial.SerialException, OSError, ValueError) as exc:
             if is_lock_failure(exc):
                 raise port_busy_error(self.port) from None
+            if "://" in self.port:  # a network URL: no device path to check
+                raise DeviceNotFoundError(
+                    f"could not connect to {self.port!r}: {exc}. Check that the device's "
+                    "server or the emulator (`frictiongym emulate --tcp PORT`) runs at that "
+                    "address, and that the URL is the one it printed"
+                ) from None
             raise DeviceNotFoundError(
                 f"could not open {self.port!r}: {exc}. Check the path (ls /dev/ttyACM* "
                 "/dev/ttyUSB*), that the device is plugged in and that you may use it (the "
@@ -225,6 +232,12 @@ class SerialBackend(Backend):
                 return b""
             data: bytes = self._serial.read(max(1, waiting))
         except (serial.SerialException, OSError) as exc:
+            if "multiple access" in str(exc):  # pyserial's hint: readable, yet nothing to read
+                raise DeviceDisconnectedError(
+                    f"the link to {self.port!r} gave no data when it said it had some ({exc}): "
+                    "another program is probably reading this port too (find it with `fuser "
+                    f"{self.port}`) and must be closed; or the device disconnected"
+                ) from None
             raise DeviceDisconnectedError(
                 f"the link to {self.port!r} went away ({exc}); check the cable and the device's "
                 "power, or whether the emulator stopped"

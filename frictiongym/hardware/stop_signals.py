@@ -13,15 +13,18 @@ device, then does what the signal did before:
 * a signal that was ignored (``nohup``) stays ignored, and one whose handler Python does not
   know (set from C) is left alone.
 
-Handlers are installed from the main thread only (Python allows no other; a backend opened in
-another thread relies on ``atexit`` and the device's watchdog) and restored when the last
-backend closes, unless someone replaced ours meanwhile.
+Handlers are installed from the main thread only (Python allows no other) and restored when
+the last backend closes, unless someone replaced ours meanwhile. A backend opened in another
+thread is covered only if the main thread installed them first, for good, with
+:func:`frictiongym.hardware.stop_devices_on_signals`; otherwise it warns once (``atexit`` does
+not run on these signals, and the stock Altino has no watchdog).
 """
 
 from __future__ import annotations
 
 import signal
 import threading
+import warnings
 from collections.abc import Callable
 from types import FrameType
 from typing import Any
@@ -33,6 +36,8 @@ STOP_SIGNALS: tuple[signal.Signals, ...] = tuple(
 
 _stop_devices: Callable[[], None] | None = None
 _previous: dict[int, Any] = {}  # signal -> the handler ours replaced
+_kept = False  # installed for good (stop_devices_on_signals): not released on close
+_warned = False
 
 
 def _on_stop_signal(signum: int, frame: FrameType | None) -> None:
@@ -46,15 +51,29 @@ def _on_stop_signal(signum: int, frame: FrameType | None) -> None:
         raise SystemExit(128 + signum)
 
 
-def install_stop_signals(stop_devices: Callable[[], None]) -> None:
+def install_stop_signals(stop_devices: Callable[[], None], keep: bool = False) -> None:
     """Put :func:`_on_stop_signal` on :data:`STOP_SIGNALS` (main thread only; idempotent).
 
-    ``stop_devices`` zeroes every open device's motor; it must not raise.
+    ``stop_devices`` zeroes every open device's motor; it must not raise. ``keep``: leave the
+    handlers in place when the last device closes. From another thread nothing can be
+    installed: unless the main thread did so before, this warns once.
     """
-    global _stop_devices
+    global _stop_devices, _kept, _warned
     _stop_devices = stop_devices
     if threading.current_thread() is not threading.main_thread():
+        covered = all(signal.getsignal(sig) is _on_stop_signal for sig in STOP_SIGNALS)
+        if not (covered or _warned):
+            _warned = True
+            warnings.warn(
+                "a device opened outside the main thread is not stopped by SIGTERM or SIGHUP "
+                "(only the main thread can set signal handlers, and atexit does not run on "
+                "them): call frictiongym.hardware.stop_devices_on_signals() from the main "
+                "thread before starting the thread",
+                RuntimeWarning,
+                stacklevel=4,
+            )
         return
+    _kept = _kept or keep
     for sig in STOP_SIGNALS:
         current = signal.getsignal(sig)
         if current is _on_stop_signal or current is None or current is signal.SIG_IGN:
@@ -65,7 +84,7 @@ def install_stop_signals(stop_devices: Callable[[], None]) -> None:
 
 def release_stop_signals() -> None:
     """Put back the handlers ours replaced, where ours is still in place (main thread only)."""
-    if threading.current_thread() is not threading.main_thread():
+    if _kept or threading.current_thread() is not threading.main_thread():
         return  # ours stays; with no device open it only hands over to the previous one
     for sig, previous in list(_previous.items()):
         if signal.getsignal(sig) is _on_stop_signal:

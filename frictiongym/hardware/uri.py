@@ -12,7 +12,10 @@ def positive(name: str) -> Callable[[str], float]:
     """Parser of a positive, finite number option."""
 
     def parse(text: str) -> float:
-        value = float(text)
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
         if not (math.isfinite(value) and value > 0.0):
             raise ValueError(f"{name} must be a positive number, got {text!r}")
         return value
