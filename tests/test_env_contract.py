@@ -115,3 +115,15 @@ def test_a_diverged_plant_terminates_instead_of_running_on(env_id: str) -> None:
     env.reset(seed=0)
     env.sim.state[0, pk.S_X] = np.nan  # what a diverging integration would leave
     assert env.step(np.array([0.0], np.float32))[2]
+
+
+def test_masked_arrays_are_refused_not_read_through_the_mask() -> None:
+    """``np.ma.masked_array([1.0], mask=[True])`` sent its hidden 1 V."""
+    env = gym.make(SERVO)
+    env.reset(seed=0)
+    with pytest.raises(ValueError, match="masked array"):
+        env.step(np.ma.masked_array([1.0], mask=[True]))
+    vec = make_vec(SERVO, 2)
+    vec.reset(seed=0)
+    with pytest.raises(ValueError, match="masked array"):
+        vec.step(np.ma.masked_array([[1.0], [1.0]], mask=[[True], [False]]))

@@ -118,3 +118,39 @@ def test_a_model_of_other_spaces_is_refused(tmp_path: Path) -> None:
     other = rewrite(SHIPPED, tmp_path / "m.zip", widen)
     with pytest.raises(ValueError, match=r"shape \(7,\)"):
         ResidualController.load(other, gym.make(SERVO))
+
+
+class System:
+    """A pickle that would call ``os.system`` when unpickled (never unpickled here)."""
+
+    def __reduce__(self) -> tuple:
+        import os
+
+        return (os.system, ("true",))
+
+
+def test_a_poisoned_sb3_entry_is_named_though_nothing_runs(tmp_path: Path) -> None:
+    """``policy_class`` is an entry SB3 itself writes; one replaced by a call of
+    ``os.system`` loaded with no word (SB3's own load would run it)."""
+    payload = {":type:": "<class 'abc.ABCMeta'>",
+               ":serialized:": base64.b64encode(pickle.dumps(System())).decode()}  # fmt: skip
+    hostile = rewrite(SHIPPED, tmp_path / "m.zip", lambda d: d.update(policy_class=payload))
+    with pytest.warns(UserWarning, match=r"name what runs commands or code \(policy_class: .*sy"):
+        ResidualController.load(hostile, gym.make(SERVO))
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"activation_fn": {"x": 1}}, "activation_fn=.* is not a setting frictiongym rebuilds"),
+        ({"optimizer_class": "os.system"}, "optimizer_class='os.system' is not a setting"),
+        ({"net_arch": [200_000, 200_000]}, "net_arch=.* is not a list of at most 16 layer"),
+        ({"net_arch": {"pi": [64], "vf": "x"}}, "is not a list of at most 16 layer"),
+        ({"log_std_init": "big"}, "log_std_init='big' is not a setting"),
+    ],
+)
+def test_policy_kwargs_are_plain_settings_of_a_sensible_size(tmp_path, kwargs, match) -> None:
+    """Non-JSON values raised TypeError, and a 200 000-wide net_arch allocated 160 GB."""
+    hostile = rewrite(SHIPPED, tmp_path / "m.zip", lambda d: d.update(policy_kwargs=kwargs))
+    with pytest.raises(ValueError, match=match):
+        ResidualController.load(hostile, gym.make(SERVO))

@@ -11,8 +11,11 @@ tensors and containers. Pickled entries are never read, only listed.
 
 from __future__ import annotations
 
+import base64
+import binascii
 import json
 import os
+import pickletools
 import warnings
 import zipfile
 from pathlib import Path
@@ -38,9 +41,79 @@ class UnsafeModelError(ValueError):
     """A model file holds something frictiongym will not load without running code."""
 
 
+#: Names that no pickle Stable-Baselines3 writes for our policies holds: modules and functions
+#: that run commands or code, and the pieces of a pickled code object. Found in a pickled
+#: entry's strings (read, not run), they are named in the warning.
+SUSPECT_NAMES = frozenset(
+    {
+        "os", "posix", "nt", "subprocess", "sys", "builtins", "__builtin__", "importlib",
+        "runpy", "shutil", "socket", "pty", "ctypes", "multiprocessing", "marshal", "pickle",
+        "system", "popen", "exec", "eval", "compile", "__import__", "execfile", "spawn",
+        "CodeType", "_make_function", "_builtin_type", "_make_skel_func",
+    }
+)  # fmt: skip
+#: The ``policy_kwargs`` a policy is rebuilt with, and the JSON types each may have.
+POLICY_KWARGS: dict[str, tuple[type, ...]] = {
+    "net_arch": (list, dict),
+    "log_std_init": (int, float),
+    "ortho_init": (bool,),
+    "use_sde": (bool,),
+    "full_std": (bool,),
+    "use_expln": (bool,),
+    "squash_output": (bool,),
+    "share_features_extractor": (bool,),
+    "n_critics": (int,),
+}
+#: Largest layer and deepest network a model file may ask for (the shipped ones are 64 x 2):
+#: a file from a stranger must not make the load allocate gigabytes.
+MAX_LAYER, MAX_LAYERS = 4096, 16
+
+
 def pickled_entries(data: dict[str, Any]) -> list[str]:
     """Names of the ``data`` entries stored as pickles (never unpickled here)."""
     return sorted(k for k, v in data.items() if isinstance(v, dict) and ":serialized:" in v)
+
+
+def suspect_names(data: dict[str, Any]) -> dict[str, list[str]]:
+    """Return, per pickled entry, the :data:`SUSPECT_NAMES` among its strings (not unpickled).
+
+    A hint, not a proof: Stable-Baselines3's own load would import and call what a pickle
+    names; frictiongym never unpickles these entries either way.
+    """
+    found = {}
+    for key in pickled_entries(data):
+        try:
+            raw = base64.b64decode(data[key][":serialized:"], validate=True)
+            strings = {arg for _, arg, _ in pickletools.genops(raw) if isinstance(arg, str)}
+        except (ValueError, TypeError, binascii.Error):  # not a pickle at all: not ours
+            strings = {"(not a pickle)"}
+        words = {word for text in strings for word in text.replace(".", " ").split()}
+        names = sorted(words & SUSPECT_NAMES) or sorted(strings & {"(not a pickle)"})
+        if names:
+            found[key] = names
+    return found
+
+
+def _check_policy_kwargs(path: Path, kwargs: dict[str, Any]) -> None:
+    """Refuse ``policy_kwargs`` that are not plain settings of a sensible size."""
+    for key, value in kwargs.items():
+        if key not in POLICY_KWARGS or not isinstance(value, POLICY_KWARGS[key]):
+            raise ValueError(
+                f"{path}: policy_kwargs {key}={value!r} is not a setting frictiongym rebuilds "
+                f"a policy with (those are {', '.join(POLICY_KWARGS)}, as plain JSON)"
+            )
+    arch = kwargs.get("net_arch", [])
+    layers = [arch] if isinstance(arch, list) else list(arch.values())
+    for sizes in layers:
+        if not (
+            isinstance(sizes, list)
+            and len(sizes) <= MAX_LAYERS
+            and all(type(n) is int and 1 <= n <= MAX_LAYER for n in sizes)
+        ):
+            raise ValueError(
+                f"{path}: policy_kwargs net_arch={arch!r} is not a list of at most "
+                f"{MAX_LAYERS} layer sizes of 1 to {MAX_LAYER}"
+            )
 
 
 def _read_data(path: Path) -> dict[str, Any]:
@@ -112,6 +185,16 @@ def load_policy(
             UserWarning,
             stacklevel=3,
         )
+    suspects = {k: names for k, names in suspect_names(data).items() if k not in foreign}
+    if suspects:
+        listed = "; ".join(f"{k}: {', '.join(names)}" for k, names in suspects.items())
+        warnings.warn(
+            f"{path} carries pickles that name what runs commands or code ({listed}): "
+            "frictiongym did not unpickle them (nothing ran), but stable_baselines3's own "
+            "load would; do not open this file with it",
+            UserWarning,
+            stacklevel=3,
+        )
     kwargs = data.get("policy_kwargs", {})
     if not isinstance(kwargs, dict) or ":serialized:" in kwargs:
         raise UnsafeModelError(
@@ -119,6 +202,7 @@ def load_policy(
             "frictiongym will not unpickle; retrain with plain JSON policy kwargs, or, if you "
             "trust the file, load it with stable_baselines3's own load"
         )
+    _check_policy_kwargs(path, kwargs)
     for key, size in (("observation_space", observation_size), ("action_space", 1)):
         if _shape(data, key) not in (None, (size,)):
             raise ValueError(
@@ -141,7 +225,10 @@ def load_policy(
         -observation_bound, observation_bound, (observation_size,), dtype=np.float32
     )
     action_space = spaces.Box(-1.0, 1.0, (1,), dtype=np.float32)
-    policy = policy_class(observation_space, action_space, lambda _: 0.0, **kwargs)
+    try:
+        policy = policy_class(observation_space, action_space, lambda _: 0.0, **kwargs)
+    except (TypeError, ValueError, RuntimeError) as exc:  # settings that contradict each other
+        raise ValueError(f"{path}: its policy_kwargs {kwargs} build no policy ({exc})") from None
     try:
         policy.load_state_dict(params["policy"])
     except (RuntimeError, TypeError) as exc:
