@@ -369,6 +369,27 @@ def test_a_checksum_passing_jump_never_reaches_the_guard_or_controller() -> None
         env.close()
 
 
+def test_a_jump_is_bounded_by_the_commands_held_not_by_the_time_elapsed() -> None:
+    with FakeStockAltino(start_cm=2.5, rate_hz=20.0) as fake:
+        env = gym.make(ALTINO_ID, backend=AltinoStockBackend(fake.port, timeout=0.3))
+        backend = env.unwrapped.sim.backend
+        env.reset()
+        env.step(np.array([0.0]))
+        time.sleep(0.3)  # at top speed 23 cm; holding 0 at rest the car cannot move at all
+        fake.forged = [86]  # 7.37 cm, checksum valid
+        _, _, _, _, info = env.step(np.array([0.0]))
+        assert info["position"] == pytest.approx(2.5, abs=0.05), "the forged readout was taken"
+        assert backend.implausible_replies == 1
+        env.close()
+
+
+def test_a_jump_allows_the_readouts_noise() -> None:
+    at_rest = 0.0  # readout noise alone: 19 cm read as 14 and as 6 (the model's 2-count std)
+    assert readout_jump_possible(14, 6, at_rest, noise_counts=8.0)
+    assert not readout_jump_possible(14, 6, at_rest)
+    assert not readout_jump_possible(342, 86, at_rest, noise_counts=8.0)
+
+
 def test_uri_and_env() -> None:
     backend = resolve_backend("altino-stock:///dev/rfcomm0?baud=115200&rate=20", "altino")
     assert isinstance(backend, AltinoStockBackend)

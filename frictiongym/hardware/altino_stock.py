@@ -213,6 +213,7 @@ class AltinoStockBackend(Backend):
         #: Replies whose IR readout jumped farther than the car can move (counted in both).
         self.implausible_replies = 0
         self._last_reading: tuple[float, float] | None = None  # (readout, send time) accepted
+        self._speed_cap = 0.0  # bound of the car's speed either way at that reading, cm/s
         if car_bounds is None:
             car_bounds = CarBounds(command_limit=float(GO_LIMIT))
         if not isinstance(car_bounds, CarBounds):
@@ -305,7 +306,7 @@ class AltinoStockBackend(Backend):
             sent = time.perf_counter()
             try:
                 sensors = self._read_reply(sent + self.timeout)
-                self._check_readout(sensors, sent)
+                self._check_readout(sensors, sent, command)
             except ImplausibleReply as exc:
                 self.bad_replies += 1
                 self.implausible_replies += 1
@@ -322,24 +323,31 @@ class AltinoStockBackend(Backend):
             "that the port is the Altino's, on its stock firmware, and the link's quality"
         )
 
-    def _check_readout(self, sensors: StockSensors, sent: float) -> None:
+    def _check_readout(self, sensors: StockSensors, sent: float, command: float) -> None:
         """Refuse a readout the car cannot reach from the last one (:class:`ImplausibleReply`).
 
-        Bound: the car's top speed (the guard's bounds) over the time since that reply, at least
-        a period, plus one count of quantization.
+        Bound: the farthest the car can move (either way) since that reply, from a bound of its
+        speed and the commands it held (the last one and ``command``, which may act before the
+        reading), over the time since, at least a period; plus one count of quantization and
+        the bounds' noise at each reading.
         """
         readout = float(sensors.ir[self.ir_index])
-        if self._last_reading is not None:
-            previous, when = self._last_reading
-            top = self.guard.car.top_speed(self.guard.car.command_limit)
-            travel = top * max(sent - when, self.period)
-            if not readout_jump_possible(previous, readout, travel):
-                raise ImplausibleReply(
-                    f"gave IR readouts that jump from {previous:g} to {readout:g}, farther than "
-                    f"the car can move between them ({travel:.2f} cm at {top:.1f} cm/s): a "
-                    "corruption the 8-bit checksum let through"
-                )
-        self._last_reading = (readout, sent)
+        car = self.guard.car
+        if self._last_reading is None:
+            self._last_reading = (readout, sent)
+            return
+        previous, when = self._last_reading
+        elapsed = max(sent - when, self.period)
+        pushed = max(abs(self._held), abs(command))
+        speed = car.advance(self._speed_cap, pushed, elapsed)
+        travel = max(self._speed_cap, speed) * elapsed  # the bound only rises, or only falls
+        if not readout_jump_possible(previous, readout, travel, car.noise_counts):
+            raise ImplausibleReply(
+                f"gave IR readouts that jump from {previous:g} to {readout:g}, farther than "
+                f"the car can move between them ({travel:.2f} cm holding at most "
+                f"{pushed:g}): a corruption the 8-bit checksum let through"
+            )
+        self._last_reading, self._speed_cap = (readout, sent), speed
 
     def _tick_us(self, at: float) -> int:
         return int((at - self._origin) * 1e6) % 2**32

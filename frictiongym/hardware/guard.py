@@ -69,6 +69,9 @@ REACTION_PERIODS = 2
 #: Approach speed above which the tripped guard keeps braking, cm/s (one IR count at 5 cm per
 #: 50 ms period is 0.5 cm/s: below that the car is taken as stopped).
 STOPPED_SPEED = 0.5
+#: Largest IR readout noise assumed, counts: 4 standard deviations of the model's 2 counts
+#: (``AltinoEnv``'s ``sensor_noise``; docs/altino-model.md gives none for the car).
+IR_NOISE_COUNTS = 8.0
 #: Nearest distance a car out of the IR range (readout 0) can be at, cm: the readout is
 #: ``round(966 / d - 45)`` (paper Eq. (1)), 0 only for ``d >= 966 / 45.5``.
 EDGE_CM = IR_NUMERATOR / (IR_OFFSET + 0.5)
@@ -79,20 +82,21 @@ def readout_distance(readout: float) -> float | None:
     return float(ir_estimate(readout)) if readout > 0 else None
 
 
-def readout_jump_possible(previous: float, readout: float, travel_cm: float) -> bool:
+def readout_jump_possible(
+    previous: float, readout: float, travel_cm: float, noise_counts: float = 0.0
+) -> bool:
     """Whether the IR readout can go from ``previous`` to ``readout``, the car moving ``travel_cm``.
 
-    One count of quantization is allowed on top, that of the farther (coarser) reading; a
-    readout of 0 (out of range) stands for "at least :data:`EDGE_CM`".
+    One count of quantization is allowed on top, that of the farther (coarser) reading, and
+    ``noise_counts`` of sensor noise at each reading; a readout of 0 (out of range) stands for
+    "at least :data:`EDGE_CM`".
     """
     far_readout, near_readout = sorted((previous, readout))  # the larger readout is nearer
-    if near_readout <= 0:
-        return True  # both out of range
-    near = float(ir_estimate(near_readout))
-    if far_readout <= 0:  # out of range on one side: at least EDGE_CM away
-        return EDGE_CM - near <= travel_cm + EDGE_CM - float(ir_estimate(1))
-    far = float(ir_estimate(far_readout))
-    return far - near <= travel_cm + far - float(ir_estimate(far_readout + 1))
+    nearest_far = float(ir_estimate(max(far_readout, 0.0) + 1.0 + noise_counts))
+    if near_readout - noise_counts < 1.0:
+        return True  # the nearer reading may stand for any distance out to the range's edge
+    farthest_near = float(ir_estimate(near_readout - noise_counts))
+    return nearest_far - farthest_near <= travel_cm
 
 
 def _count(distance: float) -> float:
@@ -115,6 +119,8 @@ class CarBounds:
         Least viscous slope, units/(cm/s) (0: none; then the car has no top speed).
     command_limit : float, default 1000.0
         Full command, units: the brake is full reverse.
+    noise_counts : float, default IR_NOISE_COUNTS
+        Largest IR readout noise the checks of a readout allow, counts.
     """
 
     mass_min: float = MASS_MIN
@@ -122,13 +128,14 @@ class CarBounds:
     friction: float = FRICTION
     viscous: float = VISCOUS
     command_limit: float = 1000.0
+    noise_counts: float = IR_NOISE_COUNTS
 
     def __post_init__(self) -> None:
         for name in ("mass_min", "mass_max", "command_limit"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
-        for name in ("friction", "viscous"):
+        for name in ("friction", "viscous", "noise_counts"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a number >= 0 (0: none), got {value!r}")
