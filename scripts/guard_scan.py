@@ -20,7 +20,11 @@ Prints, per implementation and law, the runs, how many touched the wall (true di
 how many tripped the guard, and the closest approach with its case; exits 1 on any contact
 of the firmware guards (the stock link's are reported: docs/hardware-vendor.md).
 
-Usage: python scripts/guard_scan.py [--quick] [--only python|c|stock]
+A noise pass then runs light cars (masses 1.1-2.2) from 9-19 cm with sensor noise on, the host
+sending +1000 and re-arming on every trip (an env's reset on a real car), for 6 s each, in
+Python and C; it prints how many came closer than the guard's limit.
+
+Usage: python scripts/guard_scan.py [--quick] [--only python|c|stock|noise]
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from frictiongym.hardware import altino_stock
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.altino_frames import StockSensors, parse_go_frame, sensor_reply
 from frictiongym.hardware.firmware import Firmware
-from frictiongym.hardware.guard import EDGE_CM
+from frictiongym.hardware.guard import EDGE_CM, LIMIT_CM
 
 ROOT = Path(__file__).resolve().parents[1]
 MASSES = (1.1, 2.2, 3.3, 4.4, 5.5)  #: units·s²/cm: the plausible range and the model's 2.2
@@ -53,6 +57,13 @@ COMMANDS = (200, 400, 600, 800, 1000)  #: forward commands, units, up to the lim
 NOMINAL_MASS = 2.2  #: presets.ALTINO_PLANT.inertia: the masses are factors on it
 MAX_SECONDS = 60.0  #: longest drive (the slowest car that moves reaches the wall sooner)
 REST_TICKS = 20  #: ticks at rest that end a run
+#: The noise pass (sensor noise on, the host re-arming on every trip and sending +1000): a
+#: noisy readout near the range's edge can hide an approach of 45 cm/s of a light car.
+NOISE_MASSES = (1.1, 1.6, 2.2)
+NOISE_LAWS = ("none", "paper")
+NOISE_STARTS = (9, 11, 13, 16, 19)
+NOISE_SEEDS = 20
+NOISE_SECONDS = 6.0
 DT_US = 50_000
 
 
@@ -64,6 +75,7 @@ class Case:
     law: str
     start: float
     command: int
+    noise_seed: int | None = None  #: with sensor noise from this seed, re-armed on every trip
 
 
 @dataclass(frozen=True)
@@ -86,26 +98,42 @@ def cases(
             for law in laws for m in masses for s in starts for u in commands]  # fmt: skip
 
 
+def noise_cases(seeds: int = NOISE_SEEDS) -> list[Case]:
+    """The noise pass: light cars near the IR range's edge, +1000, each with its own seed."""
+    return [Case(m, law, float(s), 1000, seed)
+            for seed in range(seeds) for law in NOISE_LAWS for m in NOISE_MASSES
+            for s in NOISE_STARTS]  # fmt: skip
+
+
 def plant(case: Case) -> Firmware:
     """The emulated car of ``case`` (its mass a fixed factor on the model's)."""
     factor = case.mass / NOMINAL_MASS
     return Firmware(
         "altino", friction=case.law, randomize={"inertia": (factor, factor)}, start=case.start,
-        watchdog_ms=0,
+        watchdog_ms=0, sensor_noise=case.noise_seed is not None, seed=case.noise_seed or 0,
     )  # fmt: skip
 
 
 class _Run:
-    """Bookkeeping common to both implementations: closest approach, when to stop."""
+    """Bookkeeping common to both implementations: closest approach, when to stop.
 
-    def __init__(self, fw: Firmware) -> None:
+    With ``rearm`` the host re-arms on every trip and keeps driving (an env's reset on a real
+    car) until ``NOISE_SECONDS``; otherwise it sends ESTOP once tripped.
+    """
+
+    def __init__(self, fw: Firmware, rearm: bool = False) -> None:
         self.fw = fw
+        self.rearm = rearm
         self.closest = fw.position
         self.still = 0
         self.tripped = False
+        self.limit = False  #: LIMIT on the latest state
 
     def host_command(self, k: int, command: int) -> p.Command:
         """The host's ``k``-th command: ``command`` (the first re-arms), ESTOP once tripped."""
+        if self.rearm:
+            again = k == 0 or self.limit
+            return p.Command(k + 1, command, p.Flag.ENABLE | (p.Flag.REARM if again else 0))
         if self.tripped:
             return p.Command(k + 1, 0, p.Flag.ESTOP)
         flags = p.Flag.ENABLE | (p.Flag.REARM if k == 0 else p.Flag(0))
@@ -119,6 +147,9 @@ class _Run:
         """
         self.closest = min(self.closest, self.fw.position)
         self.tripped |= limit
+        self.limit = limit
+        if self.rearm:
+            return self.closest <= 0.0
         done = self.fw.velocity == 0.0 or (self.tripped and self.fw.velocity > 0.0)
         self.still = self.still + 1 if done else 0
         return self.still >= REST_TICKS
@@ -127,8 +158,8 @@ class _Run:
 def run_python(case: Case) -> Outcome:
     """``case`` on the emulator's firmware (the Python guard), lock-step."""
     fw = plant(case)
-    run = _Run(fw)
-    for k in range(round(MAX_SECONDS / fw.dt)):
+    run = _Run(fw, case.noise_seed is not None)
+    for k in range(round((NOISE_SECONDS if run.rearm else MAX_SECONDS) / fw.dt)):
         fw.receive(run.host_command(k, case.command), k * fw.dt)
         state = fw.tick((k + 1) * fw.dt)
         if run.after_tick(bool(state.status & p.Status.LIMIT)) and k > REST_TICKS:
@@ -179,10 +210,13 @@ def run_c(case: Case, c: CFirmware) -> Outcome:
     fw = plant(case)
     car = fw.car_bounds
     c.ask("dev_init altino 0")
-    c.ask(f"dev_car {car.mass_min!r} {car.mass_max!r} {car.friction!r} {car.viscous!r}")
+    c.ask(
+        f"dev_car {car.mass_min!r} {car.mass_max!r} {car.friction!r} {car.viscous!r} "
+        f"{car.noise_counts!r}"
+    )
     c.ask(f"dev_tick 0 {fw.sensor} 0 0")  # the sample at boot
-    run = _Run(fw)
-    for k in range(round(MAX_SECONDS / fw.dt)):
+    run = _Run(fw, case.noise_seed is not None)
+    for k in range(round((NOISE_SECONDS if run.rearm else MAX_SECONDS) / fw.dt)):
         message = p.encode(run.host_command(k, case.command)).hex()
         (answer,) = c.ask(f"dev_rx {k * DT_US + 1000} {message}")
         fw.hold(int(answer.split()[3]))  # "act A motor M amp E": M held over the period
@@ -318,7 +352,9 @@ def main(argv: list[str] | None = None) -> int:
     """Run the scan; return 1 if any run of the firmware guards (Python, C) touched the wall."""
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="masses 1.1 and 5.5, fewer starts")
-    parser.add_argument("--only", choices=tuple(IMPLEMENTATIONS), help="one implementation")
+    parser.add_argument(
+        "--only", choices=(*IMPLEMENTATIONS, "noise"), help="one implementation, or the noise pass"
+    )
     args = parser.parse_args(argv)
     todo = (
         cases((1.1, 5.5), starts=(2, 5, 10, 21, 30, 100, 176.5, 260), commands=(300, 1000))
@@ -326,7 +362,8 @@ def main(argv: list[str] | None = None) -> int:
         else cases()
     )
     contacts = 0
-    for implementation in IMPLEMENTATIONS if args.only is None else (args.only,):
+    only = () if args.only == "noise" else (args.only,)
+    for implementation in IMPLEMENTATIONS if args.only is None else only:
         began = time.perf_counter()
         outcomes = scan(implementation, todo)
         took = time.perf_counter() - began
@@ -336,6 +373,17 @@ def main(argv: list[str] | None = None) -> int:
             print(row)
         if implementation != "stock":  # the stock link's limits: docs/hardware-vendor.md
             contacts += sum(o.closest <= 0.0 for o in outcomes)
+    seeds = 4 if args.quick else NOISE_SEEDS
+    for implementation in ("python", "c") if args.only in (None, "noise") else ():
+        began = time.perf_counter()
+        outcomes = scan(implementation, noise_cases(seeds))
+        took = time.perf_counter() - began
+        near = sum(o.closest < LIMIT_CM for o in outcomes)
+        print(f"\nnoise pass, {implementation}: sensor noise, re-armed on every trip, +1000")
+        print(f"{len(outcomes)} runs in {took:.0f} s, {near} closer than {LIMIT_CM} cm")
+        for row in summary(outcomes):
+            print(row)
+        contacts += sum(o.closest <= 0.0 for o in outcomes)
     print(f"\ncontacts of the firmware guards (python, c): {contacts}")
     return 1 if contacts else 0
 

@@ -166,6 +166,27 @@ def test_reduced_scan_stock_link_with_friction() -> None:
     assert closest.closest > guard.LIMIT_CM, closest
 
 
+#: Noisy runs that came within 0.02-0.5 cm of the wall before the guard allowed for the noise.
+NOISY = [scan.Case(1.1, "none", start, 1000, seed)
+         for start, seed in ((11, 0), (16, 0), (9, 1), (13, 2), (19, 2), (19, 3))]  # fmt: skip
+
+
+@pytest.mark.parametrize("implementation", ["python", "c"])
+def test_noisy_readouts_hide_no_approach(implementation: str) -> None:
+    """Sensor noise on, +1000 re-armed on every trip: the guard keeps its limit all the same."""
+    if implementation == "c" and shutil.which("gcc") is None:
+        pytest.skip("gcc is not installed")
+    outcomes = scan.scan(implementation, NOISY)
+    closest = min(outcomes, key=lambda o: o.closest)
+    assert closest.closest > guard.LIMIT_CM, closest
+
+
+def test_readout_noise_is_a_bound_of_the_car() -> None:
+    assert CarBounds().noise_counts == guard.IR_NOISE_COUNTS == 8.0
+    with pytest.raises(ValueError, match="noise_counts must be a number >= 0"):
+        CarBounds(noise_counts=-1.0)
+
+
 @pytest.mark.slow
 def test_full_scan_no_contact() -> None:
     assert scan.main([]) == 0

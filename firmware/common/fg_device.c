@@ -19,7 +19,7 @@ fg_device_config fg_config_rotary(void)
     cfg.watchdog_ms = 0u; /* default: max(3 periods, 100 ms) = 100 ms */
     cfg.limit_cm = 0.0f;  /* unused: no FG_CAP_DISTANCE_LIMIT */
     cfg.car.mass_min = cfg.car.mass_max = 1.0f; /* unused */
-    cfg.car.friction = cfg.car.viscous = 0.0f;
+    cfg.car.friction = cfg.car.viscous = cfg.car.noise_counts = 0.0f;
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
@@ -41,6 +41,7 @@ fg_device_config fg_config_altino(void)
     cfg.car.mass_max = FG_GUARD_MASS_MAX;
     cfg.car.friction = FG_GUARD_FRICTION;
     cfg.car.viscous = FG_GUARD_VISCOUS;
+    cfg.car.noise_counts = FG_GUARD_NOISE_COUNTS;
     cfg.firmware = FG_FIRMWARE_BUILD;
     return cfg;
 }
@@ -213,14 +214,15 @@ static void guard_update(fg_device *dev, int32_t readout)
     if (distance < 0.0f || dev->distance < 0.0f) {
         dev->speed = dev->measured = dev->bound; /* no two readings: the fastest it can be */
     } else {
-        /* the mean speed over the period; the car may be faster now by half a count of each
-         * reading and half a period of acceleration (guard.py _now_at_most), not above the
-         * bound unless the readings themselves are */
+        /* the mean speed over the period; the car may be faster now by half a count and the
+         * noise of each reading and half a period of acceleration (guard.py _now_at_most), not
+         * above the bound unless the readings themselves are */
         dev->measured = (dev->distance - distance) / dev->dt;
         fast = dev->measured > 0.0f ? dev->measured : 0.0f;
         fast = car_accel(&dev->cfg.car, (float)command, fast, 0.0f) * dev->dt;
-        fast = dev->measured + 0.5f * ((fast > 0.0f ? fast : 0.0f) +
-                                       (ir_count(dev->distance) + ir_count(distance)) / dev->dt);
+        fast = dev->measured + 0.5f * (fast > 0.0f ? fast : 0.0f) +
+               (0.5f + dev->cfg.car.noise_counts) *
+                   (ir_count(dev->distance) + ir_count(distance)) / dev->dt;
         fast = fast < dev->bound ? fast : dev->bound;
         dev->speed = fast > dev->measured ? fast : dev->measured;
     }

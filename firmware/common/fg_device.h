@@ -105,6 +105,9 @@ enum fg_action {
 #ifndef FG_GUARD_VISCOUS
 #define FG_GUARD_VISCOUS 10.93f            /* guard.VISCOUS: least viscous slope */
 #endif
+#ifndef FG_GUARD_NOISE_COUNTS
+#define FG_GUARD_NOISE_COUNTS 8.0f         /* guard.IR_NOISE_COUNTS: largest IR noise, counts */
+#endif
 
 /* What the distance guard assumes of the car (guard.py CarBounds). */
 typedef struct {
@@ -112,6 +115,7 @@ typedef struct {
     float mass_max; /* heaviest (slowest to brake) */
     float friction; /* least Coulomb friction against a forward-moving car, units (0: none) */
     float viscous;  /* least viscous slope, units/(cm/s) (0: none: no top speed) */
+    float noise_counts; /* largest IR readout noise, counts (each reading may be off by it) */
 } fg_car_bounds;
 
 typedef struct {

@@ -15,7 +15,7 @@
  *   dev_rx T_US HEX              -> act BITS motor M amp E [hello HEX]
  *   dev_tick T_US SENSOR AUX HW  -> state FRAME_HEX, motor M amp E
  *   dev_estop                    -> motor M amp E
- *   dev_car MMIN MMAX FRIC VISC  -> ok      (fg_device_set_car: the guard's bounds of the car)
+ *   dev_car MMIN MMAX FRIC VISC NOISE  -> ok      (fg_device_set_car: the guard's bounds of the car)
  *
  * Not part of any firmware: it uses stdio and a large static line buffer.
  */
@@ -237,6 +237,7 @@ static void handle(char *cmd)
         car.mass_max = next_float();
         car.friction = next_float();
         car.viscous = next_float();
+        car.noise_counts = next_float();
         fg_device_set_car(&dev, &car);
         puts("ok");
     } else if (strcmp(cmd, "dev_estop") == 0) {

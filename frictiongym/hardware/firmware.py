@@ -259,6 +259,7 @@ class Firmware:
             min(bounds.mass_min, masses[0]), max(bounds.mass_max, masses[1]),
             bounds.friction * (spread.friction or (1.0,))[0],
             bounds.viscous * (spread.damping or (1.0,))[0], bounds.command_limit,
+            bounds.noise_counts,
         )  # fmt: skip
 
     def set_car_bounds(self, car_bounds: CarBounds) -> None:

@@ -351,7 +351,7 @@ class DistanceGuard:
         reading; the car may have gained half a period of acceleration since the mean. Never
         above the bound, unless the readings themselves are.
         """
-        half_counts = 0.5 * (_count(before) + _count(now)) / self.dt
+        half_counts = (0.5 + self.car.noise_counts) * (_count(before) + _count(now)) / self.dt
         gain = max(self.car.accel(max(self._held), max(self.measured, 0.0)), 0.0) * self.dt / 2
         return max(self.measured, min(self.bound, self.measured + half_counts + gain))
 
