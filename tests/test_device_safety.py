@@ -201,6 +201,8 @@ def test_the_sample_age_bound_is_a_device_setting() -> None:
     assert stock.max_sample_age == 0.3
     with pytest.raises(ValueError, match="max_age must be a positive number"):
         resolve_backend("serial:///dev/x?max_age=0", "rotary")
+    emulated = resolve_backend("emulator://rotary?lockstep=1&max_age=0.3", "rotary")
+    assert emulated.max_sample_age == 0.3
     altino = EmulatedBackend("altino", lockstep=True)
     with altino:
         assert altino.sample_age_limit == pytest.approx(0.25)  # 5 periods of 50 ms

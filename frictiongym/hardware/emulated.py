@@ -14,7 +14,7 @@ from typing import Any
 
 from frictiongym.hardware.base import KINDS, DeviceInfo
 from frictiongym.hardware.serial_backend import SerialBackend
-from frictiongym.hardware.uri import flag, integer, uri_options
+from frictiongym.hardware.uri import flag, integer, positive, uri_options
 
 #: Watchdog of a lock-step emulator, ms of wall time: its clock only moves when the host sends,
 #: so a pause of the host (a compile, a garbage collection) is not a fault; a vanished host is.
@@ -33,6 +33,8 @@ class EmulatedBackend(SerialBackend):
         independent of the host's speed; for tests and reproducible comparisons).
     timeout : float, optional
         The serial side's wait for a state frame (see :class:`SerialBackend`).
+    max_age : float, optional
+        Oldest sample a step accepts, s (see :class:`SerialBackend`).
     **emulator
         More :class:`~frictiongym.hardware.emulator.Emulator` settings: ``params``,
         ``friction``, ``sensor_noise``, ``watchdog_ms``, ``seed``, ``faults``.
@@ -44,11 +46,12 @@ class EmulatedBackend(SerialBackend):
         *,
         lockstep: bool = False,
         timeout: float | None = None,
+        max_age: float | None = None,
         **emulator: Any,
     ) -> None:
         if kind not in KINDS:
             raise ValueError(f"unknown device kind {kind!r}; emulate one of {list(KINDS)}")
-        super().__init__("(emulator not started)", timeout=timeout)
+        super().__init__("(emulator not started)", timeout=timeout, max_age=max_age)
         self.kind = kind
         self.lockstep = lockstep
         self.emulator_settings = emulator
@@ -56,10 +59,11 @@ class EmulatedBackend(SerialBackend):
 
     @classmethod
     def from_uri(cls, path: str, query: dict[str, str]) -> EmulatedBackend:
-        """Build from ``emulator://KIND?lockstep=1&params=PATH&friction=LAW&noise=1&seed=N``."""
+        """Build from ``emulator://KIND?lockstep=1&params=PATH&friction=LAW&noise=1&seed=N&max_age=S``."""
         parsers: dict[str, Callable[[str], Any]] = {
             "lockstep": flag("lockstep"), "params": os.fspath, "friction": str,
             "noise": flag("noise"), "seed": integer("seed"), "watchdog_ms": integer("watchdog_ms"),
+            "max_age": positive("max_age"),
         }  # fmt: skip
         settings = uri_options(query, parsers, f"emulator://{path}")
         lockstep = settings.pop("lockstep", False)
