@@ -23,9 +23,9 @@ from types import TracebackType
 STAGING_PREFIX = ".frictiongym-partial-"
 
 
-#: Flags of a temporary file: a new file only, never opened through a link (``O_EXCL`` refuses
-#: any existing name, a link among them; ``O_NOFOLLOW`` where the platform has it).
-_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+#: Flags of a file that must be new: never opened through a link (``O_EXCL`` refuses any
+#: existing name, a dangling link among them; ``O_NOFOLLOW`` where the platform has it).
+NEW_FILE_FLAGS = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
 
 
 def _new_temporary(target: Path) -> tuple[Path, int]:
@@ -34,7 +34,7 @@ def _new_temporary(target: Path) -> tuple[Path, int]:
         tmp = target.with_name(f".{target.name}.{secrets.token_hex(4)}.tmp")
         try:
             # Mode 0o666 less the umask, as open() gives; mkstemp would make it 0600.
-            return tmp, os.open(tmp, _NEW_FILE, 0o666)
+            return tmp, os.open(tmp, NEW_FILE_FLAGS, 0o666)
         except FileExistsError:
             continue
 

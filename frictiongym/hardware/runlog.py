@@ -29,7 +29,7 @@ from typing import Any, NoReturn
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._io import write_text_atomic
+from frictiongym._io import NEW_FILE_FLAGS, write_text_atomic
 
 #: Columns of ``steps.csv`` before the observation's (which are named by the env).
 STEP_COLUMNS = (
@@ -42,9 +42,6 @@ RESULT_COLUMNS = ("reward", "terminated")
 DEFAULT_ROOT = "frictiongym-runs"
 
 
-#: Flags of ``steps.csv``: a new file only (``O_EXCL`` refuses any existing name, a dangling
-#: link among them), never opened through a link.
-_NEW_FILE = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
 #: Names tried for a new run folder (``-2``, ``-3``... after the first) before giving up.
 NAME_TRIES = 1000
 
@@ -172,7 +169,7 @@ class RunLog:
         if os.path.lexists(self.meta_path):
             self._refuse(self.meta_path)
         try:  # claims the folder: of two runs opening it at once, one gets FileExistsError
-            descriptor = os.open(self.steps_path, _NEW_FILE, 0o666)
+            descriptor = os.open(self.steps_path, NEW_FILE_FLAGS, 0o666)
         except FileExistsError:
             self._refuse(self.steps_path)
         self._file = os.fdopen(descriptor, "w", newline="", buffering=1)
