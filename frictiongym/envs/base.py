@@ -224,13 +224,18 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         return state
 
 
+def _refuse_masked(action: object) -> None:
+    """Raise a ValueError for a masked array: its masked values would be sent as they are."""
+    if isinstance(action, np.ma.MaskedArray):
+        raise ValueError(
+            f"actions must be plain numbers or arrays, got a masked array {action!r}; fill it "
+            "first (e.g. .filled(0.0)) so that no hidden value reaches the motor"
+        )
+
+
 def _one_number(action: object) -> float:
     """Return the single env's action as a float, or raise a ValueError saying what is wrong."""
-    if isinstance(action, np.ma.MaskedArray):  # its masked value would be sent as it is
-        raise ValueError(
-            f"action must be a plain number or array, got a masked array {action!r}; fill it "
-            "first (action.filled(0.0)) so that no hidden value reaches the motor"
-        )
+    _refuse_masked(action)
     array = np.asarray(action) if not isinstance(action, str | bytes) else None
     if array is None or array.dtype.kind not in "fiu":
         kind = type(action).__name__ if array is None or array.ndim == 0 else array.dtype
@@ -372,8 +377,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         """Step every env; envs whose episode ended on the last step are reset instead."""
         if self._needs_reset:
             raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
-        if isinstance(actions, np.ma.MaskedArray):  # its masked values would be sent as they are
-            raise ValueError("actions must be a plain array, got a masked array; fill it first")
+        _refuse_masked(actions)
         command = np.asarray(actions)
         if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
             if command.dtype.kind not in "iu":
