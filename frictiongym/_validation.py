@@ -10,6 +10,10 @@ import math
 import numbers
 from collections.abc import Callable
 
+#: The largest seed every library we seed takes (numpy's legacy ``np.random.seed``, which
+#: Stable-Baselines3 calls, stops at 2**32 - 1).
+MAX_SEED = 2**32 - 1
+
 
 def check_finite(obj: object, *names: str) -> None:
     """Raise unless every named field is a real, finite number (``TypeError``/``ValueError``)."""

@@ -17,6 +17,7 @@ from typing import Any
 
 from frictiongym import __version__
 from frictiongym._io import OutputError, check_file_target, write_file_atomic
+from frictiongym._validation import MAX_SEED
 
 
 def _format(value: float, unit: str) -> str:
@@ -185,11 +186,6 @@ def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents
         help="replace the results of an earlier run in --out, all of them (without it, an "
         "--out holding them is refused, so two runs' files never mix); other files stay",
     )
-
-
-#: The largest seed every library we seed takes (numpy's legacy ``np.random.seed``, which
-#: Stable-Baselines3 calls, stops at 2**32 - 1).
-MAX_SEED = 2**32 - 1
 
 
 def check_seed(value: int, option: str = "--seed") -> None:

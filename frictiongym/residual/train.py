@@ -24,6 +24,7 @@ from typing import Any
 import gymnasium as gym
 
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
+from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
 from frictiongym.residual.core import ResidualConfig, base_gains, device_name
 from frictiongym.residual.env import ResidualEnv
@@ -143,9 +144,9 @@ def check_settings(settings: TrainSettings) -> None:
     ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
     if settings.env_id not in ids:
         raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
-    if not 0 <= settings.seed <= 2**32 - 1:  # numpy's legacy seeding, which SB3 calls
+    if not 0 <= settings.seed <= MAX_SEED:
         raise TrainingError(
-            f"--seed must be a whole number from 0 to {2**32 - 1}, got {settings.seed}"
+            f"--seed must be a whole number from 0 to {MAX_SEED}, got {settings.seed}"
         )
     if settings.overwrite and settings.resume is not None:
         raise TrainingError(

@@ -31,8 +31,8 @@ time (or one too old), and the env's safety limit ends a run that goes beyond it
 is listed in the report with how and when it ended, left out of the comparison, and the other
 runs go on (a device that goes away ends the runs); with no complete run the command exits 1.
 A --reference beyond the safety limit, or on the Altino beyond its IR sensor's range, is
-refused before the device moves. The device runs take
-real-time priority (SCHED_FIFO) where the system permits it; the report says what they got.
+refused before the device moves. The device runs take real-time priority (SCHED_FIFO) where
+the system permits it; the report says what they got.
 
 Writes to --out: report.md, sim2real.json, overlay.png, timing.png; the device run's log
 (steps.csv + meta.json) goes to a new --out/device-logs/<UTC time>/, so a rerun into the
