@@ -1,6 +1,6 @@
 """Check the paper's three Altino phenomena on the simulated car (issue [A]).
 
-The paper (§3.2, §5.2; SPEC.md) reports, for a target 5 cm from a wall:
+The paper (§3.2, §5.2) reports, for a target 5 cm from a wall:
 
 * PID ``Kp=25, Kd=12, Ki=10``: the car overshoots and stays around 3 cm;
 * the same with ``Ki=20``: a smaller error, but the car oscillates around 5 cm (limit cycle);

@@ -29,7 +29,7 @@ from frictiongym.plants.sensors import (
 from tests._envs import ALTINO, IDS, RANDOM_KWARGS, SERVO, commands
 
 # Gymnasium's checker flags physical-unit actions and unbounded observations; both are by
-# design (DESIGN.md "Contract": actions in volts / motor units, like Pendulum).
+# design (docs/envs.md: actions in volts / motor units, like Pendulum).
 # The third kind is numba compiling a serial kernel with parallel=True on purpose
 # (frictiongym.plants._kernel.serial_njit); the package filters it, catch_warnings here does not.
 EXPECTED_WARNINGS = (

@@ -243,9 +243,6 @@ class RandomSteps(Reference):
         return _row(KIND_SEQUENCE, self.period, levels=tuple(levels.tolist()))
 
 
-REFERENCE_KINDS = ("step", "step_sequence", "ramp", "sine", "random_steps")
-
-
 def resolve_reference(spec: object, presets: Mapping[str, Reference]) -> Reference:
     """Turn a ``reference=`` argument into a :class:`Reference`.
 

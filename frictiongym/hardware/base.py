@@ -28,7 +28,6 @@ import math
 import numbers
 import reprlib
 import threading
-import time
 import weakref
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
@@ -320,7 +319,3 @@ class _StopOnError:
         if kind is not None:
             self._backend.stop()
 
-
-def monotonic_ns() -> int:
-    """Host clock of :attr:`Sample.host_ns`."""
-    return time.perf_counter_ns()
