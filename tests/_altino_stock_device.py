@@ -1,6 +1,6 @@
 """A fake Altino on its stock firmware, behind a pseudo-terminal, for the stock backend's tests.
 
-The car's physics is the simulator's (``Simulation(ALTINO_DEVICE, 1)``): the fake parses the
+The car's physics is the simulator's (``Simulation(ALTINO, 1)``): the fake parses the
 vendor's 28-byte command frames, answers each sensor request with a 31- or 56-byte reply whose
 IR[1] is the simulated readout *now* (before the frame's command acts), then steps the
 simulation one period under the frame's command. It records every frame it receives, and can
@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym.devices import ALTINO
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.altino import ALTINO_DEVICE
 from frictiongym.envs.core import Device, Simulation
 from frictiongym.hardware.altino_frames import (
     COMMAND_LENGTH,
@@ -83,7 +83,7 @@ class FakeStockAltino:
     """
 
     def __init__(self, start_cm: float = 20.0, rate_hz: float = 20.0, **sim_kwargs: Any) -> None:
-        self.car = StepSim(ALTINO_DEVICE, start_cm, 1.0 / rate_hz, **sim_kwargs)
+        self.car = StepSim(ALTINO, start_cm, 1.0 / rate_hz, **sim_kwargs)
         self.commands: list[StockCommand] = []  #: every valid frame received
         self.replies: list[int | None] = []  #: IR[1] answered to each frame (None: no reply)
         self.answering = True  #: False: receive and drive, never reply

@@ -3,7 +3,7 @@
 :func:`install` puts the module into ``sys.modules`` (through pytest's ``monkeypatch``, so it is
 removed after the test) and returns the :class:`FakeBoard` behind it. Its ``HIL`` records every
 call in ``board.calls`` and answers like the SDK: ``task_read_encoder`` returns the encoder
-count of a ``Simulation(ROTARY_DEVICE, 1)`` stepped one period under the last voltage written
+count of a ``Simulation(ROTARY, 1)`` stepped one period under the last voltage written
 (0 V while the amplifier is disabled), once per read after the first.
 """
 
@@ -19,7 +19,7 @@ from typing import Any
 import pytest
 from _altino_stock_device import StepSim
 
-from frictiongym.envs.rotary import ROTARY_DEVICE
+from frictiongym.devices import ROTARY
 
 
 class HILError(Exception):
@@ -133,7 +133,7 @@ def _make_hil(board: FakeBoard) -> type:
 
         def task_start(self, task: str, clock: int, frequency: float, samples: int) -> None:
             offset = board.counts()
-            board.plant = StepSim(ROTARY_DEVICE, 0.0, 1.0 / frequency)
+            board.plant = StepSim(ROTARY, 0.0, 1.0 / frequency)
             board.offset = offset
             board._started = False
 

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from _altino_stock_device import FakeStockAltino, StepSim
 
-from frictiongym.envs.altino import ALTINO_DEVICE
+from frictiongym.devices import ALTINO
 from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.altino_frames import (
     STOCK_MAX_RATE_HZ,
@@ -208,7 +208,7 @@ def test_closed_loop_is_the_simulator_with_one_period_more_dead_time(
     assert info.watchdog_s is None
     assert info.kind == "altino"
     assert info.distance_limit
-    sim = StepSim(ALTINO_DEVICE, 20.0, 1.0 / RATE, delay=fake.car.sim.plant.dead_time + 1.0 / RATE)
+    sim = StepSim(ALTINO, 20.0, 1.0 / RATE, delay=fake.car.sim.plant.dead_time + 1.0 / RATE)
     sample = backend.start()
     applied = [0.0]
     for _ in range(40):

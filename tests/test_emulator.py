@@ -20,11 +20,12 @@ from hypothesis import strategies as st
 
 import frictiongym  # noqa: F401  (registers the envs)
 from frictiongym.controllers import PID, FrictionCompensator, PIDGains
+from frictiongym.devices import ROTARY
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.core import Simulation
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.emulator import Emulator, Faults
-from frictiongym.hardware.firmware import FIRMWARE_BUILD, Firmware, devices
+from frictiongym.hardware.firmware import FIRMWARE_BUILD, Firmware
 from frictiongym.hardware.guard import LIMIT_CM
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.presets import (
@@ -173,7 +174,7 @@ def test_zero_position_at_rest_equals_a_fresh_reset(law):
     fw.apply_pending()
     assert fw.position == 0.0
     assert fw.velocity == velocity
-    fresh = Simulation(devices()["rotary"], 1, friction=law, reference=0.0)
+    fresh = Simulation(ROTARY, 1, friction=law, reference=0.0)
     fresh.prepare_reset(np.ones(1, bool), lambda _: np.random.default_rng(0))
     physics = [*range(pk.STATE_SIZE), ek.E_ESTIMATE]
     if law in ("paper", "coulomb", "stribeck"):  # laws with stiction come to rest exactly

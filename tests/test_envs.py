@@ -12,10 +12,9 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 from stable_baselines3.common.env_checker import check_env as sb3_check_env
 
+from frictiongym import devices
 from frictiongym.envs import ENV_IDS
-from frictiongym.envs.altino import ALTINO_EPISODE_STEPS
 from frictiongym.envs.references import Sine, StepSequence
-from frictiongym.envs.rotary import ROTARY_EPISODE_STEPS
 from frictiongym.friction import ROTARY_PAPER, NoFriction
 from frictiongym.plants import Plant
 from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_DT, ROTARY_PLANT
@@ -46,12 +45,11 @@ def _unexpected(caught: list[warnings.WarningMessage]) -> list[str]:
 
 
 def test_registration_uses_string_entry_points_and_time_limits():
-    steps = {SERVO: ROTARY_EPISODE_STEPS, ALTINO: ALTINO_EPISODE_STEPS}
     for env_id in IDS:
         spec = gym.spec(env_id)
         assert isinstance(spec.entry_point, str)
         assert isinstance(spec.vector_entry_point, str)
-        assert spec.max_episode_steps == steps[env_id] == ENV_IDS[env_id][3]
+        assert spec.max_episode_steps == devices.get(env_id).episode_steps == ENV_IDS[env_id][3]
 
 
 @pytest.mark.parametrize("env_id", IDS)

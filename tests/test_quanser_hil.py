@@ -10,7 +10,7 @@ import pytest
 from _altino_stock_device import StepSim
 from _fake_quanser import FakeBoard, HILError, install
 
-from frictiongym.envs.rotary import ROTARY_DEVICE
+from frictiongym.devices import ROTARY
 from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
@@ -77,7 +77,7 @@ def test_open_leaves_the_motor_off(board: FakeBoard) -> None:
 
 def test_pid_run_matches_the_simulator(board: FakeBoard) -> None:
     kp, ki, kd, target = 8.0, 2.0, 0.3, 1.0
-    sim = StepSim(ROTARY_DEVICE, 0.0, 1.0 / RATE)
+    sim = StepSim(ROTARY, 0.0, 1.0 / RATE)
     with QuanserHILBackend(rate_hz=RATE) as backend:
         sample = backend.start()
         integral, previous = 0.0, sample.measured

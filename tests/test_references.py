@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from frictiongym.devices import ROTARY
 from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import (
     MAX_LEVELS,
@@ -17,7 +18,6 @@ from frictiongym.envs.references import (
     StepSequence,
     resolve_reference,
 )
-from frictiongym.envs.rotary import ROTARY_DEVICE
 from frictiongym.friction import ROTARY_PAPER
 from frictiongym.plants.plant import plant_row
 from frictiongym.plants.presets import ROTARY_PLANT
@@ -75,8 +75,8 @@ def test_bad_generators_say_what_is_wrong(build, match):
 
 
 def test_resolve_reference_takes_names_numbers_and_generators():
-    presets = ROTARY_DEVICE.references
-    assert resolve_reference("sine", presets) is presets["sine"]
+    presets = ROTARY.references
+    assert resolve_reference("sine", presets) == Sine(amplitude=1.0, period=2.0)
     assert resolve_reference(np.float32(0.5), presets) == Step(0.5)
     sine = Sine(1.0, 1.0)
     assert resolve_reference(sine, presets) is sine

@@ -16,8 +16,8 @@ if TYPE_CHECKING:
     from frictiongym.envs.altino import AltinoDistanceEnv, AltinoDistanceVectorEnv
     from frictiongym.envs.rotary import RotaryServoEnv, RotaryServoVectorEnv
 
-#: id -> (module, single class, vector class, max_episode_steps); steps are those of
-#: ``ROTARY_EPISODE_STEPS`` and ``ALTINO_EPISODE_STEPS`` (checked by the tests).
+#: id -> (module, single class, vector class, max_episode_steps); steps are the devices'
+#: ``episode_steps`` (:mod:`frictiongym.devices`, checked by the tests).
 ENV_IDS: dict[str, tuple[str, str, str, int]] = {
     "frictiongym/RotaryServo-v0": (
         "frictiongym.envs.rotary", "RotaryServoEnv", "RotaryServoVectorEnv", 2500

@@ -31,14 +31,13 @@ from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import (
     IR_MAX_READOUT,
+    SENSOR_ENCODER,
+    SENSOR_IR,
     derivative_update,
     encoder_angle,
     ir_count,
     ir_estimate,
 )
-
-SENSOR_ENCODER = 0  #: servo: angle through an encoder, observation [angle, velocity, reference]
-SENSOR_IR = 1  #: Altino: IR readout, observation [readout, distance, velocity, reference]
 
 # Task row.
 T_GAIN = 0

@@ -2,52 +2,8 @@
 
 from __future__ import annotations
 
-from frictiongym.envs import _kernel as ek
+from frictiongym.devices import ALTINO
 from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
-from frictiongym.envs.core import Device
-from frictiongym.envs.references import Ramp, RandomSteps, Sine, Step, StepSequence
-from frictiongym.friction import ALTINO_LUGRE, ALTINO_PAPER
-from frictiongym.plants.presets import (
-    ALTINO_DT,
-    ALTINO_PLANT,
-    ALTINO_START_CM,
-    ALTINO_TARGET_CM,
-)
-
-#: Registered episode length: 20 s at the default 50 ms period (the paper's runs settle or
-#: cycle within it; docs/altino-model.md).
-ALTINO_EPISODE_STEPS = 400
-
-ALTINO_DEVICE = Device(
-    name="AltinoDistance",
-    plant=ALTINO_PLANT,
-    dt=ALTINO_DT,
-    paper_friction=ALTINO_PAPER,
-    lugre_friction=ALTINO_LUGRE,
-    sensor=ek.SENSOR_IR,
-    velocity_cutoff=None,  # backward difference of the estimate, as docs/altino-model.md
-    start=ALTINO_START_CM,
-    # Defaults of each reference kind (cm from the wall); the step is the paper's 5 cm target.
-    references={
-        "step": Step(ALTINO_TARGET_CM),
-        "step_sequence": StepSequence((5.0, 10.0, 7.0, 12.0), period=5.0),
-        "ramp": Ramp(-0.5, start=0.0, initial=20.0),  # 20 to 10 cm over the 20 s episode
-        "sine": Sine(amplitude=3.0, period=10.0, offset=10.0),
-        "random_steps": RandomSteps(3.0, 18.0, period=5.0),
-    },
-    error_scale=ALTINO_TARGET_CM,  # cm: the target distance costs 1 per step
-    effort_weight=0.01,
-    limit=0.0,  # touching the wall
-    limit_penalty=100.0,
-    noise_std=2.0,  # assumed: readout units (0.05 cm at 5 cm); docs/altino-model.md has none
-    observation_names=("readout", "distance", "velocity", "reference"),
-    output="distance",
-    direction=-1.0,  # a positive command drives toward the wall, shortening the distance
-    # Assumed: at rest the noiseless backward difference is exactly 0, and one IR count at
-    # 5 cm per period is 0.52 cm/s; half of it separates the two (docs/controllers.md).
-    rest_speed=0.25,
-    end_stop=0.0,  # the wall: the plant's position is minus the distance to it
-)
 
 
 class AltinoDistanceEnv(FrictionEnv):
@@ -126,7 +82,7 @@ class AltinoDistanceEnv(FrictionEnv):
     * v0: first release.
     """
 
-    device = ALTINO_DEVICE
+    device = ALTINO
 
 
 class AltinoDistanceVectorEnv(FrictionVectorEnv):
@@ -137,4 +93,4 @@ class AltinoDistanceVectorEnv(FrictionVectorEnv):
     ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
     """
 
-    device = ALTINO_DEVICE
+    device = ALTINO

@@ -12,16 +12,17 @@ import math
 import numbers
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
-from frictiongym.friction import FrictionModel, LuGre, StictionCoulomb, friction_from_name
+from frictiongym.friction import FrictionModel, friction_from_name
 from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
 from frictiongym.plants.plant import PlantParams, default_substeps, plant_row
 from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
@@ -32,33 +33,6 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: Keys accepted in ``reset(options=...)``.
 RESET_OPTIONS = ("position", "velocity", "reference")
-
-
-@dataclass(frozen=True)
-class Device:
-    """What an env id simulates and the defaults of its task (each cites its source)."""
-
-    name: str
-    plant: PlantParams
-    dt: float
-    paper_friction: StictionCoulomb
-    lugre_friction: LuGre
-    sensor: int  #: ``SENSOR_ENCODER`` or ``SENSOR_IR``
-    velocity_cutoff: float | None  #: rad/s of the velocity filter; None: backward difference
-    start: float  #: default starting position (rad, or cm from the wall)
-    references: Mapping[str, Reference]
-    error_scale: float  #: tracking error that costs 1 per step
-    effort_weight: float
-    limit: float  #: default safety limit (``C_LIMIT``)
-    limit_penalty: float
-    noise_std: float  #: sensor noise of ``sensor_noise=True``
-    observation_names: tuple[str, ...]
-    output: str  #: observation name of the measured controlled output
-    direction: float  #: +1 if a positive command increases ``output``, -1 if it decreases it
-    #: speed (plant units) below which a friction compensator treats the body as at rest
-    rest_speed: float
-    #: plant position of a rigid end stop (the Altino's wall), whatever plant is simulated
-    end_stop: float = math.inf
 
 
 def _number(name: str, value: object, rule: str = "finite") -> float:

@@ -28,8 +28,10 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym import devices
+from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.core import BoolArray, Device, FloatArray, Simulation
+from frictiongym.envs.core import BoolArray, FloatArray, Simulation
 from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import HardwareError, ProtocolError
@@ -46,9 +48,6 @@ SIM_ONLY = {
     "delay": "the device's dead time is what it is",
     "parallel": "a device is one env",
 }
-#: Env kinds of the device names.
-KIND_OF = {"RotaryServo": "rotary", "AltinoDistance": "altino"}
-DEVICE_NAMES = {"rotary": "a QUBE-Servo 2", "altino": "an Altino car"}
 
 
 class DeviceSession(Simulation):
@@ -96,17 +95,16 @@ class DeviceSession(Simulation):
             )
         if kwargs.get("quantize", True) is not True:
             raise ValueError("quantize=False is not possible on a device: its sensor quantises")
-        kind = KIND_OF[device.name]
-        resolved = resolve_backend(backend, kind)
+        resolved = resolve_backend(backend, device.kind)
         if resolved is None:
             raise ValueError("DeviceSession needs a device backend, not the simulator")
         self.backend = resolved
         self.info = resolved.open()
         try:
-            if self.info.kind != kind:
+            if self.info.kind != device.kind:
                 raise ProtocolError(
-                    f"the device at {self.info.link} is {DEVICE_NAMES[self.info.kind]}, but "
-                    f"this env drives {DEVICE_NAMES[kind]}: pick the env of that device or the "
+                    f"the device at {self.info.link} is {devices.get(self.info.kind).title}, but "
+                    f"this env drives {device.title}: pick the env of that device or the "
                     "other port"
                 )
             dt = 1.0 / self.info.rate_hz

@@ -16,6 +16,7 @@ import numbers
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -243,7 +244,17 @@ class RandomSteps(Reference):
         return _row(KIND_SEQUENCE, self.period, levels=tuple(levels.tolist()))
 
 
-def resolve_reference(spec: object, presets: Mapping[str, Reference]) -> Reference:
+#: The generator class of each reference kind a device's presets name.
+PRESET_CLASSES: dict[str, type[Reference]] = {
+    "step": Step,
+    "step_sequence": StepSequence,
+    "ramp": Ramp,
+    "sine": Sine,
+    "random_steps": RandomSteps,
+}
+
+
+def resolve_reference(spec: object, presets: Mapping[str, Mapping[str, Any]]) -> Reference:
     """Turn a ``reference=`` argument into a :class:`Reference`.
 
     Parameters
@@ -253,7 +264,8 @@ def resolve_reference(spec: object, presets: Mapping[str, Reference]) -> Referen
         ``"sine"``, ``"random_steps"``: the env's defaults for each kind); or a number, meaning
         a constant set-point (``Step(value)``).
     presets : mapping
-        The env's default generator of each kind.
+        The env's default generator of each kind, as the keyword arguments of its class in
+        :data:`PRESET_CLASSES` (:attr:`frictiongym.devices.Device.references`).
     """
     if isinstance(spec, Reference):
         return spec
@@ -263,7 +275,7 @@ def resolve_reference(spec: object, presets: Mapping[str, Reference]) -> Referen
                 f"unknown reference {spec!r}; use one of {sorted(presets)}, a number (a constant "
                 "set-point) or a generator from frictiongym.envs.references"
             )
-        return presets[spec]
+        return PRESET_CLASSES[spec](**presets[spec])
     if isinstance(spec, numbers.Real) and not isinstance(spec, bool):
         return Step(float(spec))
     raise TypeError(

@@ -2,48 +2,8 @@
 
 from __future__ import annotations
 
-import math
-
-from frictiongym.envs import _kernel as ek
+from frictiongym.devices import ROTARY
 from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
-from frictiongym.envs.core import Device
-from frictiongym.envs.references import Ramp, RandomSteps, Sine, Step, StepSequence
-from frictiongym.friction import ROTARY_LUGRE, ROTARY_PAPER
-from frictiongym.plants.presets import ROTARY_DT, ROTARY_PLANT, ROTARY_VELOCITY_CUTOFF
-
-#: Registered episode length: 5 s at the default 2 ms period (the paper's servo plots).
-ROTARY_EPISODE_STEPS = 2500
-
-ROTARY_DEVICE = Device(
-    name="RotaryServo",
-    plant=ROTARY_PLANT,
-    dt=ROTARY_DT,
-    paper_friction=ROTARY_PAPER,
-    lugre_friction=ROTARY_LUGRE,
-    sensor=ek.SENSOR_ENCODER,
-    velocity_cutoff=ROTARY_VELOCITY_CUTOFF,
-    start=0.0,
-    # Defaults of each reference kind (rad); the step is the paper's demo step of 1 rad.
-    references={
-        "step": Step(1.0),
-        "step_sequence": StepSequence((1.0, -0.5, 0.5, 0.0), period=1.25),
-        "ramp": Ramp(0.5),
-        "sine": Sine(amplitude=1.0, period=2.0),
-        "random_steps": RandomSteps(-math.pi, math.pi, period=1.0),
-    },
-    error_scale=1.0,  # rad: the default step costs 1 per step until it moves
-    effort_weight=0.01,  # small: 10 V for a whole step costs as much as 10 mrad of error
-    limit=4.0 * math.pi,  # assumed run-away guard (two turns); the disk has no end stops
-    limit_penalty=100.0,
-    noise_std=2.0 * math.pi / 2048,  # assumed: one encoder count of vibration or noise
-    observation_names=("angle", "velocity", "reference"),
-    output="angle",
-    direction=1.0,
-    # Assumed: at rest the filtered encoder derivative decays from a last count's pulse
-    # (1.5 rad/s for one count per period, times 1 - exp(-50 dt) = 0.095) toward 0; 0.1 rad/s
-    # is below that first pulse and 3 % of the paper's v0 (docs/controllers.md).
-    rest_speed=0.1,
-)
 
 
 class RotaryServoEnv(FrictionEnv):
@@ -138,7 +98,7 @@ class RotaryServoEnv(FrictionEnv):
     * v0: first release.
     """
 
-    device = ROTARY_DEVICE
+    device = ROTARY
 
 
 class RotaryServoVectorEnv(FrictionVectorEnv):
@@ -150,4 +110,4 @@ class RotaryServoVectorEnv(FrictionVectorEnv):
     Env ``i`` of ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
     """
 
-    device = ROTARY_DEVICE
+    device = ROTARY

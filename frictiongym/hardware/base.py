@@ -318,4 +318,3 @@ class _StopOnError:
     def __exit__(self, kind: type[BaseException] | None, *rest: Any) -> None:
         if kind is not None:
             self._backend.stop()
-

@@ -29,8 +29,9 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from frictiongym import devices
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.core import Device, Simulation
+from frictiongym.envs.core import Simulation
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS
@@ -43,9 +44,6 @@ from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 #: firmware/common/fg_device.h: 3 = the guard bounds the speed and the car (2: the predictive
 #: distance guard of one nominal car; 1: a fixed readout limit).
 FIRMWARE_BUILD = 3
-#: Command counts per physical unit: mV for the servo (protocol.DeviceKind), the Altino's own
-#: motor units.
-COMMAND_SCALE = {"rotary": 1000, "altino": 1}
 #: Default watchdog: three periods, at least 100 ms (servo 100 ms, Altino 150 ms). The floor is
 #: the host's margin: a general-purpose host under load stalls for tens of ms now and then
 #: (docs/hardware.md, "Timing and the watchdog"), and a stall is not a dead host.
@@ -73,14 +71,6 @@ class Tick(NamedTuple):
     sensor: int  #: encoder counts or IR readout sent
     position: float  #: true position at the tick: rad, or cm from the wall
     velocity: float  #: its true rate
-
-
-def devices() -> dict[str, Device]:
-    """Return the simulated device of each kind (imported late: the envs import the hardware)."""
-    from frictiongym.envs.altino import ALTINO_DEVICE
-    from frictiongym.envs.rotary import ROTARY_DEVICE
-
-    return {"rotary": ROTARY_DEVICE, "altino": ALTINO_DEVICE}
 
 
 def default_watchdog_ms(dt: float) -> int:
@@ -138,9 +128,9 @@ class Firmware:
         if kind not in KINDS:
             raise ValueError(f"unknown device {kind!r}; emulate one of {list(KINDS)}")
         self.kind = kind
-        self.device = devices()[kind]
+        self.device = devices.get(kind)
         self.dt = self.device.dt
-        self.scale = COMMAND_SCALE[kind]
+        self.scale = self.device.command_scale  #: command counts per unit
         altino = kind == "altino"
         # One plant: the single-threaded kernel, whatever the envs' policy for batches.
         self.sim = Simulation(
@@ -448,7 +438,6 @@ class Firmware:
 
 
 __all__ = [
-    "COMMAND_SCALE",
     "FIRMWARE_BUILD",
     "Firmware",
     "Tick",

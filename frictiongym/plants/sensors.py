@@ -17,6 +17,9 @@ from numba import float64, njit, vectorize
 
 FloatArray = npt.NDArray[np.float64]
 
+SENSOR_ENCODER = 0  #: servo: angle through an encoder, observation [angle, velocity, reference]
+SENSOR_IR = 1  #: Altino: IR readout, observation [readout, distance, velocity, reference]
+
 #: QUBE-Servo 2 encoder resolution in quadrature, counts per revolution (Quanser datasheet;
 #: the paper's testbed, and gym_brt's ``2*pi/2048``).
 QUBE_COUNTS_PER_REV = 2048
