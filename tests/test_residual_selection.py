@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 
 import frictiongym  # noqa: F401  (registers the ids)
+from frictiongym import devices
 from frictiongym.cli import main
 from frictiongym.controllers import ResidualController
 from frictiongym.residual import ResidualConfig, ResidualEnv
 from frictiongym.residual.selection import Validation
-from frictiongym.residual.train import PRECISION, RANDOMIZATION
 
 SERVO = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
@@ -33,7 +33,7 @@ class ConstantPolicy:
 @pytest.mark.parametrize("env_id", [SERVO, ALTINO])
 def test_the_precision_reward_swaps_only_the_tracking_term(env_id):
     device = env_id.split("/")[1].split("-")[0]
-    precision = PRECISION[device]
+    precision = devices.get(device).training_precision
     plain = ResidualEnv(gym.make(env_id, reference="random_steps"))
     shaped = ResidualEnv(gym.make(env_id, reference="random_steps"), precision=precision)
     plain.reset(seed=3)
@@ -57,7 +57,7 @@ def test_the_precision_reward_swaps_only_the_tracking_term(env_id):
 def test_validation_scores_the_base_as_one_and_a_biased_policy_as_worse(env_id):
     device = env_id.split("/")[1].split("-")[0]
     config = ResidualConfig.for_device(device)
-    validation = Validation(device, RANDOMIZATION[device], config, plants=2)
+    validation = Validation(device, devices.get(device).randomization, config, plants=2)
     neutral = validation(ConstantPolicy(0.0))  # the residual adds exactly nothing
     assert set(neutral.ratios) == {
         "nominal/itae",
@@ -87,7 +87,7 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     summary = json.loads((out / "train.json").read_text())
     assert summary["validation"]["best_score"] == pytest.approx(best, rel=1e-5)
     assert summary["reward"] == "precision"
-    assert summary["precision"] == PRECISION["AltinoDistance"]
+    assert summary["precision"] == devices.ALTINO.training_precision
     assert summary["hyperparameters"]["gamma"] == 0.98
     assert summary["hyperparameters"]["n_epochs"] == 2
     assert summary["threads"] == 1
@@ -95,7 +95,7 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     # best.zip is the policy that scored best: scoring it again gives that score.
     controller = ResidualController.load(out / "best.zip", gym.make(ALTINO))
     config = controller.config
-    validation = Validation("AltinoDistance", RANDOMIZATION["AltinoDistance"], config, plants=1)
+    validation = Validation("AltinoDistance", devices.ALTINO.randomization, config, plants=1)
     assert validation(controller.model).score == pytest.approx(best, rel=1e-5)
     assert not list(out.glob(".*partial*"))
     # Continuing it with another objective would change what the policy optimises.

@@ -9,6 +9,7 @@ import sys
 import time
 from collections.abc import Sequence
 
+from frictiongym import devices
 from frictiongym._io import OutputDir
 from frictiongym.benchmark.figures import write_figures
 from frictiongym.benchmark.report import (
@@ -27,6 +28,7 @@ from frictiongym.benchmark.scenarios import (
     all_scenarios,
     residual_scenarios,
 )
+from frictiongym.devices import DEVICES
 
 DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
@@ -162,16 +164,16 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
     models: dict[str, str] = {}
     for spec in getattr(args, "residual", None) or []:
         device, sep, path = spec.partition("=")
-        if not sep or device not in ("rotary", "altino") or not path:
-            raise ValueError(f"--residual takes rotary=MODEL or altino=MODEL, got {spec!r}")
+        if not sep or device not in (d.kind for d in DEVICES) or not path:
+            takes = " or ".join(f"{d.kind}=MODEL" for d in DEVICES)
+            raise ValueError(f"--residual takes {takes}, got {spec!r}")
         if device in models:
             raise ValueError(f"--residual {device}= given twice; give one model per device")
         models[device] = path
     out = []
     for device, path in models.items():
         meta = read_metadata(path)  # FileNotFoundError / ValueError with a message
-        trained_for = {"RotaryServo": "rotary", "AltinoDistance": "altino"}
-        if trained_for.get(meta["config"]["device"]) != device:
+        if meta["config"]["device"] != devices.get(device).name:
             raise ValueError(f"--residual {device}={path}: the model is for "
                              f"{meta['config']['device']}, not for {device}")  # fmt: skip
         randomize = meta.get("env_kwargs", {}).get("randomize")

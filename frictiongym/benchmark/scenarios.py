@@ -11,21 +11,13 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
 from frictiongym.controllers.compensation import MODES, Mode
+from frictiongym.devices import ALTINO, DEVICES, ROTARY
 from frictiongym.friction import FRICTION_NAMES
-from frictiongym.plants.presets import (
-    ALTINO_PAPER_GAINS_COMPENSATED,
-    ALTINO_PAPER_GAINS_KI10,
-    ALTINO_PAPER_GAINS_KI20,
-    ROTARY_PAPER_GAINS,
-)
+from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI20
 
-ROTARY_ID = "frictiongym/RotaryServo-v0"
-ALTINO_ID = "frictiongym/AltinoDistance-v0"
-#: Run lengths: the servo's registered 5 s episode (the paper's plots); 60 s for the Altino,
-#: long enough to tell a slow limit cycle from a stop (docs/altino-model.md §3).
-STEPS = {ROTARY_ID: 2500, ALTINO_ID: 1200}
 #: The compensator's model mismatch grid: ±20 % and ±50 % in friction level.
 MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
 #: Seeds of the noisy scenarios (the noiseless ones are deterministic: one run).
@@ -37,10 +29,10 @@ HELDOUT_SEED = 1000
 #: Held-out plants per device (``--heldout``; 4 with ``--quick``).
 HELDOUT_PLANTS = 20
 
-ROTARY_GAINS = PIDGains(**ROTARY_PAPER_GAINS)
-ALTINO_KI10 = PIDGains(**ALTINO_PAPER_GAINS_KI10)
+ROTARY_GAINS = PIDGains(**ROTARY.paper_gains["pid"])
+ALTINO_KI10 = PIDGains(**ALTINO.paper_gains["pid"])
 ALTINO_KI20 = PIDGains(**ALTINO_PAPER_GAINS_KI20)
-ALTINO_COMPENSATED = PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED)
+ALTINO_COMPENSATED = PIDGains(**ALTINO.paper_gains["compensated"])
 
 
 @dataclass(frozen=True)
@@ -91,13 +83,13 @@ class Scenario:
 
     @property
     def steps(self) -> int:
-        """Steps per run."""
-        return STEPS[self.env_id]
+        """Steps per run (the device's ``benchmark_steps``)."""
+        return devices.get(self.env_id).benchmark_steps
 
     @property
     def device(self) -> str:
-        """``rotary`` or ``altino``."""
-        return "rotary" if self.env_id == ROTARY_ID else "altino"
+        """The device's kind: ``rotary`` or ``altino``."""
+        return devices.get(self.env_id).kind
 
     def controller(self, env: Any) -> Controller:
         """Build the scenario's controller for ``env``."""
@@ -115,29 +107,30 @@ def paper_scenarios() -> list[Scenario]:
     """Return the paper's experiments with its gains (§3.1, §3.2, §5), on the default models."""
     rotary = {"friction": "paper"}
     return [
-        Scenario("paper-rotary-nominal", "paper", ROTARY_ID, ROTARY_GAINS,
+        Scenario("paper-rotary-nominal", "paper", ROTARY.env_id, ROTARY_GAINS,
                  env_kwargs={"friction": "none"},
                  description="the paper's PID on the nominal (frictionless) servo: the specs "
                  "check"),
-        Scenario("paper-rotary-pid", "paper", ROTARY_ID, ROTARY_GAINS, env_kwargs=rotary,
+        Scenario("paper-rotary-pid", "paper", ROTARY.env_id, ROTARY_GAINS, env_kwargs=rotary,
                  description="PID on the servo with the paper's friction (Figs. 6, 7)"),
-        Scenario("paper-rotary-compensated", "paper", ROTARY_ID, ROTARY_GAINS, mode="command",
+        Scenario("paper-rotary-compensated", "paper", ROTARY.env_id, ROTARY_GAINS, mode="command",
                  env_kwargs=rotary, description="the same PID plus the friction compensator"),
-        Scenario("paper-altino-pid-ki10", "paper", ALTINO_ID, ALTINO_KI10,
+        Scenario("paper-altino-pid-ki10", "paper", ALTINO.env_id, ALTINO_KI10,
                  description="Altino PID Kp 25, Ki 10, Kd 12: the paper sees an offset "
                  "(Fig. 11)"),
-        Scenario("paper-altino-pid-ki20", "paper", ALTINO_ID, ALTINO_KI20,
+        Scenario("paper-altino-pid-ki20", "paper", ALTINO.env_id, ALTINO_KI20,
                  description="Altino PID with Ki 20: the paper sees a limit cycle (Fig. 11)"),
-        Scenario("paper-altino-compensated", "paper", ALTINO_ID, ALTINO_COMPENSATED,
+        Scenario("paper-altino-compensated", "paper", ALTINO.env_id, ALTINO_COMPENSATED,
                  mode="command", description="compensated PID Kp 25, Ki 0.5, Kd 7: the paper "
                  "sees rise and settling under 1 s (Fig. 12)"),
     ]  # fmt: skip
 
 
 def _devices() -> Iterator[tuple[str, str, PIDGains, PIDGains]]:
-    """Yield (device, env id, PID gains, compensated-PID gains) of both devices."""
-    yield "rotary", ROTARY_ID, ROTARY_GAINS, ROTARY_GAINS
-    yield "altino", ALTINO_ID, ALTINO_KI10, ALTINO_COMPENSATED
+    """Yield (kind, env id, PID gains, compensated-PID gains) of every device."""
+    for device in DEVICES:
+        gains = device.paper_gains
+        yield device.kind, device.env_id, PIDGains(**gains["pid"]), PIDGains(**gains["compensated"])
 
 
 def mismatch_scenarios(
@@ -213,16 +206,12 @@ def residual_scenarios(
     plant's factors depend only on its seed, so both controllers meet the same plants: the
     comparison is paired.
     """
-    from frictiongym.residual.train import RANDOMIZATION  # no torch at import
-
-    env_ids = {"rotary": ROTARY_ID, "altino": ALTINO_ID}
-    if device not in env_ids:
-        raise ValueError(f"unknown residual device {device!r}; use rotary or altino")
+    described = devices.get(device)  # ValueError naming the devices
     if plants < 1:
         raise ValueError(f"the held-out plants must be at least 1, got {plants}")
-    env_id = env_ids[device]
-    gains = ROTARY_GAINS if device == "rotary" else ALTINO_COMPENSATED
-    ranges = randomize or RANDOMIZATION["RotaryServo" if device == "rotary" else "AltinoDistance"]
+    env_id, device = described.env_id, described.kind
+    gains = PIDGains(**described.paper_gains["compensated"])
+    ranges = randomize or described.randomization
     heldout = {"randomize": {k: tuple(v) for k, v in ranges.items()}}
     seeds = tuple(range(first_seed, first_seed + plants))
     out = []

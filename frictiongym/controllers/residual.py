@@ -18,12 +18,12 @@ import numpy.typing as npt
 
 from frictiongym.controllers.base import Controller, FloatArray
 from frictiongym.controllers.policy_file import load_policy
+from frictiongym.devices import device_of
 from frictiongym.residual.core import (
     OBSERVATION_BOUND,
     OBSERVATION_SIZE,
     ResidualConfig,
     bounded_residual,
-    device_name,
     make_base,
     residual_observation,
 )
@@ -154,9 +154,9 @@ class ResidualController(Controller):
         """
         meta = read_metadata(path)
         config = ResidualConfig.from_dict(meta["config"])
-        if env is not None and device_name(env) != config.device:
+        if env is not None and device_of(env).name != config.device:
             raise ValueError(
-                f"{path} was trained for {config.device}, not for this {device_name(env)} env"
+                f"{path} was trained for {config.device}, not for this {device_of(env).name} env"
             )
         if base is None:
             if env is None:

@@ -13,7 +13,6 @@ Nothing here imports torch or Stable-Baselines3 until a model is trained or load
 """
 
 from frictiongym.residual.core import (
-    DEVICE_DEFAULTS,
     OBSERVATION_NAMES,
     ResidualConfig,
     bounded_residual,
@@ -23,7 +22,6 @@ from frictiongym.residual.core import (
 from frictiongym.residual.env import ResidualEnv
 
 __all__ = [
-    "DEVICE_DEFAULTS",
     "OBSERVATION_NAMES",
     "ResidualConfig",
     "ResidualEnv",

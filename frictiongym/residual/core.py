@@ -18,7 +18,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym import devices
 from frictiongym.controllers.base import Controller, FloatArray, LoopSpec
+from frictiongym.devices import device_of
 
 #: Number of entries of :func:`residual_observation`.
 OBSERVATION_SIZE = 6
@@ -85,21 +87,18 @@ class ResidualConfig:
     def for_device(cls, device: str, scale: float | None = None) -> ResidualConfig:
         """Return the default configuration of ``device``, with the residual bound ``scale``.
 
-        ``scale`` is in action units; by default the device's :data:`SCALE_FRACTION` of its
-        limit (servo 1 V, Altino 200 motor units).
+        ``device`` is any spelling :func:`frictiongym.devices.get` takes. ``scale`` is in
+        action units; by default the device's (``Device.residual``: servo 1 V, Altino 200
+        motor units).
         """
-        if device not in DEVICE_DEFAULTS:
-            raise ValueError(
-                f"no residual defaults for device {device!r}; known: {sorted(DEVICE_DEFAULTS)} "
-                "(build a ResidualConfig by hand)"
-            )
-        config = DEVICE_DEFAULTS[device]
+        described = devices.get(device)
+        config = cls(device=described.name, **described.residual)
         return config if scale is None else replace(config, scale=float(scale))
 
     @classmethod
     def for_env(cls, env: Any, scale: float | None = None) -> ResidualConfig:
         """Return the default configuration of an env's device (see :meth:`for_device`)."""
-        config = cls.for_device(device_name(env), scale)
+        config = cls.for_device(device_of(env).name, scale)
         limit = LoopSpec.from_env(env).limit
         if limit != config.limit:  # e.g. a device with another amplifier limit
             fraction = config.scale / config.limit
@@ -116,56 +115,6 @@ class ResidualConfig:
     def to_dict(self) -> dict[str, Any]:
         """Return the configuration as a JSON-serialisable dict."""
         return asdict(self)
-
-
-#: Default residual bound per device, as a fraction of the action limit. Servo: 10 % = 1 V,
-#: about 5 times the break-away level (0.21 V), enough to supply or cancel the whole friction
-#: of a plant whose friction is off by a factor of 2, while the base controller keeps the
-#: large-signal response. Altino: 20 % = 200 motor units = the break-away level u_s: its
-#: friction is a fifth of the command range, so 10 % could not even correct a 50 % error in
-#: the compensator's u_s (docs/residual.md).
-SCALE_FRACTION = {"RotaryServo": 0.1, "AltinoDistance": 0.2}
-
-#: Default observation scales and residual bounds per device (docs/residual.md).
-DEVICE_DEFAULTS = {
-    "RotaryServo": ResidualConfig(
-        device="RotaryServo",
-        limit=10.0,
-        scale=0.1 * 10.0,
-        error_scale=1.0,  # rad: the reward's unit and the paper's 1 rad step
-        fine_error=0.02,  # rad: the 2 % settling band of a 1 rad step, 6.5 encoder counts
-        velocity_scale=10.0,  # rad/s: a 1 rad step under the paper's PID peaks near 10-20
-        reference_scale=math.pi,  # random-step references lie in ±π
-    ),
-    "AltinoDistance": ResidualConfig(
-        device="AltinoDistance",
-        limit=1000.0,
-        scale=0.2 * 1000.0,
-        error_scale=5.0,  # cm: the reward's unit and the paper's 5 cm target
-        fine_error=0.25,  # cm: 5 % of the target, 5 IR counts at 5 cm
-        velocity_scale=10.0,  # cm/s
-        reference_scale=10.0,  # random-step references lie in 3-18 cm: about ±1
-        reference_offset=10.0,
-    ),
-}
-
-
-def device_name(env: Any) -> str:
-    """Return the frictiongym device of ``env`` (``"RotaryServo"`` or ``"AltinoDistance"``).
-
-    Raises
-    ------
-    TypeError
-        If ``env`` is not a frictiongym env.
-    """
-    base = getattr(env, "unwrapped", env)
-    device = getattr(getattr(base, "sim", None), "device", None)
-    if device is None:
-        raise TypeError(
-            f"{type(base).__name__} is not a frictiongym env: make it with "
-            "gym.make('frictiongym/RotaryServo-v0') or 'frictiongym/AltinoDistance-v0'"
-        )
-    return str(device.name)
 
 
 def residual_observation(
@@ -231,16 +180,6 @@ def bounded_residual(action: npt.ArrayLike, scale: float) -> FloatArray:
 BASES = ("compensated", "pid")
 
 
-def base_gains(device: str) -> dict[str, float]:
-    """Return the paper's gains of the compensated PID of ``device`` (plants.presets)."""
-    from frictiongym.plants.presets import ALTINO_PAPER_GAINS_COMPENSATED, ROTARY_PAPER_GAINS
-
-    gains = {"RotaryServo": ROTARY_PAPER_GAINS, "AltinoDistance": ALTINO_PAPER_GAINS_COMPENSATED}
-    if device not in gains:
-        raise ValueError(f"no paper gains for device {device!r}; known: {sorted(gains)}")
-    return dict(gains[device])
-
-
 def make_base(
     env: Any, kind: str = "compensated", gains: Mapping[str, float] | None = None
 ) -> Controller:
@@ -254,13 +193,13 @@ def make_base(
         ``FrictionCompensator(PID)`` with the compensator's defaults (the device's paper
         friction model, ``mode="command"``), or the PID alone.
     gains : mapping, optional
-        ``kp``, ``ki``, ``kd``; by default the paper's for the device
-        (``ROTARY_PAPER_GAINS``, ``ALTINO_PAPER_GAINS_COMPENSATED``).
+        ``kp``, ``ki``, ``kd``; by default the paper's for the device's compensated PID
+        (``Device.paper_gains["compensated"]``).
     """
     from frictiongym.controllers.compensation import FrictionCompensator
     from frictiongym.controllers.pid import PID, PIDGains
 
     if kind not in BASES:
         raise ValueError(f"base controller must be one of {BASES}, got {kind!r}")
-    pid = PID.for_env(env, PIDGains(**(gains or base_gains(device_name(env)))))
+    pid = PID.for_env(env, PIDGains(**(gains or device_of(env).paper_gains["compensated"])))
     return FrictionCompensator(pid) if kind == "compensated" else pid

@@ -11,6 +11,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 
 from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.devices import device_of
 from frictiongym.residual.core import (
     OBSERVATION_BOUND,
     OBSERVATION_SIZE,
@@ -120,8 +121,7 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         self.config = config
         self.residual_cost = float(residual_cost)
         self.precision = None if precision is None else float(precision)
-        unwrapped: Any = env.unwrapped
-        self._error_scale = float(unwrapped.sim.device.error_scale)  # the env's e0
+        self._error_scale = float(device_of(env).error_scale)  # the env's e0
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         bound = OBSERVATION_BOUND
         self.observation_space = spaces.Box(-bound, bound, (OBSERVATION_SIZE,), np.float32)

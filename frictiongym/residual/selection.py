@@ -55,7 +55,7 @@ class Validation:
     Parameters
     ----------
     device : str
-        ``"RotaryServo"`` or ``"AltinoDistance"``.
+        The device, by any spelling :func:`frictiongym.devices.get` takes.
     randomize : dict
         Factor ranges of the randomised plants (``gym.make``'s ``randomize``): the training
         ranges.
@@ -75,9 +75,8 @@ class Validation:
         from frictiongym.benchmark.run import run_scenario
         from frictiongym.benchmark.scenarios import residual_scenarios
 
-        key = {"RotaryServo": "rotary", "AltinoDistance": "altino"}[device]
         scenarios = residual_scenarios(
-            key, "(in training)", plants, randomize, first_seed=VALIDATION_SEED
+            device, "(in training)", plants, randomize, first_seed=VALIDATION_SEED
         )
         self.config = config
         self.candidates = [s for s in scenarios if s.residual is not None]

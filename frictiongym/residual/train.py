@@ -23,10 +23,12 @@ from typing import Any
 
 import gymnasium as gym
 
+from frictiongym import devices
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
-from frictiongym.residual.core import ResidualConfig, base_gains, device_name
+from frictiongym.devices import Device, device_of
+from frictiongym.residual.core import ResidualConfig
 from frictiongym.residual.env import ResidualEnv
 from frictiongym.residual.selection import (
     METRICS,
@@ -35,48 +37,9 @@ from frictiongym.residual.selection import (
     Validation,
 )
 
-#: Domain randomisation of ``--randomize default``: factors drawn at every reset
-#: (docs/envs.md). Friction ±30 % (the compensator keeps the paper's model, so the policy
-#: meets a compensator up to 30 % too weak or too strong, where the Altino's limit-cycles),
-#: inertia and damping ±20 %, the servo's encoder scale ±1 % (a calibration error) and the
-#: Altino's IR reflectivity ±10 % (assumed; docs/residual.md).
-RANDOMIZATION: dict[str, dict[str, tuple[float, float]]] = {
-    "RotaryServo": {
-        "friction": (0.7, 1.3),
-        "inertia": (0.8, 1.2),
-        "damping": (0.8, 1.2),
-        "sensor_gain": (0.99, 1.01),
-    },
-    "AltinoDistance": {
-        "friction": (0.7, 1.3),
-        "inertia": (0.8, 1.2),
-        "damping": (0.8, 1.2),
-        "sensor_gain": (0.9, 1.1),
-    },
-}
-
-#: Training episodes: random set-point steps (the benchmark's step references are held out),
-#: servo 2 s (1000 steps at 500 Hz, two set-points, a shorter episode than the registered
-#: 5 s so PPO's rollouts span several episodes), Altino the registered 20 s (400 steps at
-#: 20 Hz, four set-points).
-TRAINING_ENV: dict[str, dict[str, Any]] = {
-    "RotaryServo": {"reference": "random_steps", "max_episode_steps": 1000},
-    "AltinoDistance": {"reference": "random_steps", "max_episode_steps": 400},
-}
-
-#: Error scale of ``--reward precision`` (ResidualEnv's ``precision``): one step of the
-#: sensor at the target, so an error of one count costs log 2 per step. Servo: one encoder
-#: count, 2π/2048 rad. Altino: one IR count at the paper's 5 cm target, |dd/dx| = 966/(x+45)²
-#: at x = 966/5 - 45 (d = 966/(x+45)).
-PRECISION = {"RotaryServo": 2.0 * math.pi / 2048, "AltinoDistance": 5.0**2 / 966.0}
-
-#: Discount per device: a horizon ``1 / (1 - gamma)`` of 200 steps = 0.4 s on the servo (500
-#: Hz), long enough to see a stuck disk's offset after a step's transient (SB3's 0.99 sees
-#: 0.2 s), and SB3's 0.99 on the Altino (20 Hz): 100 steps = 5 s, a set-point of the
-#: training episodes.
-GAMMA = {"RotaryServo": 0.995, "AltinoDistance": 0.99}
-
-#: Training rewards: the env's own, or ResidualEnv's logarithmic one at ``PRECISION``.
+#: Training rewards: the env's own, or ResidualEnv's logarithmic one at the device's
+#: ``training_precision`` (one step of the sensor at the target, so an error of one count
+#: costs log 2 per step).
 REWARDS = ("env", "precision")
 
 #: Steps of ``--quick`` per algorithm (a smoke run of well under a minute).
@@ -182,17 +145,19 @@ def check_settings(settings: TrainSettings) -> None:
 
 def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
     """Return the ``gym.make`` arguments of the training env of ``env_id``."""
-    device = device_name(gym.make(env_id))
-    kwargs = dict(TRAINING_ENV[device])
+    device = devices.get(env_id)
+    kwargs = dict(device.training_env)
     if randomize == "default":
-        kwargs["randomize"] = dict(RANDOMIZATION[device])
+        kwargs["randomize"] = dict(device.randomization)
     return kwargs
 
 
-def hyperparameters(algo: str, steps: int, n_envs: int, quick: bool, device: str) -> dict[str, Any]:
+def hyperparameters(
+    algo: str, steps: int, n_envs: int, quick: bool, device: Device
+) -> dict[str, Any]:
     """SB3 constructor arguments: the library's defaults except as commented here.
 
-    All: the discount :data:`GAMMA` of the device. PPO: rollouts of about 2048 env-steps
+    All: the discount of the device (``training_gamma``). PPO: rollouts of about 2048 env-steps
     over all envs (512 with ``quick``, so a smoke run still makes several updates) and an
     initial action std of ``exp(-2) = 0.14`` of the bound instead of 1: the exploration
     noise of an untrained policy is then below the servo's break-away voltage (0.14 V
@@ -205,13 +170,13 @@ def hyperparameters(algo: str, steps: int, n_envs: int, quick: bool, device: str
         return {
             "n_steps": n_steps,
             "batch_size": 64,
-            "gamma": GAMMA[device],
+            "gamma": device.training_gamma,
             "policy_kwargs": {"log_std_init": -2.0},
         }
     return {
         "buffer_size": int(min(steps, 1_000_000)),
         "learning_starts": 100 if quick else 1000,
-        "gamma": GAMMA[device],
+        "gamma": device.training_gamma,
     }
 
 
@@ -465,7 +430,7 @@ def _train(
     steps = settings.steps or (QUICK_STEPS[algo] if settings.quick else 200_000)
     kwargs = env_kwargs(settings.env_id, settings.randomize)
     probe = gym.make(settings.env_id, **kwargs)
-    device = device_name(probe)
+    device = device_of(probe)
     limit = ResidualConfig.for_env(probe).limit
     config = ResidualConfig.for_env(
         probe, None if settings.scale is None else settings.scale * limit
@@ -475,7 +440,7 @@ def _train(
         "env_id": settings.env_id,
         "algo": algo,
         "config": config.to_dict(),
-        "base": {"kind": "compensated", "gains": base_gains(device)},
+        "base": {"kind": "compensated", "gains": dict(device.paper_gains["compensated"])},
         "env_kwargs": kwargs,
         "objective": {"reward": settings.reward, "residual_cost": settings.residual_cost},
     }
@@ -508,7 +473,7 @@ def _train(
         config = ResidualConfig.from_dict(saved["config"])  # the policy's own inputs
         meta = {**saved, "env_kwargs": kwargs}
 
-    precision = PRECISION[device] if settings.reward == "precision" else None
+    precision = device.training_precision if settings.reward == "precision" else None
 
     def make_env() -> ResidualEnv:
         return ResidualEnv(
@@ -563,7 +528,7 @@ def _train(
     validate = None
     if settings.validate_every is not None:
         validation = Validation(
-            device, kwargs.get("randomize", RANDOMIZATION[device]), config,
+            device.name, kwargs.get("randomize", device.randomization), config,
             settings.validation_plants,
         )  # fmt: skip
         validate = _validation_callback(validation, settings.validate_every, out, say)
@@ -587,7 +552,7 @@ def _train(
     trained = int(model.num_timesteps) - done_before
     summary = {
         "env_id": settings.env_id,
-        "device": device,
+        "device": device.name,
         "algo": algo,
         "steps": int(model.num_timesteps),
         "steps_this_run": trained,
