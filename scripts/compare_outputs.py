@@ -70,8 +70,18 @@ RUNS: dict[str, tuple[list[str], str]] = {
     ),
 }
 
-#: Keys whose values describe the run rather than its result.
-VOLATILE = {"wall_time", "wall_time_s", "version", "software_version", "created", "command"}
+#: Keys whose values describe the run rather than its result (``seconds``: identification's
+#: run time; ``model``: the policy file's path, which names the checkout).
+VOLATILE = {
+    "wall_time",
+    "wall_time_s",
+    "version",
+    "software_version",
+    "created",
+    "command",
+    "seconds",
+    "model",
+}
 
 
 def run(out: Path, source: Path) -> None:
