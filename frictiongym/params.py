@@ -45,6 +45,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from frictiongym.devices import DEVICES
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb
 from frictiongym.friction import _core as fc
 from frictiongym.plants.plant import PlantParams
@@ -73,18 +74,6 @@ FORMAT = "frictiongym.params/1"
 FILE_NAME = "friction.json"
 #: Laws a file can hold (friction/laws.py names).
 LAWS = ("paper", "stribeck", "coulomb")
-
-#: Units of each device's parameters: paper Eq. (2) and Fig. 8(b) (servo, volts and rad/s),
-#: Fig. 10(b) and docs/altino-model.md (Altino, motor units and cm/s).
-DEVICE_UNITS: dict[str, dict[str, str]] = {
-    "RotaryServo": {
-        "force": "V", "velocity": "rad/s", "viscous": "V·s/rad", "J": "V·s²/rad", "B": "V·s/rad",
-    },
-    "AltinoDistance": {
-        "force": "units", "velocity": "cm/s", "viscous": "units·s/cm", "J": "units·s²/cm",
-        "B": "units·s/cm",
-    },
-}  # fmt: skip
 
 #: The paper's servo (Eq. (2), Fig. 8(b)) as a minimal file, shown in error messages.
 _EXAMPLE = (
@@ -235,7 +224,7 @@ class DeviceParams:
         Free-form, JSON-serialisable: experiments, residuals, software version, date (numpy
         values are written as numbers and lists, NaN and infinities as null).
     units : mapping of str to str, optional
-        Units of the quantities (see :data:`DEVICE_UNITS`).
+        Units of the quantities (see :attr:`frictiongym.devices.Device.units`).
     source : str, optional
         Where it was read from (for messages; not compared).
     """
@@ -299,10 +288,12 @@ class DeviceParams:
         """Wrap an identified law and linear plant (what identification calls).
 
         ``law`` defaults to ``friction.name`` (``StictionCoulomb`` of any shape is ``paper``);
-        ``units`` to the device's (:data:`DEVICE_UNITS`) when ``device`` is known.
+        ``units`` to the device's (:attr:`frictiongym.devices.Device.units`) when ``device``
+        names one of :data:`frictiongym.devices.DEVICES`.
         """
         if units is None:
-            units = DEVICE_UNITS.get(device or "", {})
+            known = [d.units for d in DEVICES if d.name == device]
+            units = known[0] if known else {}
         return cls(
             friction, inertia, damping, law or friction.name, device, env_id,
             dict(uncertainty or {}), dict(metadata or {}), dict(units),

@@ -19,7 +19,7 @@ from frictiongym.identification.estimates import (
 )
 from frictiongym.identification.experiments import Runner
 from frictiongym.identification.fit import fit_law
-from frictiongym.identification.identify import PLANS, identify, make_env
+from frictiongym.identification.identify import Plan, identify, make_env
 from frictiongym.identification.refine import ReciprocalReading, segments
 from frictiongym.identification.validate import FRICTION_KEYS, draw_device, errors
 from frictiongym.params import load_params, save_params
@@ -102,7 +102,7 @@ def test_segments_split_where_the_command_reverses():
 
 def test_relay_stays_in_its_band_through_the_observations_only():
     """The relay switches on the measured distance; hiding ``info`` changes nothing."""
-    plan = PLANS["AltinoDistance"]
+    plan = Plan.for_device("AltinoDistance")
     low, high = plan.relay_band
 
     def relay(env):

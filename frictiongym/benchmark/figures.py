@@ -17,6 +17,7 @@ import numpy as np
 
 from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
+from frictiongym.devices import DEVICES, get
 from frictiongym.friction import (
     ALTINO_LUGRE,
     ALTINO_PAPER,
@@ -120,7 +121,7 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
     fig, axes = plt.subplots(2, len(devices), figsize=(5.5 * len(devices), 6.5), squeeze=False)
     for col, device in enumerate(devices):
         mine = [r for r in runs if r.scenario.device == device]
-        unit = "rad" if device == "rotary" else "cm"
+        unit = get(device).position_unit
         for mode in dict.fromkeys(r.scenario.mode for r in mine):
             pts = sorted((r.scenario.scale, r.metrics) for r in mine if r.scenario.mode == mode)
             scales = [s for s, _ in pts]
@@ -147,14 +148,14 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
     """
     heldout = {device: pairs for (device, plants), pairs in residual_pairs(results).items()
                if plants == "heldout"}  # fmt: skip
-    devices = [d for d in ("rotary", "altino") if d in heldout]
+    devices = [d.kind for d in DEVICES if d.kind in heldout]
     if not devices:
         return None
     plt = _pyplot()
     fig, axes = plt.subplots(len(devices), 2, figsize=(9, 4.2 * len(devices)), squeeze=False)
     for row, device in enumerate(devices):
         pairs = heldout[device]
-        unit = "rad" if device == "rotary" else "cm"
+        unit = get(device).position_unit
         for col, (metric, label) in enumerate(
             (("itae", f"ITAE [{unit}·s²]"), ("steady_state_error", f"SSE [{unit}]"))
         ):

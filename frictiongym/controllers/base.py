@@ -22,6 +22,7 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym.devices import device_of
 from frictiongym.friction import FrictionModel
 
 FloatArray = npt.NDArray[np.float64]
@@ -84,14 +85,14 @@ class LoopSpec:
             If ``env`` is not a frictiongym env (build a :class:`LoopSpec` by hand then).
         """
         base = getattr(env, "unwrapped", env)
-        sim = getattr(base, "sim", None)
-        device = getattr(sim, "device", None)
-        if device is None:
+        try:
+            device = device_of(base)
+        except TypeError:
             raise TypeError(
                 f"{type(base).__name__} is not a frictiongym env; build the controller with "
                 "an explicit LoopSpec(dt=..., limit=..., position=..., velocity=..., "
                 "reference=...) instead of for_env"
-            )
+            ) from None
         names = device.observation_names
         space = getattr(base, "single_action_space", None) or base.action_space
         return cls(
@@ -102,7 +103,7 @@ class LoopSpec:
             reference=names.index("reference"),
             direction=device.direction,
             rest_speed=device.rest_speed,
-            friction=getattr(sim, "model_friction", device.paper_friction),
+            friction=base.sim.model_friction,
         )
 
     def split(self, observation: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:

@@ -8,6 +8,7 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+from frictiongym import devices
 from frictiongym._io import OutputDir
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.estimates import IdentificationError
@@ -34,7 +35,6 @@ On the simulator the table also shows the simulated truth. Every experiment runs
 the env's observations only, so a device backend (--backend) runs the same procedure.
 """
 
-UNITS = {"RotaryServo": ("rad/s", "V"), "AltinoDistance": ("cm/s", "motor units")}
 #: What a run may write into --out.
 OUTPUTS = ("friction.json", "friction_map.png", "summary.md")
 KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous", "J", "B")
@@ -72,11 +72,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _truth(env: Any) -> dict[str, float] | None:
+def _truth(env: Any) -> dict[str, float]:
     """Return the simulated device's true parameters, B including the viscous slope."""
-    sim = getattr(env.unwrapped, "sim", None)
-    if sim is None:
-        return None
+    sim = env.unwrapped.sim
     friction = sim.friction
     viscous = float(getattr(friction, "viscous", 0.0))
     truth = {k: float(getattr(friction, k, math.nan)) for k in KEYS[:6]}
@@ -198,8 +196,8 @@ def _identify(
     if not args.no_figures:
         from frictiongym.identification.figures import plot_map
 
-        units = UNITS.get(result.device, ("units/s", "units"))
-        plot_map(result, out.path / "friction_map.png", units)
+        units = devices.get(result.device).units
+        plot_map(result, out.path / "friction_map.png", (units["velocity"], units["force"]))
     print(table)
     return 0
 

@@ -25,13 +25,14 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym import devices
+from frictiongym.devices import Device, device_of
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.experiments import Runner, Span, Trace
 from frictiongym.identification.fit import LAWS, LawFit, fit_law, inertia_from_map, rest_slope
 from frictiongym.identification.refine import Reading, ReciprocalReading, Refinement, refine
 from frictiongym.params import DeviceParams
-from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -106,45 +107,26 @@ class Plan:
     ramp_positions: tuple[float, float] | None = None
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
+    @classmethod
+    def for_device(cls, device: str | Device) -> Plan:
+        """Return the plan of ``device`` (any spelling of :func:`frictiongym.devices.get`).
+
+        It is the device's ``identification`` settings, whose ``span`` and ``reading`` (a
+        :class:`ReciprocalReading`) are given as tuples of their fields.
+        """
+        settings = dict(devices.get(device).identification)
+        if "span" in settings:
+            settings["span"] = Span(*settings["span"])
+        if "reading" in settings:
+            settings["reading"] = ReciprocalReading(*settings["reading"])
+        return cls(**settings)
+
     @property
     def longest_run(self) -> float:
         """The longest experiment, s (the env's episode must allow it)."""
         return max(
             self.constant_duration, self.ramp_duration, self.step_duration, self.relay_duration
         )
-
-
-#: Plans by device name. The QUBE-Servo 2's disk has no end stops, so its run-away guard is
-#: widened (a 4.5 s run at 26 rad/s turns 120 rad). The Altino's IR sensor reads only the last
-#: 21.47 cm before the wall (paper Eq. (1)), and its readout resolves 0.026 cm at 5 cm but only
-#: 0.41 cm at 20 cm. Its runs use 3 to 19.5 cm (beyond 19.5 cm, 2 counts of noise would push
-#: the readout to 0, out of range); the fastest levels cannot reach a steady speed there.
-#: Twenty relay runs of 20 s each between 4 and 15 cm, at levels spread geometrically from
-#: 1.03 to 2.5 times break-away, cover the map where the sensor resolves it; the output-error
-#: refinement fits them in readout counts. (Ten gave standard errors near 1 % on ``u_c-``,
-#: too close to the 3 % tolerance; twenty bring them to about 0.6 %.)
-PLANS: dict[str, Plan] = {
-    "RotaryServo": Plan(env_kwargs={"safety_limit": 1.0e5}),
-    "AltinoDistance": Plan(
-        levels=(1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5),
-        constant_duration=20.0,
-        ramp_from=0.6,
-        ramp_to=1.1,
-        ramp_duration=15.0,
-        step_levels=(1.5, 2.5),
-        step_time=0.6,
-        step_duration=2.0,
-        probe_to=0.4,
-        step_repeats=0,
-        relay_levels=tuple(round(float(m), 2) for m in np.geomspace(1.03, 2.5, 20)),
-        relay_band=(4.0, 15.0),
-        relay_duration=20.0,
-        refine=True,
-        reading=ReciprocalReading(IR_NUMERATOR, IR_OFFSET, IR_MAX_READOUT),
-        span=Span(low=3.0, high=19.5, margin=0.5),
-        ramp_positions=(10.0, 4.0),
-    ),
-}
 
 
 #: Episode length of an identification env: longer than any run the plans hold.
@@ -248,7 +230,7 @@ def identify(
         A frictiongym env, made with the plan's ``env_kwargs`` and an episode limit of at
         least ``plan.longest_run`` (:func:`make_env` does both).
     plan : Plan, optional
-        The experiments; the device's entry of :data:`PLANS` by default.
+        The experiments; the device's (:meth:`Plan.for_device`) by default.
     seed : int, optional
         Seed of the first reset (the simulator's noise).
     laws : tuple of str
@@ -257,8 +239,8 @@ def identify(
         Called with a short label before each experiment.
     """
     started = time.perf_counter()
-    device = env.unwrapped.sim.device.name if hasattr(env.unwrapped, "sim") else "device"
-    plan = plan or PLANS.get(device, Plan())
+    device = device_of(env)
+    plan = plan or Plan.for_device(device)
     runner = Runner(env, plan.span, seed)
     limit = runner.spec.limit
     note = progress or (lambda _: None)
@@ -357,7 +339,7 @@ def identify(
         damping = (refinement.values["B"], refinement.stderr["B"])
         breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
     return Identification(
-        device=device,
+        device=device.name,
         env_id=getattr(getattr(env, "spec", None), "id", None),
         breakaways=breakaways,
         points=points,
@@ -412,16 +394,12 @@ def _refined(
 
 
 def plan_for(env_id: str) -> Plan:
-    """Return the plan of the device behind a registered env id (``Plan()`` if it has none)."""
+    """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
     from frictiongym.envs import ENV_IDS
 
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
-    module, single, _, _ = ENV_IDS[env_id]
-    import importlib
-
-    device = getattr(importlib.import_module(module), single).device
-    return PLANS.get(device.name, Plan())
+    return Plan.for_device(env_id)
 
 
 def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym import devices
 from frictiongym._io import write_text_atomic
 from frictiongym.hardware.runlog import write_json_atomic
 from frictiongym.sim2real.run import (
@@ -35,10 +36,16 @@ METRICS = {
     "overshoot_pct": "%",
     "steady_state_error": "out",
 }
-UNITS = {
-    "frictiongym/RotaryServo-v0": {"output": "rad", "velocity": "rad/s", "command": "V"},
-    "frictiongym/AltinoDistance-v0": {"output": "cm", "velocity": "cm/s", "command": "units"},
-}
+
+
+def _units(env_id: str) -> dict[str, str]:
+    """Units of the compared signals (:data:`SIGNALS`) on the device of ``env_id``."""
+    device = devices.get(env_id)
+    return {
+        "output": device.position_unit,
+        "velocity": device.units["velocity"],
+        "command": device.command_unit,
+    }
 
 
 def _num(value: float, digits: int = 4) -> str:
@@ -169,7 +176,7 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
     write_json_atomic(out / "sim2real.json", {"command": command, **data})
     if figures:
         write_figures(result, out)
-    units = UNITS.get(result.env_id, {s: "" for s in SIGNALS})
+    units = _units(result.env_id)
     steps = data["steps"] if data["steps"] is not None else max(r["steps"] for r in data["runs"])
     lines = [
         f"# Sim-to-real: {result.env_id}, {result.controller}",
@@ -287,7 +294,7 @@ def write_figures(result: Sim2RealResult, out: Path) -> None:
 
 
 def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
-    units = UNITS.get(result.env_id, {s: "" for s in SIGNALS})
+    units = _units(result.env_id)
     fig, axes = plt.subplots(4, 1, figsize=(8, 10), sharex=True)
     for k, s in enumerate(SIGNALS):
         ax = axes[k]

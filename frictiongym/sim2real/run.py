@@ -23,6 +23,7 @@ import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
 from frictiongym.envs import ENV_IDS
 from frictiongym.envs import _kernel as ek
@@ -35,22 +36,10 @@ from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
 from frictiongym.metrics import ResponseMetrics, response_metrics
-from frictiongym.plants.presets import (
-    ALTINO_PAPER_GAINS_COMPENSATED,
-    ALTINO_PAPER_GAINS_KI10,
-    ROTARY_PAPER_GAINS,
-)
 from frictiongym.plants.sensors import ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
 
-#: The paper's gains per env id and controller (§3.1, §3.2, §5).
-PAPER_GAINS = {
-    ("frictiongym/RotaryServo-v0", "pid"): ROTARY_PAPER_GAINS,
-    ("frictiongym/RotaryServo-v0", "compensated"): ROTARY_PAPER_GAINS,
-    ("frictiongym/AltinoDistance-v0", "pid"): ALTINO_PAPER_GAINS_KI10,
-    ("frictiongym/AltinoDistance-v0", "compensated"): ALTINO_PAPER_GAINS_COMPENSATED,
-}
 CONTROLLERS = ("pid", "compensated")
 #: Signals compared, as (name, unit key): the controller's view of the loop.
 SIGNALS = ("output", "velocity", "command")
@@ -312,10 +301,8 @@ def run_sim2real(
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     if not (isinstance(repeats, int) and repeats >= 1):
         raise ValueError(f"repeats must be a positive integer, got {repeats!r}")
-    if gains is None:
-        if (env_id, controller) not in PAPER_GAINS:
-            raise ValueError(f"no paper gains for {env_id!r}; pass gains")
-        gains = PIDGains(**PAPER_GAINS[env_id, controller])
+    if gains is None:  # the paper's (§3.1, §3.2, §5)
+        gains = PIDGains(**devices.get(env_id).paper_gains[controller])
     task: dict[str, Any] = {} if reference is None else {"reference": float(reference)}
     if reference is not None:
         check_reference(env_id, float(reference))

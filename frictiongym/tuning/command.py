@@ -11,6 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from frictiongym._io import OutputDir, write_text_atomic
+from frictiongym.devices import ROTARY
 from frictiongym.tuning.evaluate import TuningModel
 from frictiongym.tuning.search import (
     DEFAULT_CHUNK,
@@ -107,7 +108,7 @@ def _model(args: argparse.Namespace) -> TuningModel:
     from frictiongym.params import load_params
 
     params = load_params(args.params)  # ParamsFileError (a ValueError) names the file
-    if params.device not in (None, "RotaryServo"):
+    if params.device not in (None, ROTARY.name):
         raise ValueError(
             f"{args.params}: identified on {params.device}; tune works on the QUBE-Servo 2 "
             "(RotaryServo) only, the paper's specs are for it"
