@@ -1,15 +1,9 @@
 """One description per device: everything that differs between the servo and the Altino.
 
-A :class:`Device` holds a device's names, its physics and sensor, the defaults of its env task,
-its units, the paper's gains and what each tool needs of it (benchmark run length, domain
-randomisation, identification plan, residual policy defaults, firmware command scale). Every
-module that depends on the device reads it here: :func:`get` finds a description by any of its
-spellings, :func:`device_of` the description of an env. Adding a device is one more
-description plus its env class (docs/architecture.md, "Adding a device").
-
-Values that are the paper's numbers or a model's presets live with their sources in
-:mod:`frictiongym.plants.presets` and :mod:`frictiongym.friction.presets`; the descriptions
-refer to them. Every other value cites its source here.
+Every module that depends on the device reads its :class:`Device`: :func:`get` finds one by
+any spelling, :func:`device_of` an env's. The paper's numbers and the models' presets keep
+their sources in :mod:`frictiongym.plants.presets` and :mod:`frictiongym.friction.presets`;
+every other value cites its source here. Adding a device: docs/architecture.md.
 """
 
 from __future__ import annotations
@@ -21,8 +15,14 @@ from typing import Any
 
 import numpy as np
 
-from frictiongym.friction import ALTINO_LUGRE, ALTINO_PAPER, ROTARY_LUGRE, ROTARY_PAPER
-from frictiongym.friction import LuGre, StictionCoulomb
+from frictiongym.friction import (
+    ALTINO_LUGRE,
+    ALTINO_PAPER,
+    ROTARY_LUGRE,
+    ROTARY_PAPER,
+    LuGre,
+    StictionCoulomb,
+)
 from frictiongym.plants.plant import PlantParams
 from frictiongym.plants.presets import (
     ALTINO_DT,
@@ -93,7 +93,8 @@ class Device:
     #: Settings of the identification plan (``Plan`` fields; ``span`` and ``reading`` as
     #: tuples of their fields) and the env arguments it needs.
     identification: Mapping[str, Any]
-    #: Default ``ResidualConfig`` of a residual policy (all its fields but ``device``).
+    #: Default ``ResidualConfig`` of a residual policy: its fields but ``device`` and ``limit``
+    #: (the plant's command limit).
     residual: Mapping[str, float]
     training_env: Mapping[str, Any]  #: ``gym.make`` arguments of the training env
     training_precision: float  #: error scale of ``--reward precision``
@@ -101,11 +102,6 @@ class Device:
     command_scale: int  #: firmware command counts per command unit
     #: plant position of a rigid end stop (the Altino's wall), whatever plant is simulated
     end_stop: float = math.inf
-
-    @property
-    def spellings(self) -> tuple[str, str, str]:
-        """The names :func:`get` finds this device by: kind, name and env id."""
-        return self.kind, self.name, self.env_id
 
     @property
     def units(self) -> dict[str, str]:
@@ -168,7 +164,6 @@ ROTARY = Device(
     # 120 rad).
     identification={"env_kwargs": {"safety_limit": 1.0e5}},
     residual={
-        "limit": 10.0,
         # 10 % of the limit = 1 V, about 5 times the break-away level (0.21 V): enough to
         # supply or cancel the whole friction of a plant whose friction is off by a factor of
         # 2, while the base controller keeps the large-signal response (docs/residual.md).
@@ -256,7 +251,6 @@ ALTINO = Device(
         "ramp_positions": (10.0, 4.0),
     },
     residual={
-        "limit": 1000.0,
         # 20 % of the limit = 200 motor units = the break-away level u_s: its friction is a
         # fifth of the command range, so 10 % could not even correct a 50 % error in the
         # compensator's u_s (docs/residual.md).
@@ -291,9 +285,9 @@ def get(spelling: str | Device) -> Device:
     if isinstance(spelling, Device):
         return spelling
     for device in DEVICES:
-        if spelling in device.spellings:
+        if spelling in (device.kind, device.name, device.env_id):
             return device
-    names = ", ".join(name for device in DEVICES for name in device.spellings)
+    names = ", ".join(f"{d.kind}, {d.name}, {d.env_id}" for d in DEVICES)
     raise ValueError(f"unknown device {spelling!r}; use one of {names}")
 
 

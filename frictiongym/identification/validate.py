@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym import devices
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification.identify import identify, make_env
 from frictiongym.plants.plant import PlantParams
@@ -104,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--seeds", default="0", help="noise seeds of the simulator, e.g. 0,1")
     args = parser.parse_args(argv)
     try:
-        device = _device(args.env)
+        device = devices.get(args.env)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -136,18 +137,6 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"{runs} identifications in {seconds:.0f} s", file=sys.stderr)
     ok = good_runs == runs
     return 0 if ok else 1
-
-
-def _device(env_id: str) -> Any:
-    """Return the device description (preset friction and plant) behind a registered env id."""
-    import importlib
-
-    from frictiongym.envs import ENV_IDS
-
-    if env_id not in ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
-    module, single, _, _ = ENV_IDS[env_id]
-    return getattr(importlib.import_module(module), single).device
 
 
 if __name__ == "__main__":

@@ -92,7 +92,8 @@ class ResidualConfig:
         motor units).
         """
         described = devices.get(device)
-        config = cls(device=described.name, **described.residual)
+        limit = described.plant.command_limit
+        config = cls(device=described.name, limit=limit, **described.residual)
         return config if scale is None else replace(config, scale=float(scale))
 
     @classmethod

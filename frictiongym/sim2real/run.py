@@ -26,7 +26,6 @@ import numpy.typing as npt
 from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
 from frictiongym.envs import ENV_IDS
-from frictiongym.envs import _kernel as ek
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
     DeviceTimeoutError,
@@ -36,7 +35,7 @@ from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
 from frictiongym.metrics import ResponseMetrics, response_metrics
-from frictiongym.plants.sensors import ir_estimate
+from frictiongym.plants.sensors import SENSOR_ENCODER, ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -212,12 +211,8 @@ def check_reference(env_id: str, reference: float) -> float:
     A step to such a target would end every run at the limit (the servo's ``|angle| >
     4π``, the Altino's wall), with nothing to compare.
     """
-    env = gym.make(env_id)
-    try:
-        sim: Any = env.unwrapped.sim  # type: ignore[attr-defined]
-        limit, encoder = float(sim.limit), sim.device.sensor == ek.SENSOR_ENCODER
-    finally:
-        env.close()
+    device = devices.get(env_id)
+    limit, encoder = device.limit, device.sensor == SENSOR_ENCODER
     if not math.isfinite(reference):
         raise ValueError(f"the reference must be a finite number, got {reference!r}")
     if encoder and abs(reference) >= limit:
@@ -323,7 +318,7 @@ def run_sim2real(
         if n < 1:
             raise ValueError("give steps: the env has no registered episode length")
         session: Any = device_env.unwrapped.sim  # type: ignore[attr-defined]
-        limit, encoder = float(session.limit), session.device.sensor == ek.SENSOR_ENCODER
+        limit, encoder = float(session.limit), devices.get(env_id).sensor == SENSOR_ENCODER
         runs: list[DeviceRun] = []
         with realtime_priority() as priority:
             for r in range(1, repeats + 1):
