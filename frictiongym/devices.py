@@ -15,57 +15,29 @@ from typing import Any
 
 import numpy as np
 
-from frictiongym.friction import (
-    ALTINO_LUGRE,
-    ALTINO_PAPER,
-    ROTARY_LUGRE,
-    ROTARY_PAPER,
-    LuGre,
-    StictionCoulomb,
-)
+from frictiongym import friction
+from frictiongym.friction import LuGre, StictionCoulomb
+from frictiongym.plants import presets, sensors
 from frictiongym.plants.plant import PlantParams
-from frictiongym.plants.presets import (
-    ALTINO_DT,
-    ALTINO_PAPER_GAINS_COMPENSATED,
-    ALTINO_PAPER_GAINS_KI10,
-    ALTINO_PLANT,
-    ALTINO_START_CM,
-    ALTINO_TARGET_CM,
-    ROTARY_DT,
-    ROTARY_PAPER_GAINS,
-    ROTARY_PLANT,
-    ROTARY_VELOCITY_CUTOFF,
-)
-from frictiongym.plants.sensors import (
-    IR_MAX_READOUT,
-    IR_NUMERATOR,
-    IR_OFFSET,
-    QUBE_ENCODER_STEP,
-    SENSOR_ENCODER,
-    SENSOR_IR,
-)
 
 __all__ = ["ALTINO", "DEVICES", "ROTARY", "Device", "device_of", "get"]
 
 
 @dataclass(frozen=True)
 class Device:
-    """Everything per-device: names, physics, env task, units and the tools' settings."""
+    """Everything per-device: names, physics and sensor, env task, units, the tools' settings."""
 
-    # Names: the params files' and models' ``device``, the hardware's and the CLI's kind.
-    name: str  #: ``"RotaryServo"``
-    kind: str  #: ``"rotary"``
+    name: str  #: ``"RotaryServo"``: the ``device`` of params files, residual models, run logs
+    kind: str  #: ``"rotary"``: the hardware's kind, the benchmark's and the CLI's device name
     env_id: str  #: ``"frictiongym/RotaryServo-v0"``
     title: str  #: for messages: ``"a QUBE-Servo 2"``
-    # Physics and sensor.
     plant: PlantParams
     dt: float
     paper_friction: StictionCoulomb
     lugre_friction: LuGre
-    sensor: int  #: ``SENSOR_ENCODER`` or ``SENSOR_IR`` (:mod:`frictiongym.plants.sensors`)
+    sensor: int  #: :data:`~frictiongym.plants.sensors.SENSOR_ENCODER` or ``SENSOR_IR``
     velocity_cutoff: float | None  #: rad/s of the velocity filter; None: backward difference
     noise_std: float  #: sensor noise of ``sensor_noise=True``
-    # The env task.
     episode_steps: int  #: registered episode length
     start: float  #: default starting position (rad, or cm from the wall)
     #: Default generator of each reference kind, as keyword arguments of its class
@@ -80,10 +52,8 @@ class Device:
     direction: float  #: +1 if a positive command increases ``output``, -1 if it decreases it
     #: speed (plant units) below which a friction compensator treats the body as at rest
     rest_speed: float
-    # Units of the output and of the command.
-    position_unit: str
-    command_unit: str
-    # What the tools use.
+    position_unit: str  #: of the output: ``"rad"``, ``"cm"``
+    command_unit: str  #: ``"V"``, ``"units"``
     #: The paper's PID gains (``kp``, ``ki``, ``kd``) of its plain and its compensated PID.
     paper_gains: Mapping[str, Mapping[str, float]]
     benchmark_steps: int  #: length of a benchmark run
@@ -126,13 +96,13 @@ ROTARY = Device(
     kind="rotary",
     env_id="frictiongym/RotaryServo-v0",
     title="a QUBE-Servo 2",
-    plant=ROTARY_PLANT,
-    dt=ROTARY_DT,
-    paper_friction=ROTARY_PAPER,
-    lugre_friction=ROTARY_LUGRE,
-    sensor=SENSOR_ENCODER,
-    velocity_cutoff=ROTARY_VELOCITY_CUTOFF,
-    noise_std=QUBE_ENCODER_STEP,  # assumed: one encoder count of vibration or noise
+    plant=presets.ROTARY_PLANT,
+    dt=presets.ROTARY_DT,
+    paper_friction=friction.ROTARY_PAPER,
+    lugre_friction=friction.ROTARY_LUGRE,
+    sensor=sensors.SENSOR_ENCODER,
+    velocity_cutoff=presets.ROTARY_VELOCITY_CUTOFF,
+    noise_std=sensors.QUBE_ENCODER_STEP,  # assumed: one encoder count of vibration or noise
     episode_steps=2500,  # 5 s at the default 2 ms period (the paper's servo plots)
     start=0.0,
     # Defaults of each reference kind (rad); the step is the paper's demo step of 1 rad.
@@ -156,7 +126,7 @@ ROTARY = Device(
     rest_speed=0.1,
     position_unit="rad",
     command_unit="V",
-    paper_gains={"pid": ROTARY_PAPER_GAINS, "compensated": ROTARY_PAPER_GAINS},
+    paper_gains={"pid": presets.ROTARY_PAPER_GAINS, "compensated": presets.ROTARY_PAPER_GAINS},
     benchmark_steps=2500,  # the registered 5 s episode (the paper's plots)
     # The encoder scale ±1 %: a calibration error.
     randomization={**_RANDOMIZATION, "sensor_gain": (0.99, 1.01)},
@@ -176,7 +146,7 @@ ROTARY = Device(
     # Random set-point steps (the benchmark's step references are held out) for 2 s: two
     # set-points, shorter than the registered 5 s so PPO's rollouts span several episodes.
     training_env={"reference": "random_steps", "max_episode_steps": 1000},
-    training_precision=QUBE_ENCODER_STEP,  # one count: an error of one count costs log 2
+    training_precision=sensors.QUBE_ENCODER_STEP,  # one count: an error of one count costs log 2
     # A horizon 1 / (1 - gamma) of 200 steps = 0.4 s, long enough to see a stuck disk's offset
     # after a step's transient (SB3's 0.99 sees 0.2 s).
     training_gamma=0.995,
@@ -188,26 +158,26 @@ ALTINO = Device(
     kind="altino",
     env_id="frictiongym/AltinoDistance-v0",
     title="an Altino car",
-    plant=ALTINO_PLANT,
-    dt=ALTINO_DT,
-    paper_friction=ALTINO_PAPER,
-    lugre_friction=ALTINO_LUGRE,
-    sensor=SENSOR_IR,
+    plant=presets.ALTINO_PLANT,
+    dt=presets.ALTINO_DT,
+    paper_friction=friction.ALTINO_PAPER,
+    lugre_friction=friction.ALTINO_LUGRE,
+    sensor=sensors.SENSOR_IR,
     velocity_cutoff=None,  # backward difference of the estimate, as docs/altino-model.md
     noise_std=2.0,  # assumed: readout units (0.05 cm at 5 cm); docs/altino-model.md has none
     # 20 s at the default 50 ms period (the paper's runs settle or cycle within it;
     # docs/altino-model.md).
     episode_steps=400,
-    start=ALTINO_START_CM,
+    start=presets.ALTINO_START_CM,
     # Defaults of each reference kind (cm from the wall); the step is the paper's 5 cm target.
     references={
-        "step": {"value": ALTINO_TARGET_CM},
+        "step": {"value": presets.ALTINO_TARGET_CM},
         "step_sequence": {"values": (5.0, 10.0, 7.0, 12.0), "period": 5.0},
         "ramp": {"slope": -0.5, "start": 0.0, "initial": 20.0},  # 20 to 10 cm over 20 s
         "sine": {"amplitude": 3.0, "period": 10.0, "offset": 10.0},
         "random_steps": {"low": 3.0, "high": 18.0, "period": 5.0},
     },
-    error_scale=ALTINO_TARGET_CM,  # cm: the target distance costs 1 per step
+    error_scale=presets.ALTINO_TARGET_CM,  # cm: the target distance costs 1 per step
     effort_weight=0.01,
     limit=0.0,  # touching the wall
     limit_penalty=100.0,
@@ -219,7 +189,10 @@ ALTINO = Device(
     rest_speed=0.25,
     position_unit="cm",
     command_unit="units",
-    paper_gains={"pid": ALTINO_PAPER_GAINS_KI10, "compensated": ALTINO_PAPER_GAINS_COMPENSATED},
+    paper_gains={
+        "pid": presets.ALTINO_PAPER_GAINS_KI10,
+        "compensated": presets.ALTINO_PAPER_GAINS_COMPENSATED,
+    },
     # 60 s: long enough to tell a slow limit cycle from a stop (docs/altino-model.md §3).
     benchmark_steps=1200,
     # The IR reflectivity ±10 % (assumed; docs/residual.md).
@@ -234,7 +207,6 @@ ALTINO = Device(
     identification={
         "levels": (1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5),
         "constant_duration": 20.0,
-        "ramp_from": 0.6,
         "ramp_to": 1.1,
         "ramp_duration": 15.0,
         "step_levels": (1.5, 2.5),
@@ -244,9 +216,8 @@ ALTINO = Device(
         "step_repeats": 0,
         "relay_levels": tuple(round(float(m), 2) for m in np.geomspace(1.03, 2.5, 20)),
         "relay_band": (4.0, 15.0),
-        "relay_duration": 20.0,
         "refine": True,
-        "reading": (IR_NUMERATOR, IR_OFFSET, IR_MAX_READOUT),
+        "reading": (sensors.IR_NUMERATOR, sensors.IR_OFFSET, sensors.IR_MAX_READOUT),
         "span": (3.0, 19.5, 0.5),
         "ramp_positions": (10.0, 4.0),
     },

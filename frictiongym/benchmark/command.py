@@ -28,7 +28,6 @@ from frictiongym.benchmark.scenarios import (
     all_scenarios,
     residual_scenarios,
 )
-from frictiongym.devices import DEVICES
 
 DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
@@ -164,8 +163,8 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
     models: dict[str, str] = {}
     for spec in getattr(args, "residual", None) or []:
         device, sep, path = spec.partition("=")
-        if not sep or device not in (d.kind for d in DEVICES) or not path:
-            takes = " or ".join(f"{d.kind}=MODEL" for d in DEVICES)
+        if not sep or device not in (d.kind for d in devices.DEVICES) or not path:
+            takes = " or ".join(f"{d.kind}=MODEL" for d in devices.DEVICES)
             raise ValueError(f"--residual takes {takes}, got {spec!r}")
         if device in models:
             raise ValueError(f"--residual {device}= given twice; give one model per device")

@@ -18,15 +18,7 @@ import numpy as np
 from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
 from frictiongym.devices import DEVICES, get
-from frictiongym.friction import (
-    ALTINO_LUGRE,
-    ALTINO_PAPER,
-    FRICTION_NAMES,
-    ROTARY_LUGRE,
-    ROTARY_PAPER,
-    FrictionModel,
-    friction_from_name,
-)
+from frictiongym.friction import FRICTION_NAMES, FrictionModel, friction_from_name
 
 
 def _pyplot() -> Any:
@@ -67,11 +59,11 @@ def plot_friction_curves(path: Path) -> Path:
     """Steady friction of every law for both devices (the paper's Figs. 8(b), 10(b))."""
     plt = _pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    rotary = {n: friction_from_name(n, ROTARY_PAPER, ROTARY_LUGRE) for n in FRICTION_NAMES}
-    altino = {n: friction_from_name(n, ALTINO_PAPER, ALTINO_LUGRE) for n in FRICTION_NAMES}
-    _friction_panel(axes[0], "QUBE-Servo 2 (B_e's viscous part is in the plant)", rotary, 6.0,
-                    ("V", "rad/s"))  # fmt: skip
-    _friction_panel(axes[1], "Altino", altino, 30.0, ("units", "cm/s"))
+    titles = ("QUBE-Servo 2 (B_e's viscous part is in the plant)", "Altino")
+    for ax, device, title, v_max in zip(axes, DEVICES, titles, (6.0, 30.0), strict=True):
+        presets = (device.paper_friction, device.lugre_friction)
+        laws = {name: friction_from_name(name, *presets) for name in FRICTION_NAMES}
+        _friction_panel(ax, title, laws, v_max, (device.command_unit, device.units["velocity"]))
     fig.tight_layout()
     return _save(fig, path)
 
@@ -81,7 +73,6 @@ def _responses(
     names: dict[str, str],
     path: Path,
     title: str,
-    units: tuple[str, str],
     zoom: float,
 ) -> Path | None:
     """Output and command of the named runs on shared axes (output, error zoom, command)."""
@@ -89,6 +80,8 @@ def _responses(
     chosen = [(label, runs[name]) for name, label in names.items() if name in runs]
     if not chosen:
         return None
+    device = get(chosen[0][1].scenario.env_id)
+    units = (device.position_unit, device.command_unit)
     plt = _pyplot()
     fig, (ax, ax_err, ax_u) = plt.subplots(3, 1, figsize=(8, 8), sharex=True,
                                            gridspec_kw={"height_ratios": [3, 2, 2]})  # fmt: skip
@@ -182,24 +175,21 @@ def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
                              "paper-rotary-pid": "PID, paper friction",
                              "paper-rotary-compensated": "PID + compensator"},
                    out / "rotary_response.png", "QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
-                   ("rad", "V"), zoom=0.03),
+                   zoom=0.03),
         _responses(results, {"paper-altino-pid-ki10": "PID Ki 10",
                              "paper-altino-pid-ki20": "PID Ki 20",
                              "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator"},
                    out / "altino_response.png",
-                   "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)", ("cm", "units"),
-                   zoom=2.0),
+                   "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)", zoom=2.0),
         plot_mismatch(results, out / "compensator_mismatch.png"),
         _responses(results, {"residual-rotary-nominal-compensated": "PID + compensator",
                              "residual-rotary-nominal-residual": "PID + compensator + residual"},
                    out / "residual_rotary_response.png",
-                   "QUBE-Servo 2, 1 rad step, nominal plant: residual policy", ("rad", "V"),
-                   zoom=0.02),
+                   "QUBE-Servo 2, 1 rad step, nominal plant: residual policy", zoom=0.02),
         _responses(results, {"residual-altino-nominal-compensated": "PID + compensator",
                              "residual-altino-nominal-residual": "PID + compensator + residual"},
                    out / "residual_altino_response.png",
-                   "Altino, 30 → 5 cm, nominal plant: residual policy", ("cm", "units"),
-                   zoom=1.0),
+                   "Altino, 30 → 5 cm, nominal plant: residual policy", zoom=1.0),
         plot_residual_plants(results, out / "residual_plants.png"),
         plot_friction_curves(out / "friction_curves.png"),
     ]  # fmt: skip

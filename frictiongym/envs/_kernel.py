@@ -32,12 +32,12 @@ from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import (
     IR_MAX_READOUT,
     SENSOR_ENCODER,
-    SENSOR_IR,
     derivative_update,
     encoder_angle,
     ir_count,
     ir_estimate,
 )
+from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read ek.SENSOR_IR
 
 # Task row.
 T_GAIN = 0

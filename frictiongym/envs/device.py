@@ -29,7 +29,6 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
-from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.core import BoolArray, FloatArray, Simulation
 from frictiongym.hardware import resolve_backend
@@ -79,7 +78,7 @@ class DeviceSession(Simulation):
 
     def __init__(
         self,
-        device: Device,
+        device: devices.Device,
         backend: object,
         *,
         log: bool | str | os.PathLike[str] = True,

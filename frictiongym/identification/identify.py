@@ -26,7 +26,6 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
-from frictiongym.devices import Device, device_of
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.experiments import Runner, Span, Trace
@@ -108,7 +107,7 @@ class Plan:
     env_kwargs: Mapping[str, Any] = field(default_factory=dict)
 
     @classmethod
-    def for_device(cls, device: str | Device) -> Plan:
+    def for_device(cls, device: str | devices.Device) -> Plan:
         """Return the plan of ``device`` (any spelling of :func:`frictiongym.devices.get`).
 
         It is the device's ``identification`` settings, whose ``span`` and ``reading`` (a
@@ -239,7 +238,7 @@ def identify(
         Called with a short label before each experiment.
     """
     started = time.perf_counter()
-    device = device_of(env)
+    device = devices.device_of(env)
     plan = plan or Plan.for_device(device)
     runner = Runner(env, plan.span, seed)
     limit = runner.spec.limit

@@ -20,7 +20,6 @@ import numpy.typing as npt
 
 from frictiongym import devices
 from frictiongym.controllers.base import Controller, FloatArray, LoopSpec
-from frictiongym.devices import device_of
 
 #: Number of entries of :func:`residual_observation`.
 OBSERVATION_SIZE = 6
@@ -99,7 +98,7 @@ class ResidualConfig:
     @classmethod
     def for_env(cls, env: Any, scale: float | None = None) -> ResidualConfig:
         """Return the default configuration of an env's device (see :meth:`for_device`)."""
-        config = cls.for_device(device_of(env).name, scale)
+        config = cls.for_device(devices.device_of(env).name, scale)
         limit = LoopSpec.from_env(env).limit
         if limit != config.limit:  # e.g. a device with another amplifier limit
             fraction = config.scale / config.limit
@@ -202,5 +201,5 @@ def make_base(
 
     if kind not in BASES:
         raise ValueError(f"base controller must be one of {BASES}, got {kind!r}")
-    pid = PID.for_env(env, PIDGains(**(gains or device_of(env).paper_gains["compensated"])))
+    pid = PID.for_env(env, PIDGains(**(gains or devices.device_of(env).paper_gains["compensated"])))
     return FrictionCompensator(pid) if kind == "compensated" else pid

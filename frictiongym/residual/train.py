@@ -27,7 +27,6 @@ from frictiongym import devices
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
-from frictiongym.devices import Device, device_of
 from frictiongym.residual.core import ResidualConfig
 from frictiongym.residual.env import ResidualEnv
 from frictiongym.residual.selection import (
@@ -153,7 +152,7 @@ def env_kwargs(env_id: str, randomize: str) -> dict[str, Any]:
 
 
 def hyperparameters(
-    algo: str, steps: int, n_envs: int, quick: bool, device: Device
+    algo: str, steps: int, n_envs: int, quick: bool, device: devices.Device
 ) -> dict[str, Any]:
     """SB3 constructor arguments: the library's defaults except as commented here.
 
@@ -430,7 +429,7 @@ def _train(
     steps = settings.steps or (QUICK_STEPS[algo] if settings.quick else 200_000)
     kwargs = env_kwargs(settings.env_id, settings.randomize)
     probe = gym.make(settings.env_id, **kwargs)
-    device = device_of(probe)
+    device = devices.device_of(probe)
     limit = ResidualConfig.for_env(probe).limit
     config = ResidualConfig.for_env(
         probe, None if settings.scale is None else settings.scale * limit

@@ -41,11 +41,8 @@ METRICS = {
 def _units(env_id: str) -> dict[str, str]:
     """Units of the compared signals (:data:`SIGNALS`) on the device of ``env_id``."""
     device = devices.get(env_id)
-    return {
-        "output": device.position_unit,
-        "velocity": device.units["velocity"],
-        "command": device.command_unit,
-    }
+    position, command = device.position_unit, device.command_unit
+    return {"output": position, "velocity": f"{position}/s", "command": command}
 
 
 def _num(value: float, digits: int = 4) -> str:
