@@ -111,11 +111,12 @@ def test_relay_stays_in_its_band_through_the_observations_only():
 
     trace = relay(make_env(ALTINO, sensor_noise=True))
     hidden = relay(_NoInfo(make_env(ALTINO, sensor_noise=True)))
-    assert np.array_equal(trace.position, hidden.position)
+    assert np.array_equal(trace.measured, hidden.measured)
     assert np.array_equal(trace.command, hidden.command)
-    distance = -trace.position  # the plant direction is toward the wall
+    distance = trace.signal("measured")
+    assert np.array_equal(trace.plant_output(), -distance)  # the plant moves toward the wall
     assert trace.t.size == 400  # the whole 20 s: never out of the sensor's span
-    reversals = np.count_nonzero(np.diff(np.sign(trace.command)))
+    reversals = np.count_nonzero(np.diff(np.sign(trace.signal("command"))))
     assert reversals >= 10
     # The car stops near the band's ends (2 counts of noise are ~0.5 cm at 15 cm).
     assert low - 1.0 < distance.min() < low + 1.0

@@ -23,7 +23,8 @@ from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI10, ROTARY_PAPER_GAI
 SERVO = "frictiongym/RotaryServo-v0"
 ALTINO = "frictiongym/AltinoDistance-v0"
 SERVO_GAINS = PIDGains(**ROTARY_PAPER_GAINS)
-FIELDS = [f.name for f in dataclasses.fields(Rollout)]
+#: The per-sample signals and per-env flags (``direction`` and ``settings`` describe the run).
+FIELDS = [f.name for f in dataclasses.fields(Rollout) if f.name not in ("direction", "settings")]
 
 
 class Constant(Controller):
@@ -68,6 +69,8 @@ def test_single_env_rollout_records_the_episode():
         assert np.all(np.isfinite(getattr(run, name))), name
     assert run.stuck[0, 0]  # it starts stuck
     assert np.array_equal(run.signal("position"), run.position[:, 0])
+    assert run.valid.all()  # the encoder's angle is never saturated
+    assert run.direction == 1.0
 
 
 def test_single_env_command_is_the_applied_action():
@@ -295,3 +298,43 @@ def test_episode_start_resets_only_the_starting_envs():
     # Every env starting: a full reset.
     policy.predict(obs, episode_start=np.ones(3, dtype=bool))
     np.testing.assert_allclose(pid.integral, dt * errors)
+
+
+# --------------------------------------------------------------------------------------------
+# The one run record: sensor range, the plant's direction, runs recorded by hand
+# --------------------------------------------------------------------------------------------
+
+
+def test_altino_rollout_marks_the_ir_sensors_saturated_samples_invalid():
+    env = gym.make(ALTINO)
+    run = rollout(env, PID.for_env(env, PIDGains(**ALTINO_PAPER_GAINS_KI10)))
+    far = run.signal("measured") >= env.observation_space.high[1]  # 30 cm: beyond 21.47 cm
+    assert far[0] and not far[-1]
+    np.testing.assert_array_equal(run.signal("valid"), ~far)
+    assert run.direction == -1.0  # a positive command shortens the distance
+    np.testing.assert_array_equal(run.plant_output(), -run.signal("measured"))
+
+
+def test_a_run_recorded_by_hand_fills_what_it_did_not_record():
+    run = Rollout.of_one_run(
+        np.arange(3) * 0.1, settings={"kind": "ramp"}, command=[1.0, 2.0, 3.0], measured=[0, 1, 2]
+    )
+    assert run.num_envs == 1 and run.length.tolist() == [3] and not run.terminated[0]
+    assert run.signal("command").tolist() == [1.0, 2.0, 3.0]
+    assert np.isnan(run.position).all() and run.valid.all() and not run.stuck.any()
+    assert run.settings == {"kind": "ramp"}
+    with pytest.raises(TypeError, match="no signal"):
+        Rollout.of_one_run(np.arange(3) * 0.1, output=[0.0, 1.0, 2.0])
+
+
+def test_metrics_of_the_measured_output_use_what_the_controller_saw():
+    env = gym.make(SERVO, sensor_noise=True)
+    run = rollout(env, PID.for_env(env, SERVO_GAINS), seed=2)
+    n = int(run.length[0])
+    expected = response_metrics(
+        run.t[:n], run.measured[:n, 0], 1.0, command=run.command[:n, 0], y0=run.measured[0, 0]
+    )
+    np.testing.assert_equal(run.metrics(output="measured").as_dict(), expected.as_dict())
+    assert run.metrics().iae != expected.iae  # the true angle differs from the noisy one
+    with pytest.raises(ValueError, match="'position' or 'measured'"):
+        run.metrics(output="velocity")

@@ -317,12 +317,13 @@ def test_the_device_example_holds_up_with_a_core_busy(tmp_path, monkeypatch):
 def test_a_run_the_altino_guard_stops_is_told_from_one_the_safety_limit_ends():
     from types import SimpleNamespace
 
+    from frictiongym.controllers import Rollout
     from frictiongym.hardware import Sample
     from frictiongym.hardware.protocol import Status
-    from frictiongym.sim2real.run import DEVICE_LIMIT, SAFETY_LIMIT, Trace, _ended_early
+    from frictiongym.sim2real.run import DEVICE_LIMIT, SAFETY_LIMIT, _ended_early
 
     zeros = np.zeros(80)
-    trace = Trace(np.arange(80) * 0.05, zeros, zeros, zeros, zeros, terminated=True)
+    trace = Rollout.of_one_run(np.arange(80) * 0.05, terminated=True, measured=zeros)
     guard = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0, status=int(Status.LIMIT)))
     assert _ended_early(guard, trace, 0.0, encoder=False) == (
         DEVICE_LIMIT, "the device's distance guard stopped it after 79 steps"

@@ -1,8 +1,13 @@
-"""Roll out any controller on any frictiongym env, single or vector, and keep the signals."""
+"""Roll out any controller on any frictiongym env, single or vector, and keep the signals.
+
+:class:`Rollout` is the package's one record of a run: the benchmark, sim2real, the paper's
+step experiments (:mod:`frictiongym.loops`) and identification's command profiles all record
+into it.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -18,16 +23,21 @@ SIGNALS = ("position", "velocity", "command", "reference", "time")
 
 @dataclass(frozen=True)
 class Rollout:
-    """Signals of a closed-loop run, sample ``k`` at time ``t[k]``, one column per env.
+    """Signals of a run, sample ``k`` at time ``t[k]``, one column per env.
 
     ``position``, ``velocity`` and ``reference`` are the true state from ``info``;
     ``measured`` and ``rate`` are the output and its rate as the controller saw them (its
     observation entries; ``rate`` is NaN when the observation has none); ``command[k]`` is
     the applied (saturated) command held from ``t[k]`` to ``t[k+1]`` (the last sample repeats
     it); ``reward[k]`` is the reward of the step that ended at ``t[k]`` (0 at ``k = 0``);
-    ``stuck[k]`` tells whether friction held the body at ``t[k]``. Env ``i`` has ``length[i]``
-    valid samples (fewer when it terminated, e.g. the Altino touching the wall); the rest are
-    NaN.
+    ``stuck[k]`` tells whether friction held the body at ``t[k]``; ``valid[k]`` whether the
+    measured output lay inside its observation bounds (the sensor not saturated). Env ``i``
+    has ``length[i]`` valid samples (fewer when it terminated, e.g. the Altino touching the
+    wall); the rest are NaN. A signal that was not recorded is NaN throughout.
+
+    ``direction`` is the loop's sign (:class:`~frictiongym.controllers.LoopSpec`): -1 when a
+    positive command lowers the output (the Altino's distance). ``settings`` says what was
+    run, e.g. an identification experiment's ``kind``, ``sign`` and levels.
     """
 
     t: FloatArray
@@ -39,8 +49,42 @@ class Rollout:
     reference: FloatArray
     reward: FloatArray
     stuck: BoolArray
+    valid: BoolArray
     length: npt.NDArray[np.int64]
     terminated: BoolArray
+    direction: float = 1.0
+    settings: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def of_one_run(
+        cls,
+        t: FloatArray,
+        terminated: bool = False,
+        direction: float = 1.0,
+        settings: dict[str, Any] | None = None,
+        **signals: npt.ArrayLike,
+    ) -> Rollout:
+        """Record one run from its 1-D signals (keyword per field); missing ones are NaN.
+
+        ``stuck`` and ``valid`` default to False and True.
+        """
+        n = int(np.shape(t)[0])
+        unknown = set(signals) - {f for f in cls.__dataclass_fields__ if f not in _NOT_SIGNALS}
+        if unknown:
+            raise TypeError(f"Rollout has no signal {sorted(unknown)}; give {_FLOAT_SIGNALS}")
+        columns: dict[str, Any] = {name: np.full((n, 1), np.nan) for name in _FLOAT_SIGNALS}
+        columns["stuck"] = np.zeros((n, 1), dtype=bool)
+        columns["valid"] = np.ones((n, 1), dtype=bool)
+        for name, values in signals.items():
+            columns[name] = np.asarray(values, dtype=columns[name].dtype).reshape(n, 1)
+        return cls(
+            t=np.asarray(t, dtype=np.float64),
+            length=np.array([n], dtype=np.int64),
+            terminated=np.array([terminated]),
+            direction=float(direction),
+            settings=dict(settings or {}),
+            **columns,
+        )
 
     @property
     def num_envs(self) -> int:
@@ -52,23 +96,37 @@ class Rollout:
         values: FloatArray = getattr(self, name)
         return values[: self.length[env], env]
 
-    def metrics(self, env: int = 0, **kwargs: Any) -> ResponseMetrics:
-        """Response metrics of env ``env``'s true output against its final reference.
+    def plant_output(self, env: int = 0) -> FloatArray:
+        """Return the measured output signed so that a positive command drives it up."""
+        return self.direction * self.signal("measured", env)
 
-        Keyword arguments go to :func:`frictiongym.metrics.response_metrics`.
+    def metrics(self, env: int = 0, output: str = "position", **kwargs: Any) -> ResponseMetrics:
+        """Response metrics of env ``env``'s ``output`` against its final reference.
+
+        ``output`` is ``"position"`` (the true output, with the stick flags) or
+        ``"measured"`` (what the controller saw, which carries no stick flags). Keyword
+        arguments go to :func:`frictiongym.metrics.response_metrics`.
         """
+        if output not in ("position", "measured"):
+            raise ValueError(f"output must be 'position' or 'measured', got {output!r}")
         n = int(self.length[env])
         if n < 2:
             raise ValueError(f"env {env} has {n} sample(s): too short for metrics")
+        y = getattr(self, output)[:n, env]
         return response_metrics(
             self.t[:n],
-            self.position[:n, env],
+            y,
             float(self.reference[n - 1, env]),
             command=self.command[:n, env],
-            stuck=self.stuck[:n, env],
-            y0=float(self.position[0, env]),
+            stuck=self.stuck[:n, env] if output == "position" else None,
+            y0=float(y[0]),
             **kwargs,
         )
+
+
+#: Fields of :class:`Rollout` that are not per-sample signals.
+_NOT_SIGNALS = ("t", "length", "terminated", "direction", "settings")
+_FLOAT_SIGNALS = ("position", "velocity", "measured", "rate", "command", "reference", "reward")
 
 
 def _episode_steps(env: Any) -> int | None:
@@ -146,4 +204,23 @@ def rollout(
     m = int(length.max())  # every env may have ended before ``steps``
     t = rec.pop("time")[:m, int(np.argmax(length))]
     trimmed = {name: values[:m] for name, values in rec.items()}
-    return Rollout(t=t, stuck=stuck[:m], length=length, terminated=terminated, **trimmed)
+    low, high = observation_bounds(env, controller.spec.position)
+    valid = (low < trimmed["measured"]) & (trimmed["measured"] < high)
+    return Rollout(
+        t=t,
+        stuck=stuck[:m],
+        valid=valid,
+        length=length,
+        terminated=terminated,
+        direction=controller.spec.direction,
+        **trimmed,
+    )
+
+
+def observation_bounds(env: Any, index: int) -> tuple[float, float]:
+    """Bounds of observation entry ``index`` (infinite when the space has none)."""
+    space = getattr(env, "single_observation_space", env.observation_space)
+    low, high = getattr(space, "low", None), getattr(space, "high", None)
+    if low is None or high is None:
+        return -np.inf, np.inf
+    return float(low[index]), float(high[index])

@@ -1,7 +1,7 @@
 """What each experiment measures: a steady velocity, a break-away level, a first-order step.
 
-Every estimator takes one :class:`~frictiongym.identification.experiments.Trace` and uses only
-its valid samples. The models are the ones a first-order plant ``J v' + b v = u - F`` gives in
+Every estimator takes one experiment's :class:`~frictiongym.controllers.Rollout` and uses
+only its valid samples. The models are the ones a first-order plant ``J v' + b v = u - F`` gives in
 one sliding branch of friction (docs/identification.md):
 
 * a constant input from rest ends on ``y = a + v t + c exp(-t / tau)``, whatever happened
@@ -21,7 +21,8 @@ import numpy as np
 import numpy.typing as npt
 from scipy.optimize import brentq, minimize_scalar
 
-from frictiongym.identification.experiments import REST_SAMPLES, Trace, smallest_step
+from frictiongym.controllers.rollout import Rollout
+from frictiongym.identification.experiments import REST_SAMPLES, smallest_step
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -116,7 +117,7 @@ class SteadyPoint:
 
 
 def steady_velocity(
-    trace: Trace,
+    trace: Rollout,
     skip: float = 0.4,
     tau_max: float = 2.0,
     weight: Callable[[FloatArray], FloatArray] | None = None,
@@ -125,7 +126,7 @@ def steady_velocity(
 
     Parameters
     ----------
-    trace : Trace
+    trace : Rollout
         A ``constant`` experiment.
     skip : float, default 0.4
         Fraction of the valid samples, from the start, left out of the fit: early on the body
@@ -138,21 +139,27 @@ def steady_velocity(
         up to a factor); equal weights by default.
     """
     level = abs(trace.settings["level"])
-    y = trace.position
-    index = np.flatnonzero(trace.valid)
+    y = trace.plant_output()
+    index = np.flatnonzero(trace.signal("valid"))
     if index.size < 6:  # (almost) nothing in the sensor's range
-        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.sign)
+        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.settings["sign"])
     head = y[index[: min(5, index.size)]]
     tail = y[index[-min(10, index.size) :]]
     scatter = rest_scatter(head, y[index])
     if abs(tail.mean() - head.mean()) <= 10.0 * scatter:
-        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.sign)
+        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.settings["sign"])
     index = index[int(skip * index.size) :]
     w = None if weight is None else weight(y[index])
     fit = fit_exponential(trace.t[index], y[index], tau_max, w)
     transient = abs(fit.amplitude) / max(fit.rms, 1e-300)
     return SteadyPoint(
-        level, trace.sign * fit.velocity, fit.velocity_se, fit.tau, True, trace.sign, transient
+        level,
+        trace.settings["sign"] * fit.velocity,
+        fit.velocity_se,
+        fit.tau,
+        True,
+        trace.settings["sign"],
+        transient,
     )
 
 
@@ -178,7 +185,7 @@ class Breakaway:
 
 
 def breakaway_level(
-    trace: Trace,
+    trace: Rollout,
     inertia: float | None = None,
     slope: float = 0.0,
     thresholds: tuple[float, ...] = (6.0, 9.0, 12.0),
@@ -193,7 +200,7 @@ def breakaway_level(
     """
     rate = trace.settings["rate"]
     start = trace.settings["start"]
-    y = trace.position
+    y = trace.plant_output()
     rest = y[:REST_SAMPLES]
     if y.size < REST_SAMPLES + 5:
         raise IdentificationError(
@@ -207,7 +214,7 @@ def breakaway_level(
     detected = math.nan
     for factor in thresholds:
         level = factor * scatter
-        above = np.flatnonzero(trace.valid & (displacement > level))
+        above = np.flatnonzero(trace.signal("valid") & (displacement > level))
         if above.size == 0 or above[0] == 0:
             continue
         k = int(above[0])
@@ -226,7 +233,7 @@ def breakaway_level(
         raise IdentificationError(
             "the ramp ended before the body moved: raise the ramp's end level or its duration"
         )
-    return Breakaway(float(start + rate * np.mean(onsets)), float(detected), trace.sign)
+    return Breakaway(float(start + rate * np.mean(onsets)), float(detected), trace.settings["sign"])
 
 
 @dataclass(frozen=True)
@@ -250,10 +257,10 @@ class StepResponse:
         return self.tau * self.damping
 
 
-def velocity_step(trace: Trace, tau_max: float = 2.0) -> StepResponse:
+def velocity_step(trace: Rollout, tau_max: float = 2.0) -> StepResponse:
     """First-order response of a ``step`` experiment (both levels in the high-speed branch)."""
     step_time = trace.settings["step_time"]
-    valid = trace.valid
+    valid = trace.signal("valid")
     before = np.flatnonzero(valid & (trace.t < step_time) & (trace.t >= 0.5 * step_time))
     after = np.flatnonzero(valid & (trace.t >= step_time))
     if before.size < 6 or after.size < 6:
@@ -261,8 +268,8 @@ def velocity_step(trace: Trace, tau_max: float = 2.0) -> StepResponse:
             "the velocity step left too few valid samples before or after the step: lengthen "
             "the run, or lower the levels so the body stays in the sensor's range"
         )
-    fit_before = fit_exponential(trace.t[before], trace.position[before], tau_max)
-    fit_after = fit_exponential(trace.t[after], trace.position[after], tau_max)
+    fit_before = fit_exponential(trace.t[before], trace.plant_output()[before], tau_max)
+    fit_after = fit_exponential(trace.t[after], trace.plant_output()[after], tau_max)
     return StepResponse(
         first=trace.settings["first"],
         second=trace.settings["second"],

@@ -3,12 +3,13 @@
 An experiment is a command profile held from rest (``env.reset``): a constant level, a slow
 ramp, a velocity step between two levels, or a relay that drives back and forth across a band
 of the output (closed loop on the measured output, so it stays where the sensor resolves
-it). Each returns a :class:`Trace` of what a controller would see: the time, the command sent
-and the measured output, read from the observation the env's
-:class:`~frictiongym.controllers.LoopSpec` points at and turned into the plant's own
-direction (a positive command moves the output positively). Nothing here reads the simulator's
-true state (``info``), so a hardware backend with the same observations gives the same
-analysis.
+it). Each returns a :class:`~frictiongym.controllers.Rollout` of what a controller would
+see: the time, the command sent, the measured output (the observation the env's
+:class:`~frictiongym.controllers.LoopSpec` points at; ``plant_output()`` turns it into the
+plant's own direction, in which a positive command moves the output positively) and whether
+the sensor resolved it; its ``settings`` hold the experiment's
+``kind``, ``sign`` and levels. Nothing here reads the simulator's true state (``info``), so a
+hardware backend with the same observations gives the same analysis.
 
 A run ends early when the measured output leaves the plan's usable span (the Altino's IR
 sensor sees only the last 21 cm before the wall) or when the env terminates; the command
@@ -18,13 +19,14 @@ sent after that is zero.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym.controllers.base import LoopSpec
+from frictiongym.controllers.rollout import Rollout, observation_bounds
 
 FloatArray = npt.NDArray[np.float64]
 Kind = Literal["constant", "ramp", "step", "relay"]
@@ -33,48 +35,6 @@ Kind = Literal["constant", "ramp", "step", "relay"]
 REST_SAMPLES = 20
 #: Consecutive samples beyond the span that end a run (a single one may be sensor noise).
 _OUTSIDE_SAMPLES = 2
-
-
-@dataclass(frozen=True)
-class Trace:
-    """One experiment as measured.
-
-    Attributes
-    ----------
-    kind : {"constant", "ramp", "step", "relay"}
-    sign : float
-        Direction of the command profile, +1 or -1 (a relay's first direction).
-    t : ndarray
-        Sample times, s from the first command.
-    command : ndarray
-        Command sent at each sample (held until the next one), command units.
-    position : ndarray
-        Measured output in the plant's direction (``direction * observation``), output units.
-    valid : ndarray of bool
-        Whether each sample was inside the sensor's range (not saturated at an observation
-        bound); analyses use only valid samples.
-    settings : dict
-        The profile's parameters (``level``, ``rate``, ``levels``, ``step_time``...).
-    """
-
-    kind: Kind
-    sign: float
-    t: FloatArray
-    command: FloatArray
-    position: FloatArray
-    valid: npt.NDArray[np.bool_]
-    settings: dict[str, float] = field(default_factory=dict)
-
-    def record(self) -> dict[str, Any]:
-        """Return a JSON-ready summary (settings and sample count, not the samples)."""
-        return {
-            "kind": self.kind,
-            "sign": self.sign,
-            "samples": int(self.t.size),
-            "valid_samples": int(np.count_nonzero(self.valid)),
-            "duration": float(self.t[-1]) if self.t.size else 0.0,
-            **self.settings,
-        }
 
 
 @dataclass(frozen=True)
@@ -94,17 +54,8 @@ class Span:
         return self.low + self.margin if moving_up else self.high - self.margin
 
 
-def _observation_bounds(env: Any, index: int) -> tuple[float, float]:
-    space = env.observation_space
-    low = getattr(space, "low", None)
-    high = getattr(space, "high", None)
-    if low is None or high is None:
-        return -np.inf, np.inf
-    return float(low[index]), float(high[index])
-
-
 class Runner:
-    """Runs command profiles on one env and records :class:`Trace` objects.
+    """Runs command profiles on one env and records each as a :class:`Rollout`.
 
     Parameters
     ----------
@@ -121,7 +72,7 @@ class Runner:
         self.spec = LoopSpec.from_env(env)
         self.span = span
         self._seed = seed
-        self._bounds = _observation_bounds(env, self.spec.position)
+        self._bounds = observation_bounds(env, self.spec.position)
         self.steps = 0  #: env steps taken so far
 
     @property
@@ -148,7 +99,7 @@ class Runner:
         stop: Callable[[FloatArray, int], bool] | None = None,
         start_at: float | None = None,
         feedback: Callable[[FloatArray, int], float] | None = None,
-    ) -> Trace:
+    ) -> Rollout:
         """Reset the env at rest, apply ``profile(t)`` for ``duration`` s and record it.
 
         Parameters
@@ -158,7 +109,7 @@ class Runner:
         duration : float
             Longest run, s.
         kind, sign, settings
-            Stored in the trace.
+            Stored in the record's ``settings`` (``kind`` and ``sign`` first).
         stop : callable, optional
             ``stop(positions_so_far, k)`` ends the run early when true (after sample ``k``).
         start_at : float, optional
@@ -184,9 +135,10 @@ class Runner:
         valid = np.empty(n, dtype=bool)
         action = np.zeros(1, dtype=np.float32)
         count = n
+        ended = False
         outside = 0  # consecutive samples beyond the span (one may be noise)
         for k in range(n):
-            position[k], valid[k] = self._measure(obs)
+            position[k], valid[k] = self._measure(obs)  # in the plant's direction
             outside = outside + 1 if self._outside(self.spec.direction * position[k]) else 0
             if k > 0 and (outside >= _OUTSIDE_SAMPLES or (stop and stop(position[: k + 1], k))):
                 count = k + 1
@@ -197,21 +149,21 @@ class Runner:
             obs, _, terminated, truncated, _ = self.env.step(action)
             self.steps += 1
             if terminated or truncated:
-                count = k + 1
+                count, ended = k + 1, bool(terminated)
                 break
         self.env.step(np.zeros(1, dtype=np.float32))  # leave the motor off between runs
         self.steps += 1
-        return Trace(
-            kind=kind,
-            sign=float(sign),
-            t=t[:count],
+        return Rollout.of_one_run(
+            t[:count],
+            terminated=ended,
+            direction=self.spec.direction,
+            settings={"kind": kind, "sign": float(sign), **(settings or {})},
             command=command[:count],
-            position=position[:count],
+            measured=self.spec.direction * position[:count],  # back to env units, exactly
             valid=valid[:count],
-            settings=dict(settings or {}),
         )
 
-    def constant(self, level: float, duration: float) -> Trace:
+    def constant(self, level: float, duration: float) -> Rollout:
         """Hold ``level`` (signed, command units) from rest."""
         return self.run(
             lambda t: np.full(t.shape, level),
@@ -229,7 +181,7 @@ class Runner:
         duration: float,
         factor: float = 15.0,
         start_at: float | None = None,
-    ) -> Trace:
+    ) -> Rollout:
         """Ramp ``sign * (start + rate t)`` from rest until the output moved ``factor`` scatters.
 
         ``start`` must lie below the break-away level, so the first samples are at rest: their
@@ -262,7 +214,7 @@ class Runner:
         duration: float,
         start_at: float | None = None,
         lead: float = 3.0,
-    ) -> Trace:
+    ) -> Rollout:
         """Drive back and forth across ``band`` (env units) for ``duration`` s, from rest.
 
         The command is ``+level_up`` (plant direction: the output grows) until the measured
@@ -294,7 +246,7 @@ class Runner:
             feedback=feedback,
         )  # fmt: skip
 
-    def step(self, first: float, second: float, step_time: float, duration: float) -> Trace:
+    def step(self, first: float, second: float, step_time: float, duration: float) -> Rollout:
         """Hold ``first`` until ``step_time``, then ``second`` (signed levels, same sign)."""
         return self.run(
             lambda t: np.where(t < step_time, first, second),

@@ -26,9 +26,10 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
+from frictiongym.controllers.rollout import Rollout
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
-from frictiongym.identification.experiments import Runner, Span, Trace
+from frictiongym.identification.experiments import Runner, Span
 from frictiongym.identification.fit import LAWS, LawFit, fit_law, inertia_from_map, rest_slope
 from frictiongym.identification.refine import Reading, ReciprocalReading, Refinement, refine
 from frictiongym.params import DeviceParams
@@ -145,7 +146,7 @@ class Identification:
     inertia: tuple[float, float]  #: J and its standard error
     damping: tuple[float, float]  #: B (total linear damping) and its standard error
     breakaway: dict[str, tuple[float, float]]  #: us_pos/us_neg: (value, standard error)
-    traces: list[Trace]
+    traces: list[Rollout]
     refinement: Refinement | None
     env_steps: int
     seconds: float
@@ -243,9 +244,9 @@ def identify(
     runner = Runner(env, plan.span, seed)
     limit = runner.spec.limit
     note = progress or (lambda _: None)
-    traces: list[Trace] = []
+    traces: list[Rollout] = []
 
-    def keep(trace: Trace) -> Trace:
+    def keep(trace: Rollout) -> Rollout:
         traces.append(trace)
         return trace
 
@@ -263,7 +264,7 @@ def identify(
             )
         rough[sign] = est.breakaway_level(probe).detected
     # 2. Slow ramps from below break-away.
-    ramps: list[Trace] = []
+    ramps: list[Rollout] = []
     for sign in (1.0, -1.0):
         for i in range(plan.ramp_repeats):
             note(f"ramp {'+' if sign > 0 else '-'} {i + 1}/{plan.ramp_repeats}")
@@ -273,7 +274,7 @@ def identify(
                 keep(runner.ramp(sign, lo, rate, plan.ramp_duration, start_at=start[sign]))
             )
     first_pass = {
-        s: _mean_se([est.breakaway_level(r).level for r in ramps if r.sign == s])[0]
+        s: _mean_se([est.breakaway_level(r).level for r in ramps if r.settings["sign"] == s])[0]
         for s in (1.0, -1.0)
     }
     # 3. The steady map (samples weighted by the sensor's resolution, if the plan knows it).
@@ -318,7 +319,7 @@ def identify(
             "(Plan.step_repeats) or constant runs that show their approach to steady speed"
         )
     slopes = {sign: rest_slope(points, sign) for sign in (1.0, -1.0)}
-    breakaways = [est.breakaway_level(r, inertia[0], slopes[r.sign]) for r in ramps]
+    breakaways = [est.breakaway_level(r, inertia[0], slopes[r.settings["sign"]]) for r in ramps]
     breakaway = {
         key: _mean_se([b.level for b in breakaways if b.sign == sign])
         for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg"))
@@ -366,7 +367,7 @@ def _resolution(reading: Reading, direction: float) -> Callable[[FloatArray], Fl
 
 def _refined(
     fit: LawFit,
-    traces: list[Trace],
+    traces: list[Rollout],
     inertia: tuple[float, float],
     damping: tuple[float, float],
     runner: Runner,
@@ -375,7 +376,7 @@ def _refined(
     """Return the paper's law after the output-error fit, and the refinement itself."""
     shape = fit.model.shape if isinstance(fit.model, StictionCoulomb) else "linear"
     start = {"J": inertia[0], "B": damping[0], **fit.values}
-    runs = [t for t in traces if t.kind in ("constant", "ramp", "relay")]
+    runs = [t for t in traces if t.settings["kind"] in ("constant", "ramp", "relay")]
     result = refine(
         runs, start, runner.dt, runner.spec.limit, shape,
         reading=reading, direction=runner.spec.direction,

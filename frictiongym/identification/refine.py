@@ -47,8 +47,8 @@ import numpy.typing as npt
 from scipy.optimize import least_squares
 from scipy.stats import qmc
 
+from frictiongym.controllers.rollout import Rollout
 from frictiongym.friction import StictionCoulomb
-from frictiongym.identification.experiments import Trace
 from frictiongym.plants.plant import Plant, PlantParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -155,7 +155,7 @@ class _Simulator:
 
     def __init__(
         self,
-        traces: Sequence[Trace],
+        traces: Sequence[Rollout],
         dt: float,
         limit: float,
         shape: str,
@@ -177,11 +177,11 @@ class _Simulator:
         first = 0
         for j, trace in enumerate(traces):
             n = trace.t.size
-            self.commands[:n, j] = trace.command
-            mask[:n, j] = trace.valid
-            measured[:n, j] = trace.position
+            self.commands[:n, j] = trace.signal("command")
+            mask[:n, j] = trace.signal("valid")
+            measured[:n, j] = trace.plant_output()
             # ``join`` consecutive segments share an offset; 0: one offset for the whole run.
-            ids = segments(trace.command) // join if join else np.zeros(n, dtype=np.int64)
+            ids = segments(trace.signal("command")) // join if join else np.zeros(n, dtype=np.int64)
             group[:n, j] = first + ids
             first += int(ids[-1]) + 1 if n else 0
         self.mask = mask
@@ -336,7 +336,7 @@ def _local_fit(
 
 
 def refine(
-    traces: Sequence[Trace],
+    traces: Sequence[Rollout],
     start: dict[str, float],
     dt: float,
     limit: float,
@@ -353,7 +353,7 @@ def refine(
 
     Parameters
     ----------
-    traces : sequence of Trace
+    traces : sequence of Rollout
         Recorded runs (constant, ramp, relay; velocity steps work too).
     start : dict
         Starting values for :data:`NAMES` (from the map and the ramps).

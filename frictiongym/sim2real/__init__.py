@@ -8,9 +8,7 @@ from frictiongym.sim2real.report import summary, write_report
 from frictiongym.sim2real.run import (
     DeviceRun,
     Sim2RealResult,
-    Trace,
     fit_percent,
-    record,
     rmse,
     run_sim2real,
 )
@@ -18,9 +16,7 @@ from frictiongym.sim2real.run import (
 __all__ = [
     "DeviceRun",
     "Sim2RealResult",
-    "Trace",
     "fit_percent",
-    "record",
     "rmse",
     "run_sim2real",
     "summary",

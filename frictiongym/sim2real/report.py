@@ -27,6 +27,7 @@ from frictiongym.sim2real.run import (
     DeviceRun,
     Sim2RealResult,
     differences,
+    signal,
 )
 
 #: Step metrics compared, with their units (output units for errors).
@@ -296,18 +297,21 @@ def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
     for k, s in enumerate(SIGNALS):
         ax = axes[k]
         for i, trace in enumerate(result.device):
-            ax.plot(trace.t, trace.signal(s), color="0.55", lw=3.0, alpha=0.6,
+            ax.plot(trace.t, signal(trace, s), color="0.55", lw=3.0, alpha=0.6,
                     label="device runs" if i == 0 else None)  # fmt: skip
         for name, trace in result.models.items():
-            ax.plot(trace.t, trace.signal(s), lw=1.2, label=f"sim: {name}")
+            ax.plot(trace.t, signal(trace, s), lw=1.2, label=f"sim: {name}")
         ax.set_ylabel(f"{s} [{units[s]}]")
-    axes[0].plot(result.device[0].t, result.device[0].reference, "k--", lw=0.8, label="reference")
+    axes[0].plot(
+        result.device[0].t, result.device[0].signal("reference"), "k--", lw=0.8, label="reference"
+    )
     axes[0].legend(loc="best", fontsize="small")
     mean = result.device_mean("output")
     t = result.device[0].t[: mean.size]
     for name, trace in result.models.items():
-        n = min(mean.size, trace.output.size)
-        axes[3].plot(t[:n], trace.output[:n] - mean[:n], lw=1.0, label=f"{name} - device")
+        output = signal(trace, "output")
+        n = min(mean.size, output.size)
+        axes[3].plot(t[:n], output[:n] - mean[:n], lw=1.0, label=f"{name} - device")
     axes[3].axhline(0.0, color="k", lw=0.6)
     axes[3].set(xlabel="time [s]", ylabel=f"output error [{units['output']}]")
     axes[3].legend(loc="best", fontsize="small")

@@ -24,7 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
-from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, rollout
+from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, Rollout, rollout
 from frictiongym.envs import ENV_IDS
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
@@ -34,7 +34,7 @@ from frictiongym.hardware.errors import (
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
-from frictiongym.metrics import ResponseMetrics, response_metrics
+from frictiongym.metrics import ResponseMetrics
 from frictiongym.plants.sensors import SENSOR_ENCODER, ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
@@ -42,6 +42,8 @@ FloatArray = npt.NDArray[np.float64]
 CONTROLLERS = ("pid", "compensated")
 #: Signals compared, as (name, unit key): the controller's view of the loop.
 SIGNALS = ("output", "velocity", "command")
+#: The :class:`~frictiongym.controllers.Rollout` field each compared signal is recorded in.
+RECORDED = {"output": "measured", "velocity": "rate", "command": "command"}
 #: How a device run ended (:attr:`DeviceRun.ended`): its full length; the env's safety limit;
 #: the device's own limit (the Altino's distance guard); the device's watchdog; the link (no
 #: state frame in time, or one too old); the device gone (the runs after it are not tried).
@@ -54,30 +56,6 @@ DISCONNECTED = "disconnect"
 
 
 @dataclass(frozen=True)
-class Trace:
-    """One closed-loop episode as the controller saw it (``n`` samples)."""
-
-    t: FloatArray
-    output: FloatArray  #: the measured output (angle, or distance estimate)
-    velocity: FloatArray  #: the estimated velocity in the observation
-    command: FloatArray  #: applied command held from ``t[k]`` (the last repeats)
-    reference: FloatArray
-    terminated: bool
-
-    def signal(self, name: str) -> FloatArray:
-        """Return the signal ``name`` (one of :data:`SIGNALS`)."""
-        values: FloatArray = getattr(self, name)
-        return values
-
-    def metrics(self) -> ResponseMetrics:
-        """Step metrics of the measured output against the final reference."""
-        return response_metrics(
-            self.t, self.output, float(self.reference[-1]), command=self.command,
-            y0=float(self.output[0]),
-        )  # fmt: skip
-
-
-@dataclass(frozen=True)
 class DeviceRun:
     """One run on the device: how it ended and its trace (None if the device stopped it)."""
 
@@ -85,7 +63,7 @@ class DeviceRun:
     steps: int  #: steps done
     ended: str  #: one of :data:`COMPLETE`, :data:`SAFETY_LIMIT`, ... :data:`DISCONNECTED`
     detail: str  #: one line: what ended it
-    trace: Trace | None
+    trace: Rollout | None
 
     @property
     def complete(self) -> bool:
@@ -115,17 +93,9 @@ def _steps_before_fault(session: Any, faults_before: int) -> int:
     return max(int(session.faults[-1]["step"]) - 1, 0)
 
 
-def record(env: Any, controller: Controller, steps: int) -> Trace:
-    """Run one episode of ``controller`` on ``env`` for ``steps`` steps (or until it ends)."""
-    run = rollout(env, controller, steps)
-    return Trace(
-        t=run.t,
-        output=run.signal("measured"),
-        velocity=run.signal("rate"),
-        command=run.signal("command"),
-        reference=run.signal("reference"),
-        terminated=bool(run.terminated[0]),
-    )
+def signal(trace: Rollout, name: str) -> FloatArray:
+    """Return the compared signal ``name`` (one of :data:`SIGNALS`) of a run."""
+    return trace.signal(RECORDED[name])
 
 
 def rmse(a: FloatArray, b: FloatArray) -> float:
@@ -151,8 +121,8 @@ class Sim2RealResult:
     backend: str
     controller: str
     gains: dict[str, float]
-    device: list[Trace]
-    models: dict[str, Trace]
+    device: list[Rollout]
+    models: dict[str, Rollout]
     model_descriptions: dict[str, str]
     timing: Timing | None
     periods: FloatArray = field(default_factory=lambda: np.zeros(0))
@@ -172,14 +142,14 @@ class Sim2RealResult:
     def device_mean(self, name: str) -> FloatArray:
         """Mean over the device runs of a signal (over their common length)."""
         n = min(trace.t.size for trace in self.device)
-        return np.mean([trace.signal(name)[:n] for trace in self.device], axis=0)
+        return np.mean([signal(trace, name)[:n] for trace in self.device], axis=0)
 
     def spread(self, name: str) -> float:
         """Return the device's spread: mean RMSE of each run against the mean of the others."""
         if len(self.device) < 2:
             return math.nan
         n = min(trace.t.size for trace in self.device)
-        runs = np.array([trace.signal(name)[:n] for trace in self.device])
+        runs = np.array([signal(trace, name)[:n] for trace in self.device])
         errors = []
         for i in range(len(runs)):
             others = np.delete(runs, i, axis=0).mean(axis=0)
@@ -188,15 +158,15 @@ class Sim2RealResult:
 
     def gap(self, model: str, name: str) -> float:
         """RMSE of a model's signal against the device mean."""
-        return rmse(self.models[model].signal(name), self.device_mean(name))
+        return rmse(signal(self.models[model], name), self.device_mean(name))
 
     def fit(self, model: str, name: str) -> float:
         """NRMSE fit (%) of a model's signal to the device mean."""
-        return fit_percent(self.models[model].signal(name), self.device_mean(name))
+        return fit_percent(signal(self.models[model], name), self.device_mean(name))
 
     def device_metrics(self) -> list[ResponseMetrics]:
-        """Step metrics of each device run."""
-        return [trace.metrics() for trace in self.device]
+        """Step metrics of the measured output of each device run."""
+        return [trace.metrics(output="measured") for trace in self.device]
 
 
 def build_controller(env: Any, controller: str, gains: PIDGains) -> Controller:
@@ -235,7 +205,7 @@ def check_reference(env_id: str, reference: float) -> float:
     return limit
 
 
-def _ended_early(session: Any, trace: Trace, limit: float, encoder: bool) -> tuple[str, str]:
+def _ended_early(session: Any, trace: Rollout, limit: float, encoder: bool) -> tuple[str, str]:
     """How a terminated run ended: by the device's distance guard or the env's safety limit."""
     steps = trace.t.size - 1
     sample = session.last_sample
@@ -325,7 +295,7 @@ def run_sim2real(
                 say(f"device run {r}/{repeats}")
                 faults_before = len(session.faults)
                 try:
-                    trace = record(device_env, ctrl, n)
+                    trace = rollout(device_env, ctrl, n)
                 except (WatchdogTripError, DeviceTimeoutError, DeviceDisconnectedError) as exc:
                     # A host stall or a link fault ends this run only; a device gone, the rest.
                     ended = _fault_kind(exc)
@@ -335,7 +305,7 @@ def run_sim2real(
                     if ended == DISCONNECTED:
                         break
                     continue
-                if trace.terminated:
+                if trace.terminated[0]:
                     ended, detail = _ended_early(session, trace, limit, encoder)
                     say(f"device run {r}: {detail}")
                 else:
@@ -353,7 +323,7 @@ def run_sim2real(
         sim_kwargs = {**{k: v for k, v in task.items() if k != "params"}, **kwargs}
         sim_env = gym.make(env_id, **{k: v for k, v in sim_kwargs.items() if v is not None})
         try:
-            traces[name] = record(sim_env, ctrl, n)
+            traces[name] = rollout(sim_env, ctrl, n)
         finally:
             sim_env.close()
     return Sim2RealResult(
@@ -371,6 +341,6 @@ def differences(result: Sim2RealResult, keys: Sequence[str]) -> dict[str, dict[s
     device = [m.as_dict() for m in result.device_metrics()]
     out = {}
     for name, trace in result.models.items():
-        model = trace.metrics().as_dict()
+        model = trace.metrics(output="measured").as_dict()
         out[name] = {k: model[k] - float(np.mean([d[k] for d in device])) for k in keys}
     return out
