@@ -117,11 +117,11 @@ def _demo(args: argparse.Namespace) -> int:
 
         fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
         for label, run in runs:
-            (line,) = ax.plot(run.t, run.y, label=label)
-            error_pct = (args.reference - run.y) / args.reference * 100.0
+            (line,) = ax.plot(run.t, run.signal("position"), label=label)
+            error_pct = (args.reference - run.signal("position")) / args.reference * 100.0
             ax_err.plot(run.t, error_pct, color=line.get_color(), label=label)
             if run.stuck[1:].any():  # shade where friction holds the disk (not the start)
-                ax_err.fill_between(run.t, 0, 1, where=run.stuck, color=line.get_color(),
+                ax_err.fill_between(run.t, 0, 1, where=run.signal("stuck"), color=line.get_color(),
                                     alpha=0.12, transform=ax_err.get_xaxis_transform(),
                                     label=f"{label}: stuck")  # fmt: skip
         ax.axhline(args.reference, color="k", lw=0.8, ls="--", label="reference")

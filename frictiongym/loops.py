@@ -1,24 +1,23 @@
-"""Closed-loop step experiments of the paper, on the simulated plants.
+"""Closed-loop step experiments of the paper: the servo step and the Altino run to the wall.
 
-Small, explicit loops (sensor → controller → plant) used by the demo, the Altino model check
-and the tests. `frictiongym.controllers.rollout` runs any controller on the envs instead.
+Each builds the paper's controller for the simulated env and records one episode with
+:func:`frictiongym.controllers.rollout`, so an experiment here is exactly what the benchmark
+and ``rollout`` run on the same env (``tests/test_loops.py`` checks it bit for bit).
 """
 
 from __future__ import annotations
 
-import dataclasses
-from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
-import numpy as np
 import numpy.typing as npt
 
-from frictiongym.controllers.base import LoopSpec
+from frictiongym.controllers.base import FloatArray
 from frictiongym.controllers.compensation import FrictionCompensator
 from frictiongym.controllers.pid import PID, PIDGains
+from frictiongym.controllers.rollout import Rollout, rollout
+from frictiongym.envs import AltinoDistanceEnv, RotaryServoEnv
 from frictiongym.friction import ALTINO_PAPER, ROTARY_PAPER, FrictionModel
-from frictiongym.metrics import StepMetrics, step_metrics
-from frictiongym.plants import Plant, PlantParams
+from frictiongym.plants import PlantParams
 from frictiongym.plants.presets import (
     ALTINO_DT,
     ALTINO_PLANT,
@@ -27,37 +26,7 @@ from frictiongym.plants.presets import (
     ROTARY_DT,
     ROTARY_PAPER_GAINS,
     ROTARY_PLANT,
-    ROTARY_VELOCITY_CUTOFF,
 )
-from frictiongym.plants.sensors import (
-    IR_MAX_READOUT,
-    QUBE_ENCODER_STEP,
-    FilteredDerivative,
-    ir_distance,
-    ir_readout,
-    quantize_angle,
-)
-
-FloatArray = npt.NDArray[np.float64]
-
-
-@dataclass(frozen=True)
-class StepRun:
-    """A closed-loop step response: true output, measured output, command and stick flags."""
-
-    t: FloatArray
-    y: FloatArray
-    measured: FloatArray
-    command: FloatArray
-    stuck: npt.NDArray[np.bool_]
-    reference: float
-    y0: float
-    #: True when the run ended early because the car reached the wall (:func:`altino_step`).
-    collided: bool = False
-
-    def metrics(self) -> StepMetrics:
-        """Step metrics of the true output against the reference."""
-        return step_metrics(self.t, self.y, self.reference, y0=self.y0)
 
 
 def rotary_step(
@@ -68,28 +37,34 @@ def rotary_step(
     encoder: bool = True,
     plant: PlantParams = ROTARY_PLANT,
     dt: float = ROTARY_DT,
-) -> StepRun:
+) -> Rollout:
     """Run the paper's servo experiment: a position step under PID, from rest at 0 rad.
 
     The PID sees what a QUBE user has: the encoder angle (2048 counts/rev when ``encoder``)
-    and its filtered derivative ``50 s / (s + 50)`` for the D term.
+    and its filtered derivative ``50 s / (s + 50)`` for the D term, as the env observes them.
+    Returns ``round(duration / dt) + 1`` samples.
     """
-    gains = gains or PIDGains(**ROTARY_PAPER_GAINS)
-    sim = Plant(plant, friction, dt)
-    pid = PID(LoopSpec(dt, plant.command_limit), gains)
-    tach = FilteredDerivative(ROTARY_VELOCITY_CUTOFF, dt, resolution=QUBE_ENCODER_STEP)
-    n = round(duration / dt) + 1
-    t = np.arange(n, dtype=np.float64) * dt
-    y, measured, command = np.empty(n), np.empty(n), np.empty(n)
-    stuck = np.empty(n, dtype=bool)
-    for i in range(n):
-        y[i] = sim.position[0]
-        stuck[i] = sim.stuck[0]
-        measured[i] = quantize_angle(y[i]) if encoder else y[i]
-        u = pid.update(reference, measured[i], tach.update(measured[i]))
-        command[i] = float(u)
-        sim.step(u)
-    return StepRun(t, y, measured, command, stuck, reference, 0.0)
+    env = RotaryServoEnv(
+        friction=friction, reference=reference, quantize=encoder, plant=plant, dt=dt
+    )
+    pid = PID.for_env(env, gains or PIDGains(**ROTARY_PAPER_GAINS))
+    return _run(env, pid, duration, dt)
+
+
+class _ErrorKickPID(PID):
+    """PID whose first D term acts on the error from ``e_(-1) = 0``, as a textbook one does."""
+
+    def reset(self, mask: npt.ArrayLike | None = None) -> None:
+        super().reset(mask)
+        self._kick = True
+
+    def command(self, observation: FloatArray) -> FloatArray:
+        if not self._kick:
+            return super().command(observation)
+        self._kick = False
+        reference, output, _ = self.spec.split(observation)
+        # The rate of the measurement that the error's first difference implies.
+        return self.update(reference, output, (output - reference) / self.spec.dt)
 
 
 def altino_step(
@@ -102,7 +77,7 @@ def altino_step(
     plant: PlantParams = ALTINO_PLANT,
     dt: float = ALTINO_DT,
     derivative: Literal["measurement", "error"] = "measurement",
-) -> StepRun:
+) -> Rollout:
     """Run the paper's Altino experiment: drive from ``start_cm`` to ``target_cm`` from a wall.
 
     The PID acts on the distance error, with the distance estimated from the integer IR
@@ -138,45 +113,28 @@ def altino_step(
 
     Returns
     -------
-    StepRun
-        True and estimated distance, commands and stick flags; ``y0`` is ``start_cm``.
-        If the car reaches the wall (true distance <= 0 at a sample) the run stops there:
-        the arrays end with that sample, whose distance is recorded as 0 (contact), its
-        estimate as the IR's nearest reading (readout 800, 1.14 cm), its command as 0 and its
-        stick flag as True, and ``collided`` is True. The wall is the plant's end stop (the
-        contact located inside the step, as in the env); the run ends with it.
+    Rollout
+        True and estimated distance, commands and stick flags, ``round(duration / dt) + 1``
+        samples. If the car reaches the wall the env ends the episode there (the contact
+        located inside the step): the last sample's distance is 0, its estimate the IR's
+        nearest reading (readout 800, 1.14 cm), it is stuck, and ``terminated[0]`` is True.
     """
     if derivative not in ("measurement", "error"):
         raise ValueError(f"derivative must be 'measurement' or 'error', got {derivative!r}")
-    sim = Plant(dataclasses.replace(plant, end_stop=start_cm), friction, dt)  # the wall
-    # Observation layout of the loop: [estimated distance, its rate, target].
-    spec = LoopSpec(dt, plant.command_limit, position=0, velocity=1, reference=2, direction=-1.0)
-    pid = PID(spec, gains, derivative="difference")
+    env = AltinoDistanceEnv(friction=friction, reference=target_cm, plant=plant, dt=dt)
+    pid = (PID if derivative == "measurement" else _ErrorKickPID).for_env(env, gains)
     # The "command" variant with an exact-zero rest band (docs/altino-model.md).
-    comp = None if compensator is None else FrictionCompensator(pid, compensator, rest_speed=0.0)
-    n = round(duration / dt) + 1
-    t = np.arange(n, dtype=np.float64) * dt
-    y, measured, command = np.empty(n), np.empty(n), np.empty(n)
-    stuck = np.empty(n, dtype=bool)
-    previous = None
-    for i in range(n):
-        y[i] = start_cm - sim.position[0]
-        if y[i] <= 0.0:  # touched the wall: record the contact and stop
-            y[i], command[i], stuck[i] = 0.0, 0.0, True
-            measured[i] = float(ir_distance(IR_MAX_READOUT))
-            m = i + 1
-            return StepRun(t[:m], y[:m], measured[:m], command[:m], stuck[:m], target_cm,
-                           start_cm, collided=True)  # fmt: skip
-        stuck[i] = sim.stuck[0]
-        measured[i] = float(ir_distance(ir_readout(y[i])))
-        # The PID's rate is that of the measurement; a derivative on the error from e_(-1) = 0
-        # sees the rate -(e_0 - 0) / dt = (y_0 - r) / dt on the first sample.
-        kick = (measured[i] - target_cm) / dt if derivative == "error" and i == 0 else None
-        u = float(pid.update(target_cm, measured[i], kick))
-        if comp is not None:
-            rate = 0.0 if previous is None else (measured[i] - previous) / dt
-            u += float(comp.compensation(np.array([measured[i], rate, target_cm]), u))
-        previous = measured[i]
-        command[i] = u
-        sim.step(u)
-    return StepRun(t, y, measured, command, stuck, target_cm, start_cm)
+    controller = (
+        pid if compensator is None else FrictionCompensator(pid, compensator, rest_speed=0.0)
+    )
+    return _run(env, controller, duration, dt, {"position": float(start_cm)})
+
+
+def _run(
+    env: Any, controller: Any, duration: float, dt: float, options: dict[str, float] | None = None
+) -> Rollout:
+    """Record ``duration`` s of ``controller`` on ``env`` (closed after the run)."""
+    try:
+        return rollout(env, controller, max(1, round(duration / dt)), options=options)
+    finally:
+        env.close()

@@ -14,7 +14,7 @@ appears by the criteria below, and optionally plots the three responses (``--plo
 varies one model parameter at a time (``--sensitivity``).
 
 Criteria (from the phenomenon descriptions, not from our numbers). A run in which the car
-reaches the wall (``StepRun.collided``) shows none of them.
+reaches the wall (``Rollout.terminated``) shows none of them.
 
 * *overshoots and stays around 3 cm*: passes the target by at least 1 cm, and the stick that
   follows the closest approach holds the car 1 to 3 cm past the target for at least
@@ -44,6 +44,7 @@ from typing import Literal
 
 import numpy as np
 
+from frictiongym.controllers import Rollout
 from frictiongym.controllers.pid import PIDGains
 from frictiongym.friction import (
     ALTINO_LUGRE,
@@ -53,7 +54,7 @@ from frictiongym.friction import (
     StictionCoulomb,
     friction_from_name,
 )
-from frictiongym.loops import StepRun, altino_step
+from frictiongym.loops import altino_step
 from frictiongym.plants import PlantParams
 from frictiongym.plants.presets import (
     ALTINO_DT,
@@ -128,7 +129,7 @@ class Summary:
 DWELL_S = 10.0
 
 
-def run_scenario(scenario: Scenario, setup: Setup) -> StepRun:
+def run_scenario(scenario: Scenario, setup: Setup) -> Rollout:
     """Simulate one experiment."""
     return altino_step(
         scenario.gains,
@@ -160,12 +161,12 @@ def _stick_spans(stuck: np.ndarray) -> list[tuple[int, int]]:
     return spans
 
 
-def summarize(run: StepRun) -> Summary:
+def summarize(run: Rollout) -> Summary:
     """Measure one run."""
     m = run.metrics()
-    t, y, target = run.t, run.y, run.reference
+    t, y, target = run.t, run.signal("position"), float(run.signal("reference")[-1])
     dt = float(t[1] - t[0])
-    spans = _stick_spans(run.stuck)
+    spans = _stick_spans(run.signal("stuck"))
     stuck_at_end = (spans[-1][1] - spans[-1][0]) * dt if spans and spans[-1][1] == y.size else 0.0
     longest = max(((j - i) * dt for i, j in spans), default=0.0)
     lowest = int(np.argmin(y))
@@ -191,11 +192,11 @@ def summarize(run: StepRun) -> Summary:
         p2p=float(np.ptp(y[tail])),
         period=period,
         mean_tail=float(np.mean(y[tail])),
-        band=0.02 * abs(run.y0 - target),
+        band=0.02 * abs(y[0] - target),
         duration=float(t[-1]),
         rest=rest,
         dwell=dwell,
-        collided=run.collided,
+        collided=bool(run.terminated[0]),
     )
 
 
@@ -224,7 +225,7 @@ def _f(value: float, digits: int = 2) -> str:
     return f"{value:.{digits}f}"
 
 
-def print_table(setup: Setup, runs: dict[str, StepRun]) -> None:
+def print_table(setup: Setup, runs: dict[str, Rollout]) -> None:
     """Print the three experiments as a table."""
     header = (
         f"{'experiment':<13}{'final':>7}{'closest':>8}{'rest':>6}{'dwell':>7}{'rise':>6}"
@@ -278,7 +279,7 @@ def _friction_label(friction: FrictionModel) -> str:
     return type(friction).__name__
 
 
-def run_all(setup: Setup) -> dict[str, StepRun]:
+def run_all(setup: Setup) -> dict[str, Rollout]:
     """The three experiments on one setup."""
     return {sc.key: run_scenario(sc, setup) for sc in SCENARIOS}
 
@@ -417,7 +418,7 @@ def box(base: Setup) -> None:
     )
 
 
-def plot(runs: dict[str, StepRun], setup: Setup, path: str) -> None:
+def plot(runs: dict[str, Rollout], setup: Setup, path: str) -> None:
     """Write the three responses (distance and command) to a PNG."""
     import matplotlib
 
@@ -428,8 +429,8 @@ def plot(runs: dict[str, StepRun], setup: Setup, path: str) -> None:
                                      gridspec_kw={"height_ratios": [2, 1]})  # fmt: skip
     for sc in SCENARIOS:
         run = runs[sc.key]
-        ax_y.plot(run.t, run.y, label=f"{sc.label} (paper: {sc.paper})")
-        ax_u.plot(run.t, run.command, lw=0.9)
+        ax_y.plot(run.t, run.signal("position"), label=f"{sc.label} (paper: {sc.paper})")
+        ax_u.plot(run.t, run.signal("command"), lw=0.9)
     ax_y.axhline(ALTINO_TARGET_CM, color="k", lw=0.8, ls="--", label="target")
     ax_y.set(ylabel="distance to wall [cm]", ylim=(0.0, None),
              title="Altino model: the paper's three experiments")  # fmt: skip

@@ -309,7 +309,8 @@ def test_altino_rollout_marks_the_ir_sensors_saturated_samples_invalid():
     env = gym.make(ALTINO)
     run = rollout(env, PID.for_env(env, PIDGains(**ALTINO_PAPER_GAINS_KI10)))
     far = run.signal("measured") >= env.observation_space.high[1]  # 30 cm: beyond 21.47 cm
-    assert far[0] and not far[-1]
+    assert far[0]
+    assert not far[-1]
     np.testing.assert_array_equal(run.signal("valid"), ~far)
     assert run.direction == -1.0  # a positive command shortens the distance
     np.testing.assert_array_equal(run.plant_output(), -run.signal("measured"))
@@ -319,9 +320,13 @@ def test_a_run_recorded_by_hand_fills_what_it_did_not_record():
     run = Rollout.of_one_run(
         np.arange(3) * 0.1, settings={"kind": "ramp"}, command=[1.0, 2.0, 3.0], measured=[0, 1, 2]
     )
-    assert run.num_envs == 1 and run.length.tolist() == [3] and not run.terminated[0]
+    assert run.num_envs == 1
+    assert run.length.tolist() == [3]
+    assert not run.terminated[0]
     assert run.signal("command").tolist() == [1.0, 2.0, 3.0]
-    assert np.isnan(run.position).all() and run.valid.all() and not run.stuck.any()
+    assert np.isnan(run.position).all()
+    assert run.valid.all()
+    assert not run.stuck.any()
     assert run.settings == {"kind": "ramp"}
     with pytest.raises(TypeError, match="no signal"):
         Rollout.of_one_run(np.arange(3) * 0.1, output=[0.0, 1.0, 2.0])

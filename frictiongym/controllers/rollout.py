@@ -91,9 +91,9 @@ class Rollout:
         """Number of envs (columns)."""
         return int(self.position.shape[1])
 
-    def signal(self, name: str, env: int = 0) -> FloatArray:
+    def signal(self, name: str, env: int = 0) -> npt.NDArray[Any]:
         """Return the valid samples of signal ``name`` for env ``env``."""
-        values: FloatArray = getattr(self, name)
+        values: npt.NDArray[Any] = getattr(self, name)
         return values[: self.length[env], env]
 
     def plant_output(self, env: int = 0) -> FloatArray:
@@ -203,7 +203,7 @@ def rollout(
             break
     m = int(length.max())  # every env may have ended before ``steps``
     t = rec.pop("time")[:m, int(np.argmax(length))]
-    trimmed = {name: values[:m] for name, values in rec.items()}
+    trimmed: dict[str, Any] = {name: values[:m] for name, values in rec.items()}
     low, high = observation_bounds(env, controller.spec.position)
     valid = (low < trimmed["measured"]) & (trimmed["measured"] < high)
     return Rollout(
