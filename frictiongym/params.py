@@ -37,7 +37,6 @@ from __future__ import annotations
 import copy
 import json
 import math
-import numbers
 import os
 import secrets
 from collections.abc import Mapping
@@ -45,6 +44,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from frictiongym._validation import Rule, real_number
 from frictiongym.devices import DEVICES
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb
 from frictiongym.friction import _core as fc
@@ -117,21 +117,16 @@ def _fail(source: str, message: str) -> ParamsFileError:
     return ParamsFileError(f"{source}: {message}")
 
 
-def _real(source: str, key: str, value: object, rule: str = ">= 0") -> float:
+def _real(source: str, key: str, value: object, rule: Rule = ">= 0") -> float:
     """``value`` as a float, finite and ``>= 0`` (or ``> 0``), else :class:`ParamsFileError`."""
-    if not isinstance(value, numbers.Real) or isinstance(value, bool):
-        raise _fail(source, f"{key!r} must be a number, got {value!r}")
+    negative = isinstance(value, int | float) and value < 0.0
+    hint = (
+        " (levels are magnitudes: drop the minus sign)" if negative and key.endswith("_neg") else ""
+    )
     try:
-        v = float(value)
-    except OverflowError:  # an integer beyond the float range, such as 10**400
-        raise _fail(
-            source, f"{key!r} must be finite, got an integer too large for a float"
-        ) from None
-    if not math.isfinite(v):
-        raise _fail(source, f"{key!r} must be finite, got {value!r}")
-    if (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
-        hint = " (levels are magnitudes: drop the minus sign)" if key.endswith("_neg") else ""
-        raise _fail(source, f"{key!r} must be {rule}, got {value!r}{hint}")
+        v = real_number(repr(key), value, rule, hint=hint)
+    except (TypeError, ValueError) as error:
+        raise _fail(source, str(error)) from None
     low, high = PARAM_LIMITS.get(key, (-math.inf, math.inf))
     if not low <= v <= high and not (v == 0.0 and rule == ">= 0"):
         raise _fail(

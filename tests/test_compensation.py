@@ -290,9 +290,11 @@ def test_bad_settings_raise():
         FrictionCompensator(Constant(spec(velocity=None)), MODEL)
     with pytest.raises(ValueError, match="no friction model"):
         FrictionCompensator(Constant(spec(friction=None)))
-    for smoothing in (0.0, -1.0, math.nan):
+    for smoothing in (0.0, -1.0):
         with pytest.raises(ValueError, match="smoothing > 0"):
             compensator(mode="smooth", smoothing=smoothing)
+    with pytest.raises(ValueError, match="smoothing must be finite, got nan"):
+        compensator(mode="smooth", smoothing=math.nan)
     # smoothing defaults to the rest speed, so a zero rest speed needs an explicit one
     with pytest.raises(ValueError, match="smoothing > 0"):
         FrictionCompensator(Constant(spec(rest_speed=0.0)), MODEL, mode="smooth")

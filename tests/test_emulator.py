@@ -539,8 +539,10 @@ def test_keeps_up_at_500_hz(serve):
 def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="probability"):
         Faults(drop=-0.1)
-    with pytest.raises(ValueError, match="seconds"):
+    with pytest.raises(ValueError, match="delay must be finite, got inf"):
         Faults(delay=math.inf)
+    with pytest.raises(ValueError, match=r"delay must be >= 0 s, got -1"):
+        Faults(delay=-1)
     with pytest.raises(ValueError, match="unknown device"):
         Emulator("segway")
     with pytest.raises(ValueError, match="watchdog_ms"):

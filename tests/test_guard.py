@@ -183,7 +183,9 @@ def test_noisy_readouts_hide_no_approach(implementation: str) -> None:
 
 def test_readout_noise_is_a_bound_of_the_car() -> None:
     assert CarBounds().noise_counts == guard.IR_NOISE_COUNTS == 8.0
-    with pytest.raises(ValueError, match="noise_counts must be a number >= 0"):
+    with pytest.raises(
+        ValueError, match=r"CarBounds.noise_counts must be >= 0, got -1.0 \(0: none\)"
+    ):
         CarBounds(noise_counts=-1.0)
 
 

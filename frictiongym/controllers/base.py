@@ -14,7 +14,6 @@ Controllers are batched: an observation of shape ``(k,)`` gives an action of sha
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -22,6 +21,7 @@ from typing import Any, TypeVar
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import real_number
 from frictiongym.devices import device_of
 from frictiongym.friction import FrictionModel
 
@@ -66,14 +66,12 @@ class LoopSpec:
     friction: FrictionModel | None = None
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.dt) and self.dt > 0.0):
-            raise ValueError(f"LoopSpec.dt must be a positive number of seconds, got {self.dt!r}")
+        real_number("LoopSpec.dt", self.dt, "> 0", unit=" s")
         if not self.limit > 0.0:
             raise ValueError(f"LoopSpec.limit must be > 0, got {self.limit!r}")
         if self.direction not in (1.0, -1.0):
             raise ValueError(f"LoopSpec.direction must be 1.0 or -1.0, got {self.direction!r}")
-        if not (math.isfinite(self.rest_speed) and self.rest_speed >= 0.0):
-            raise ValueError(f"LoopSpec.rest_speed must be >= 0, got {self.rest_speed!r}")
+        real_number("LoopSpec.rest_speed", self.rest_speed, ">= 0")
 
     @classmethod
     def from_env(cls, env: Any) -> LoopSpec:

@@ -9,13 +9,13 @@ variants below are the usual answers (docs/controllers.md compares them).
 
 from __future__ import annotations
 
-import math
 import os
 from typing import Literal
 
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import real_number
 from frictiongym.controllers.base import Controller, FloatArray
 from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, resolve_params
@@ -94,11 +94,11 @@ class FrictionCompensator(Controller):
                 "no friction model: pass model=..., or build the base controller for a "
                 "frictiongym env (LoopSpec.friction)"
             )
-        rest = spec.rest_speed if rest_speed is None else float(rest_speed)
-        smooth = rest if smoothing is None else float(smoothing)
-        if not (math.isfinite(rest) and rest >= 0.0):
-            raise ValueError(f"rest_speed must be >= 0, got {rest_speed!r}")
-        if mode == "smooth" and not (math.isfinite(smooth) and smooth > 0.0):
+        rest = (
+            spec.rest_speed if rest_speed is None else real_number("rest_speed", rest_speed, ">= 0")
+        )
+        smooth = rest if smoothing is None else real_number("smoothing", smoothing)
+        if mode == "smooth" and not smooth > 0.0:
             raise ValueError(f"mode='smooth' needs smoothing > 0, got {smooth!r}")
         self.spec = spec
         self.base = base

@@ -14,7 +14,7 @@ from typing import Literal
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._validation import check_finite, check_nonnegative
+from frictiongym._validation import check_finite, check_nonnegative, real_number
 from frictiongym.controllers.base import Controller, FloatArray, LoopSpec, reset_mask
 
 AntiWindup = Literal["clamping", "back-calculation", "none"]
@@ -153,8 +153,7 @@ class PID(Controller):
             raise ValueError(
                 f"anti_windup must be 'clamping', 'back-calculation' or 'none', got {anti_windup!r}"
             )
-        if not (math.isfinite(derivative_tau) and derivative_tau >= 0.0):
-            raise ValueError(f"derivative_tau must be >= 0 s, got {derivative_tau!r}")
+        real_number("derivative_tau", derivative_tau, ">= 0", unit=" s")
         tt: float | FloatArray | None = (
             _tracking_time(gains) if tracking_time is None else tracking_time
         )

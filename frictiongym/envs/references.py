@@ -22,7 +22,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import njit
 
-from frictiongym._validation import check_finite, check_positive
+from frictiongym._validation import check_finite, check_positive, real_number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -145,9 +145,7 @@ class StepSequence(Reference):
                 f"StepSequence.values holds {len(self.values)} levels; give 1 to {MAX_LEVELS}"
             )
         for k, v in enumerate(self.values):
-            if not math.isfinite(v):
-                raise ValueError(f"StepSequence.values[{k}] must be finite, got {v!r}")
-        check_finite(self, "period")
+            real_number(f"StepSequence.values[{k}]", v)
         check_positive(self, "period")
 
     def sample(self, rng: np.random.Generator | None = None) -> FloatArray:  # noqa: D102

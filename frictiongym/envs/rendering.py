@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium.error import DependencyNotInstalled
 
+from frictiongym._validation import real_number
 from frictiongym.envs._font import GLYPH_HEIGHT, text_mask
 
 __all__ = ["CAR_LENGTH_CM", "Window", "draw_altino", "draw_servo"]
@@ -158,8 +159,7 @@ def _to_frame(canvas: _F) -> npt.NDArray[np.uint8]:
 
 def _check(sizes: dict[str, int], **values: float) -> None:
     for name, value in values.items():
-        if not math.isfinite(value):
-            raise ValueError(f"{name} must be finite, got {value!r}")
+        real_number(name, value)
     for name, size in sizes.items():
         if int(size) != size or size < 8:
             raise ValueError(f"{name} must be an integer >= 8 pixels, got {size!r}")

@@ -22,7 +22,6 @@ law                    sliding friction ``F(v)`` (``s = sign(v)``); at rest
 from __future__ import annotations
 
 import dataclasses
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import ClassVar, Literal
@@ -30,7 +29,7 @@ from typing import ClassVar, Literal
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._validation import check_finite, check_nonnegative, check_positive
+from frictiongym._validation import check_finite, check_nonnegative, check_positive, real_number
 from frictiongym.friction import _core
 
 Shape = Literal["step", "linear", "smooth", "exponential"]
@@ -119,8 +118,7 @@ class FrictionModel(ABC):
         Speeds, bristle parameters and the viscous slope are kept: this is the model-mismatch
         knob of a compensator (``factor=1.2`` over-estimates the friction by 20 %).
         """
-        if not (math.isfinite(factor) and factor >= 0.0):
-            raise ValueError(f"a friction scale factor must be finite and >= 0, got {factor!r}")
+        real_number("a friction scale factor", factor, ">= 0")
         levels = ("us_pos", "us_neg", "uc_pos", "uc_neg")
         return self.replace(**{f: getattr(self, f) * factor for f in levels if hasattr(self, f)})
 

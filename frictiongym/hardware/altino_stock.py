@@ -16,11 +16,11 @@ on a link without sequence numbers.
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from frictiongym._validation import real_number
 from frictiongym.hardware.altino_frames import (
     CAR_FRAME_S,
     GO_LIMIT,
@@ -169,10 +169,8 @@ class AltinoStockBackend(Backend):
         max_age: float | None = None,
         car_bounds: CarBounds | None = None,
     ) -> None:
-        if max_age is not None and not (
-            isinstance(max_age, int | float) and math.isfinite(max_age) and max_age > 0.0
-        ):
-            raise ValueError(f"max_age must be a positive number of seconds, got {max_age!r}")
+        if max_age is not None:
+            real_number("max_age", max_age, "> 0", unit=" s")
         self.max_sample_age = max_age
         if not isinstance(port, str) or not port:
             raise ValueError(f"port must be a device path or pyserial URL, got {port!r}")
@@ -192,8 +190,7 @@ class AltinoStockBackend(Backend):
             raise ValueError(
                 f"sensor_group must be 1 (IR group) or 10 (everything), got {sensor_group!r}"
             )
-        if not (isinstance(timeout, int | float) and math.isfinite(timeout) and timeout > 0.0):
-            raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        real_number("timeout", timeout, "> 0", unit=" s")
         nearest, farthest = IR_NUMERATOR / (IR_MAX_READOUT + IR_OFFSET), IR_NUMERATOR / IR_OFFSET
         if not (isinstance(limit_cm, int | float) and nearest < limit_cm < farthest):
             raise ValueError(

@@ -45,6 +45,7 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+from frictiongym._validation import check_nonnegative, check_positive, real_number
 from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET, ir_estimate
 
 #: Closest the car may come to the wall, cm. Assumed (docs/hardware.md): above the IR sensor's
@@ -131,14 +132,8 @@ class CarBounds:
     noise_counts: float = IR_NOISE_COUNTS
 
     def __post_init__(self) -> None:
-        for name in ("mass_min", "mass_max", "command_limit"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number, got {value!r}")
-        for name in ("friction", "viscous", "noise_counts"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a number >= 0 (0: none), got {value!r}")
+        check_positive(self, "mass_min", "mass_max", "command_limit")
+        check_nonnegative(self, "friction", "viscous", "noise_counts", hint=lambda *_: " (0: none)")
         if self.mass_min > self.mass_max:
             raise ValueError(
                 f"mass_min ({self.mass_min}) must not exceed mass_max ({self.mass_max})"
@@ -286,9 +281,7 @@ class DistanceGuard:
         reaction_periods: int = REACTION_PERIODS,
         car: CarBounds | None = None,
     ) -> None:
-        if not (math.isfinite(dt) and dt > 0):
-            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
-        self.dt = dt
+        self.dt = real_number("dt", dt, "> 0", unit=" s")
         self.car = CarBounds(command_limit=abs(command_limit)) if car is None else car
         self.brake = -abs(command_limit)
         self.limit_cm = limit_cm

@@ -17,6 +17,7 @@ import time
 from collections.abc import Callable, Mapping
 from typing import Any
 
+from frictiongym._validation import real_number
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
@@ -126,10 +127,8 @@ class QuanserHILBackend(Backend):
                 f"voltage_limit must be in (0, {AO_RANGE_V}] V (the HIL output's range), "
                 f"got {voltage_limit!r}"
             )
-        if watchdog_s is not None and not (
-            isinstance(watchdog_s, int | float) and math.isfinite(watchdog_s) and watchdog_s >= 0
-        ):
-            raise ValueError(f"watchdog_s must be None, 0 (off) or a time in s, got {watchdog_s!r}")
+        if watchdog_s is not None:
+            real_number("watchdog_s", watchdog_s, ">= 0", unit=" s", hint=" (0: off, None: auto)")
         self.board = board
         self.identifier = identifier
         self.rate_hz = float(rate_hz)

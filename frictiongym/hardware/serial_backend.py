@@ -24,6 +24,7 @@ import math
 import time
 from typing import Any
 
+from frictiongym._validation import real_number
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
 from frictiongym.hardware.echo import EchoTimes
@@ -103,8 +104,8 @@ class SerialBackend(Backend):
         for name, value in (
             ("timeout", timeout), ("handshake_timeout", handshake_timeout), ("max_age", max_age)
         ):  # fmt: skip
-            if value is not None and not (math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+            if value is not None:
+                real_number(name, value, "> 0", unit=" s")
         if not (isinstance(baud, int) and baud > 0):
             raise ValueError(f"baud must be a positive integer, got {baud!r}")
         if port.lower().startswith("socket:"):

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import errno
 import fcntl
-import math
 import os
 import socket
 import time
@@ -26,6 +25,8 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 import numpy as np
+
+from frictiongym._validation import real_number
 
 #: Bytes read per call (a few hundred frames).
 READ_SIZE = 4096
@@ -45,8 +46,7 @@ def _probability(name: str, value: float) -> float:
 def _seconds(name: str, value: float | None, optional: bool = False) -> None:
     if optional and value is None:
         return
-    if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0.0):
-        raise ValueError(f"{name} must be a finite number of seconds >= 0, got {value!r}")
+    real_number(name, value, ">= 0", unit=" s")
 
 
 @dataclass(frozen=True)

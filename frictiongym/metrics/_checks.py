@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
+
+from frictiongym._validation import real_number
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -83,11 +83,8 @@ def as_flags(name: str, values: npt.ArrayLike, t: FloatArray) -> BoolArray:
 
 
 def check_scalar(name: str, value: float) -> float:
-    """Return ``value`` as a float after checking it is finite."""
-    out = float(value)
-    if not math.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return out
+    """Return ``value`` as a float after checking it is finite (NumPy 0-d arrays taken)."""
+    return real_number(name, float(value))
 
 
 def check_fraction(name: str, value: float) -> float:

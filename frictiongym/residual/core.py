@@ -10,7 +10,6 @@ No torch here: this module is imported by ``frictiongym.controllers``.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, replace
 from typing import Any
@@ -19,6 +18,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
+from frictiongym._validation import check_positive
 from frictiongym.controllers.base import Controller, FloatArray, LoopSpec
 
 #: Number of entries of :func:`residual_observation`.
@@ -65,17 +65,8 @@ class ResidualConfig:
     reference_offset: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in (
-            "limit",
-            "scale",
-            "error_scale",
-            "fine_error",
-            "velocity_scale",
-            "reference_scale",
-        ):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"ResidualConfig.{name} must be a positive number, got {value!r}")
+        names = ("limit", "scale", "error_scale", "fine_error", "velocity_scale", "reference_scale")
+        check_positive(self, *names)
         if self.scale > self.limit:
             raise ValueError(
                 f"ResidualConfig.scale={self.scale!r} exceeds the action limit {self.limit!r}: "

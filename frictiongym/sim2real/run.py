@@ -24,6 +24,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
+from frictiongym._validation import real_number
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, Rollout, rollout
 from frictiongym.envs import ENV_IDS
 from frictiongym.hardware.errors import (
@@ -183,8 +184,7 @@ def check_reference(env_id: str, reference: float) -> float:
     """
     device = devices.get(env_id)
     limit, encoder = device.limit, device.sensor == SENSOR_ENCODER
-    if not math.isfinite(reference):
-        raise ValueError(f"the reference must be a finite number, got {reference!r}")
+    real_number("the reference", reference)
     if encoder and abs(reference) >= limit:
         raise ValueError(
             f"reference {reference:g} rad lies beyond the servo's safety limit of {limit:.4g} rad, "

@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import real_number
 from frictiongym.controllers.base import LoopSpec
 from frictiongym.controllers.pid import PID, PIDGains
 from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
@@ -92,8 +93,7 @@ class TuningModel:
     velocity_cutoff: float = ROTARY_VELOCITY_CUTOFF
 
     def __post_init__(self) -> None:
-        if not (math.isfinite(self.dt) and self.dt > 0.0):
-            raise ValueError(f"TuningModel.dt must be a positive number of seconds, got {self.dt}")
+        real_number("TuningModel.dt", self.dt, "> 0", unit=" s")
         if self.velocity not in ("ideal", "filtered"):
             raise ValueError(
                 f"TuningModel.velocity must be 'ideal' or 'filtered', got {self.velocity!r}"

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import check_positive
 from frictiongym.metrics.step import StepMetricsBatch
 
 FloatArray = npt.NDArray[np.float64]
@@ -49,10 +50,9 @@ class StepSpecs:
     rise_limits: tuple[float, float] = (0.1, 0.9)
 
     def __post_init__(self) -> None:
-        for name in ("rise_time", "peak_time", "settling_time", "overshoot_pct", "settling_band"):
-            value = getattr(self, name)
-            if not (isinstance(value, int | float) and math.isfinite(value) and value > 0.0):
-                raise ValueError(f"StepSpecs.{name} must be a finite number > 0, got {value!r}")
+        check_positive(
+            self, "rise_time", "peak_time", "settling_time", "overshoot_pct", "settling_band"
+        )
         lo, hi = self.rise_limits
         if not 0.0 <= lo < hi:
             raise ValueError(f"StepSpecs.rise_limits must satisfy 0 <= low < high, got {lo, hi}")
