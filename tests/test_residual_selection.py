@@ -49,7 +49,7 @@ def test_the_precision_reward_swaps_only_the_tracking_term(env_id):
         assert r_shaped == pytest.approx(expected, rel=1e-12, abs=1e-12)
     # A perfect track costs nothing; one sensor step costs log 2 (before the effort term).
     assert -math.log1p(precision / precision) == pytest.approx(-math.log(2.0))
-    with pytest.raises(ValueError, match="precision must be a positive"):
+    with pytest.raises(ValueError, match=r"precision must be > 0, got 0.0 \(an error scale\)"):
         ResidualEnv(gym.make(env_id), precision=0.0)
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 
+from frictiongym._validation import real_number
 from frictiongym.controllers.base import Controller, FloatArray
 from frictiongym.devices import device_of
 from frictiongym.residual.core import (
@@ -113,14 +114,14 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
                 f"the base controller's limit {controller.spec.limit} differs from the "
                 f"config's {config.limit}: build both for this env"
             )
-        if not (np.isfinite(residual_cost) and residual_cost >= 0.0):
-            raise ValueError(f"residual_cost must be >= 0, got {residual_cost!r}")
-        if precision is not None and not (np.isfinite(precision) and precision > 0.0):
-            raise ValueError(f"precision must be a positive error scale, got {precision!r}")
         self.base = controller
         self.config = config
-        self.residual_cost = float(residual_cost)
-        self.precision = None if precision is None else float(precision)
+        self.residual_cost = real_number("residual_cost", residual_cost, ">= 0")
+        self.precision = (
+            None
+            if precision is None
+            else real_number("precision", precision, "> 0", hint=" (an error scale)")
+        )
         self._error_scale = float(device_of(env).error_scale)  # the env's e0
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         bound = OBSERVATION_BOUND
