@@ -32,8 +32,8 @@ class Rollout:
     it); ``reward[k]`` is the reward of the step that ended at ``t[k]`` (0 at ``k = 0``);
     ``stuck[k]`` tells whether friction held the body at ``t[k]``; ``valid[k]`` whether the
     measured output lay inside its observation bounds (the sensor not saturated). Env ``i``
-    has ``length[i]`` valid samples (fewer when it terminated, e.g. the Altino touching the
-    wall); the rest are NaN. A signal that was not recorded is NaN throughout.
+    has ``length[i]`` recorded samples (fewer when it terminated, e.g. the Altino touching
+    the wall); the rest are NaN. A signal that was not recorded is NaN throughout.
 
     ``direction`` is the loop's sign (:class:`~frictiongym.controllers.LoopSpec`): -1 when a
     positive command lowers the output (the Altino's distance). ``settings`` says what was
@@ -69,12 +69,12 @@ class Rollout:
         ``stuck`` and ``valid`` default to False and True.
         """
         n = int(np.shape(t)[0])
-        unknown = set(signals) - {f for f in cls.__dataclass_fields__ if f not in _NOT_SIGNALS}
-        if unknown:
-            raise TypeError(f"Rollout has no signal {sorted(unknown)}; give {_FLOAT_SIGNALS}")
         columns: dict[str, Any] = {name: np.full((n, 1), np.nan) for name in _FLOAT_SIGNALS}
         columns["stuck"] = np.zeros((n, 1), dtype=bool)
         columns["valid"] = np.ones((n, 1), dtype=bool)
+        unknown = sorted(set(signals) - set(columns))
+        if unknown:
+            raise TypeError(f"Rollout has no signal {unknown}; give some of {sorted(columns)}")
         for name, values in signals.items():
             columns[name] = np.asarray(values, dtype=columns[name].dtype).reshape(n, 1)
         return cls(
@@ -92,7 +92,7 @@ class Rollout:
         return int(self.position.shape[1])
 
     def signal(self, name: str, env: int = 0) -> npt.NDArray[Any]:
-        """Return the valid samples of signal ``name`` for env ``env``."""
+        """Return the recorded samples of signal ``name`` for env ``env``."""
         values: npt.NDArray[Any] = getattr(self, name)
         return values[: self.length[env], env]
 
@@ -124,8 +124,7 @@ class Rollout:
         )
 
 
-#: Fields of :class:`Rollout` that are not per-sample signals.
-_NOT_SIGNALS = ("t", "length", "terminated", "direction", "settings")
+#: The per-sample float signals of :class:`Rollout`.
 _FLOAT_SIGNALS = ("position", "velocity", "measured", "rate", "command", "reference", "reward")
 
 
