@@ -16,6 +16,7 @@ import pytest
 from frictiongym.cli import main
 from frictiongym.controllers import PIDGains
 from frictiongym.hardware.errors import DeviceTimeoutError
+from frictiongym.metrics import response_metrics
 from frictiongym.sim2real import fit_percent, rmse, run_sim2real, write_report
 
 SERVO = "frictiongym/RotaryServo-v0"
@@ -51,6 +52,15 @@ def test_the_friction_model_closes_most_of_the_gap_on_the_emulated_servo(tmp_pat
     data = json.loads((tmp_path / "out" / "sim2real.json").read_text())
     assert data["gap_closed"]["friction"]["output"] > 0.8
     assert data["timing"]["steps"] == 3 * 750
+    # Every step metric is of the output the controller measured, as on the device.
+    runs = [*result.device, *result.models.values()]
+    metrics = [*data["device_metrics"], *data["model_metrics"].values()]
+    for run, recorded in zip(runs, metrics, strict=True):
+        measured = run.signal("measured")
+        expected = response_metrics(
+            run.t, measured, run.signal("reference")[-1], run.signal("command"), y0=measured[0]
+        ).as_dict()
+        assert json.dumps(recorded) == json.dumps(expected)
 
 
 def test_an_identified_model_and_explicit_gains_are_used(tmp_path):

@@ -87,7 +87,9 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         "gap_closed": None,
         "device_spread": None,
         "device_metrics": [m.as_dict() for m in result.device_metrics()],
-        "model_metrics": {n: t.metrics().as_dict() for n, t in result.models.items()},
+        "model_metrics": {
+            n: t.metrics(output="measured").as_dict() for n, t in result.models.items()
+        },
         "metric_differences": None,
         "timing": None if timing is None else timing.__dict__,
         "priority": result.priority or None,
