@@ -71,7 +71,7 @@ RUNS: dict[str, tuple[list[str], str]] = {
 }
 
 #: Keys whose values describe the run rather than its result (``seconds``: identification's
-#: run time; ``model``: the policy file's path, which names the checkout).
+#: run time; ``command``: the command line, which names the output folder).
 VOLATILE = {
     "wall_time",
     "wall_time_s",
@@ -80,8 +80,9 @@ VOLATILE = {
     "created",
     "command",
     "seconds",
-    "model",
 }
+#: Keys whose string values are paths into the checkout: compared by file name.
+PATHS = {"model"}
 
 
 def run(out: Path, source: Path) -> None:
@@ -105,6 +106,9 @@ def differences(before: Any, after: Any, where: str = "") -> Iterator[str]:
                 continue
             if key not in before or key not in after:
                 yield f"{where}/{key}: only in {'after' if key not in before else 'before'}"
+            elif key in PATHS and isinstance(before[key], str) and isinstance(after[key], str):
+                if Path(before[key]).name != Path(after[key]).name:
+                    yield f"{where}/{key}: {before[key]!r} before, {after[key]!r} after"
             else:
                 yield from differences(before[key], after[key], f"{where}/{key}")
     elif isinstance(before, list) and isinstance(after, list):
