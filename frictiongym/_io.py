@@ -9,6 +9,7 @@ results is refused unless the user asks to replace them (``--overwrite``).
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import secrets
@@ -80,6 +81,26 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
             handle.write(text)
 
     _replace_with(tmp, target, fill)
+
+
+def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents: str) -> None:
+    """Add ``--out DIR`` and ``--overwrite``, the output options every tool shares.
+
+    ``contents`` says what the tool writes there, e.g. ``"results.json and the figures"``.
+    """
+    parser.add_argument(
+        "--out",
+        type=Path,
+        default=Path(default),
+        metavar="DIR",
+        help=f"directory for {contents}, created if needed (default: ./{default})",
+    )
+    parser.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of an earlier run in --out, all of them (without it, an "
+        "--out holding them is refused, so two runs' files never mix); other files stay",
+    )
 
 
 class OutputError(Exception):

@@ -63,6 +63,12 @@ def real_number(
     return number
 
 
+def check_seed(value: int, option: str = "--seed") -> None:
+    """Raise ``ValueError`` unless ``value`` can seed numpy, gymnasium and SB3 (0..2**32 - 1)."""
+    if not 0 <= value <= MAX_SEED:
+        raise ValueError(f"{option} must be a whole number from 0 to {MAX_SEED}, got {value}")
+
+
 def check_finite(obj: object, *names: str) -> None:
     """Raise unless every named field of ``obj`` is a finite real number."""
     for name in names:

@@ -17,7 +17,6 @@ from typing import Any
 
 from frictiongym import __version__
 from frictiongym._io import OutputError, check_file_target, write_file_atomic
-from frictiongym._validation import MAX_SEED
 
 
 def _format(value: float, unit: str) -> str:
@@ -163,35 +162,9 @@ def tool_parser(name: str) -> argparse.ArgumentParser:
 def tool_main(name: str, argv: Sequence[str] | None = None) -> int:
     """Run ``frictiongym NAME ARGV...`` (ARGV: the command line's arguments by default).
 
-    The ``scripts/`` wrappers and each command module's ``main`` call this.
+    The ``scripts/`` wrappers call this.
     """
     return main([name, *(sys.argv[1:] if argv is None else argv)])
-
-
-def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents: str) -> None:
-    """Add ``--out DIR`` and ``--overwrite``, the output options every tool shares.
-
-    ``contents`` says what the tool writes there, e.g. ``"results.json and the figures"``.
-    """
-    parser.add_argument(
-        "--out",
-        type=Path,
-        default=Path(default),
-        metavar="DIR",
-        help=f"directory for {contents}, created if needed (default: ./{default})",
-    )
-    parser.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace the results of an earlier run in --out, all of them (without it, an "
-        "--out holding them is refused, so two runs' files never mix); other files stay",
-    )
-
-
-def check_seed(value: int, option: str = "--seed") -> None:
-    """Raise ``ValueError`` unless ``value`` can seed numpy, gymnasium and SB3 (0..2**32 - 1)."""
-    if not 0 <= value <= MAX_SEED:
-        raise ValueError(f"{option} must be a whole number from 0 to {MAX_SEED}, got {value}")
 
 
 #: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).

@@ -5,7 +5,7 @@ python scripts/benchmark.py --out benchmark-results
 
 from __future__ import annotations
 
-from frictiongym.benchmark.command import main
+from frictiongym.cli import tool_main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(tool_main("benchmark"))

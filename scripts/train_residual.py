@@ -2,7 +2,7 @@
 
 import sys
 
-from frictiongym.residual.command import main
+from frictiongym.cli import tool_main
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(tool_main("train"))

@@ -5,7 +5,7 @@ python scripts/tune.py --samples 100000 --seed 0 --out tune-results
 
 from __future__ import annotations
 
-from frictiongym.tuning.command import main
+from frictiongym.cli import tool_main
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    raise SystemExit(tool_main("tune"))

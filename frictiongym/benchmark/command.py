@@ -10,7 +10,8 @@ import time
 from collections.abc import Sequence
 
 from frictiongym import devices
-from frictiongym._io import OutputDir
+from frictiongym._io import OutputDir, add_output_arguments
+from frictiongym._validation import check_seed
 from frictiongym.benchmark.figures import write_figures
 from frictiongym.benchmark.report import (
     format_metric,
@@ -70,8 +71,6 @@ OUTPUTS = (
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the benchmark's options to ``parser``."""
-    from frictiongym.cli import add_output_arguments
-
     add_output_arguments(parser, "benchmark-results", "results.json/.csv/.md and the figures")
     parser.add_argument(
         "--quick",
@@ -154,7 +153,6 @@ def select(args: argparse.Namespace) -> list[Scenario]:
 
 def _residual(args: argparse.Namespace) -> list[Scenario]:
     """Return the residual scenarios of ``--residual DEVICE=MODEL`` (ValueError if malformed)."""
-    from frictiongym.cli import check_seed
     from frictiongym.controllers.residual import read_metadata
 
     plants = args.heldout if args.heldout is not None else (4 if args.quick else HELDOUT_PLANTS)
@@ -227,10 +225,3 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
               f"{time.perf_counter() - start:.1f} s; written to {args.out}/:")  # fmt: skip
         print("  " + "  ".join(p.name for p in written))
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym benchmark`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("benchmark", argv)

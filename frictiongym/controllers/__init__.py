@@ -10,16 +10,12 @@ Build a controller for an env with ``PID.for_env(env, gains)``: it reads the env
 :class:`LoopSpec` (observation layout, ``dt``, action limit, sign of the plant's gain).
 """
 
-from typing import TYPE_CHECKING, Any
-
 from frictiongym.controllers.base import Controller, LoopSpec
 from frictiongym.controllers.compensation import MODES, FrictionCompensator
 from frictiongym.controllers.pid import PID, PIDGains
 from frictiongym.controllers.policy import ControllerPolicy
+from frictiongym.controllers.residual import ResidualController
 from frictiongym.controllers.rollout import Rollout, rollout
-
-if TYPE_CHECKING:
-    from frictiongym.controllers.residual import ResidualController
 
 __all__ = [
     "MODES",
@@ -33,12 +29,3 @@ __all__ = [
     "Rollout",
     "rollout",
 ]
-
-
-def __getattr__(name: str) -> Any:
-    # ResidualController is imported on first use: frictiongym.residual imports this package.
-    if name == "ResidualController":
-        from frictiongym.controllers.residual import ResidualController
-
-        return ResidualController
-    raise AttributeError(f"module 'frictiongym.controllers' has no attribute {name!r}")

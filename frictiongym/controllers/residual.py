@@ -18,8 +18,7 @@ import numpy.typing as npt
 
 from frictiongym.controllers.base import Controller, FloatArray
 from frictiongym.controllers.policy_file import load_policy
-from frictiongym.devices import device_of
-from frictiongym.residual.core import (
+from frictiongym.controllers.residual_core import (
     OBSERVATION_BOUND,
     OBSERVATION_SIZE,
     ResidualConfig,
@@ -27,6 +26,7 @@ from frictiongym.residual.core import (
     make_base,
     residual_observation,
 )
+from frictiongym.devices import device_of
 
 #: Attribute of a saved SB3 model holding what :meth:`ResidualController.load` needs (the
 #: config, the base controller, the algorithm); SB3 saves it inside the model's zip.
@@ -67,11 +67,11 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
 class ResidualController(Controller):
     """A base controller's action plus ``scale * clip(policy(obs'), -1, 1)``, saturated.
 
-    ``obs'`` is :func:`~frictiongym.residual.core.residual_observation` of the observation
-    and of the base action, the same as :class:`~frictiongym.residual.ResidualEnv` gives the
-    policy in training; the policy is run deterministically. It reads only observations, so
-    it runs on a device backend as on the simulator, on single and vector envs alike, through
-    :func:`~frictiongym.controllers.rollout` and
+    ``obs'`` is :func:`~frictiongym.controllers.residual_core.residual_observation` of the
+    observation and of the base action, the same as :class:`~frictiongym.residual.ResidualEnv`
+    gives the policy in training; the policy is run deterministically. It reads only
+    observations, so it runs on a device backend as on the simulator, on single and vector envs
+    alike, through :func:`~frictiongym.controllers.rollout` and
     :class:`~frictiongym.controllers.ControllerPolicy`.
 
     Parameters

@@ -20,6 +20,8 @@ import numpy.typing as npt
 from frictiongym import devices
 from frictiongym._validation import check_positive
 from frictiongym.controllers.base import Controller, FloatArray, LoopSpec
+from frictiongym.controllers.compensation import FrictionCompensator
+from frictiongym.controllers.pid import PID, PIDGains
 
 #: Number of entries of :func:`residual_observation`.
 OBSERVATION_SIZE = 6
@@ -187,9 +189,6 @@ def make_base(
         ``kp``, ``ki``, ``kd``; by default the paper's for the device's compensated PID
         (``Device.paper_gains["compensated"]``).
     """
-    from frictiongym.controllers.compensation import FrictionCompensator
-    from frictiongym.controllers.pid import PID, PIDGains
-
     if kind not in BASES:
         raise ValueError(f"base controller must be one of {BASES}, got {kind!r}")
     pid = PID.for_env(env, PIDGains(**(gains or devices.device_of(env).paper_gains["compensated"])))

@@ -8,11 +8,11 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import replace
 from types import FrameType
 from typing import Any
 
+from frictiongym._validation import check_seed
 from frictiongym.hardware.base import KINDS
 
 DESCRIPTION = """\
@@ -151,7 +151,6 @@ def _status_line(emu: Any) -> str:
 
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
-    from frictiongym.cli import check_seed
     from frictiongym.hardware.emulator import Emulator, Faults
 
     if args.run_for is not None and not (math.isfinite(args.run_for) and args.run_for > 0):
@@ -208,15 +207,4 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             signal.signal(sig, handler)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym emulate`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("emulate", argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
-
-
-__all__ = ["DESCRIPTION", "add_arguments", "main", "run"]
+__all__ = ["DESCRIPTION", "add_arguments", "run"]

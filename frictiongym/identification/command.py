@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from collections.abc import Sequence
 from typing import Any
 
 from frictiongym import devices
-from frictiongym._io import OutputDir
+from frictiongym._io import OutputDir, add_output_arguments
+from frictiongym._validation import check_seed
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.fit import LAWS
@@ -47,8 +47,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="env id of the device, e.g. frictiongym/RotaryServo-v0 or "
         "frictiongym/AltinoDistance-v0",
     )  # fmt: skip
-    from frictiongym.cli import add_output_arguments
-
     add_output_arguments(parser, "identify-results", "friction.json, friction_map.png and "
                          "summary.md")  # fmt: skip
     parser.add_argument(
@@ -121,8 +119,6 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
 
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
-    from frictiongym.cli import check_seed
-
     sim = args.backend in ("sim", "sim://")
     kwargs: dict[str, Any] = {"backend": args.backend}
     if sim:
@@ -202,15 +198,4 @@ def _identify(
     return 0
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym identify`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("identify", argv)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
-
-
-__all__ = ["DESCRIPTION", "add_arguments", "main", "run", "summary"]
+__all__ = ["DESCRIPTION", "add_arguments", "run", "summary"]

@@ -12,7 +12,7 @@ Nothing here imports torch or Stable-Baselines3 until a model is trained or load
 (docs/residual.md).
 """
 
-from frictiongym.residual.core import (
+from frictiongym.controllers.residual_core import (
     OBSERVATION_NAMES,
     ResidualConfig,
     bounded_residual,

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from collections.abc import Sequence
 from typing import Any
 
+from frictiongym._io import add_output_arguments
 from frictiongym.residual.selection import VALIDATION_PLANTS
 from frictiongym.residual.train import QUICK_STEPS, REWARDS, TrainingError, TrainSettings, train
 
@@ -63,8 +63,6 @@ def _hyperparameter(text: str) -> tuple[str, Any]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
-    from frictiongym.cli import add_output_arguments
-
     parser.add_argument(
         "--env",
         required=True,
@@ -186,10 +184,3 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             f"model: {args.out / 'model.zip'}"
         )
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym train`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("train", argv)

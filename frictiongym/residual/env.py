@@ -12,8 +12,7 @@ from gymnasium import spaces
 
 from frictiongym._validation import real_number
 from frictiongym.controllers.base import Controller, FloatArray
-from frictiongym.devices import device_of
-from frictiongym.residual.core import (
+from frictiongym.controllers.residual_core import (
     OBSERVATION_BOUND,
     OBSERVATION_SIZE,
     ResidualConfig,
@@ -21,6 +20,7 @@ from frictiongym.residual.core import (
     make_base,
     residual_observation,
 )
+from frictiongym.devices import device_of
 
 ObsArray = npt.NDArray[np.float32]
 #: A base controller, or a factory building one for the wrapped env.
@@ -42,8 +42,8 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
 
     ## Observation Space
 
-    ``Box(-10, 10, (6,), float32)``: :func:`~frictiongym.residual.core.residual_observation`
-    of the env's observation and of ``u_b`` (the error on a coarse and a fine scale, the rate,
+    ``Box(-10, 10, (6,), float32)``: :func:`~frictiongym.residual.residual_observation` of the
+    env's observation and of ``u_b`` (the error on a coarse and a fine scale, the rate,
     the reference, ``u_b / limit``, and whether the output is at rest), in the sign convention
     of the command.
 
@@ -69,7 +69,7 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
     base : Controller or callable, optional
         The base controller, built for ``env``, or a factory ``env -> Controller``. By default
         the paper's friction-compensated PID of the device
-        (:func:`~frictiongym.residual.core.make_base`). It is reset with the env.
+        (:func:`~frictiongym.controllers.residual_core.make_base`). It is reset with the env.
     config : ResidualConfig, optional
         Observation scales and the residual bound; the device's defaults by default.
     scale : float, optional

@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from frictiongym.residual.core import ResidualConfig, make_base
+from frictiongym.controllers.residual_core import ResidualConfig, make_base
 
 #: First seed of the validation plants: below the benchmark's held-out seeds (1000 and up,
 #: ``frictiongym.benchmark.scenarios.HELDOUT_SEED``), so choosing on them leaves those unseen.

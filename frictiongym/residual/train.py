@@ -27,7 +27,7 @@ from frictiongym import devices
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
-from frictiongym.residual.core import ResidualConfig
+from frictiongym.controllers.residual_core import ResidualConfig
 from frictiongym.residual.env import ResidualEnv
 from frictiongym.residual.selection import (
     METRICS,

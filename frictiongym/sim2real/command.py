@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from collections.abc import Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 
-from frictiongym._io import OutputDir
+from frictiongym._io import OutputDir, add_output_arguments
 from frictiongym.controllers import PIDGains
 from frictiongym.hardware import SIM
 from frictiongym.hardware.errors import HardwareError
@@ -111,8 +110,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="VALUE",
         help="step target, rad or cm (default: the env's step)",
     )
-    from frictiongym.cli import add_output_arguments
-
     add_output_arguments(parser, "sim2real-results", "the report and the device logs")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--quiet", action="store_true", help="print only errors")  # fmt: skip
@@ -168,10 +165,3 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         print(f"{'device':>12}: spread {data['device_spread']['output']:.4g}")
         print(f"report: {path}")
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym sim2real`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("sim2real", argv)

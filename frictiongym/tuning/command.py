@@ -7,10 +7,10 @@ import dataclasses
 import json
 import math
 import sys
-from collections.abc import Sequence
 from pathlib import Path
 
-from frictiongym._io import OutputDir, write_text_atomic
+from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
+from frictiongym._validation import check_seed
 from frictiongym.devices import ROTARY
 from frictiongym.tuning.evaluate import TuningModel
 from frictiongym.tuning.search import (
@@ -53,8 +53,6 @@ OUTPUTS = ("tune.json", "tune.png")
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the tuner's options to ``parser``."""
-    from frictiongym.cli import add_output_arguments
-
     parser.add_argument(
         "--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
         help=f"gain triples to draw (default: {DEFAULT_SAMPLES}, about a second)",
@@ -118,8 +116,6 @@ def _model(args: argparse.Namespace) -> TuningModel:
 
 def check_args(args: argparse.Namespace) -> TuningModel:
     """Validate the options and build the model; raise ValueError saying what to change."""
-    from frictiongym.cli import check_seed
-
     if args.samples < 1:
         raise ValueError(f"--samples must be at least 1, got {args.samples}")
     check_seed(args.seed)
@@ -198,10 +194,3 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
               f"({result.n_samples / result.wall_time:,.0f}/s); written to {args.out}/: "
               + "  ".join(p.name for p in written))  # fmt: skip
     return 0
-
-
-def main(argv: Sequence[str] | None = None) -> int:
-    """Run ``frictiongym tune`` with ``argv`` (default: the command line; ``scripts/``)."""
-    from frictiongym.cli import tool_main
-
-    return tool_main("tune", argv)

@@ -1,0 +1,186 @@
+"""The package's imports run one way: down the layer table, with no cycle between packages.
+
+Every module of ``frictiongym/`` is parsed with :mod:`ast`; its imports of the package's own
+modules, at module level and inside functions alike (relative ones resolved), become edges
+between the package's parts (a subpackage such as ``frictiongym.envs``, or a top module such
+as ``frictiongym.cli``). Imports under ``if TYPE_CHECKING:`` are left out: they never run, and
+annotations may name a higher layer's types. The package root ``frictiongym/__init__.py``
+(which registers the Gymnasium ids) is no layer and is left out too.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Iterator
+from pathlib import Path
+
+import frictiongym
+
+PACKAGE = Path(frictiongym.__file__).parent
+
+#: Layer of each part, lowest first. A part may import its own layer's parts or lower ones.
+LAYERS: dict[str, int] = {
+    "frictiongym._validation": 0,
+    "frictiongym._io": 0,
+    "frictiongym.metrics": 0,
+    "frictiongym.friction": 0,
+    "frictiongym.plants": 1,
+    "frictiongym.params": 1,
+    "frictiongym.devices": 1,
+    "frictiongym.envs": 2,
+    "frictiongym.hardware": 2,
+    "frictiongym.controllers": 3,
+    "frictiongym.benchmark": 4,
+    "frictiongym.identification": 4,
+    "frictiongym.tuning": 4,
+    "frictiongym.residual": 4,
+    "frictiongym.sim2real": 4,
+    "frictiongym.loops": 4,
+    "frictiongym.cli": 5,
+}
+
+#: Imports within one layer that still point up: the envs drive the hardware's backends.
+SAME_LAYER_FORBIDDEN = {("frictiongym.hardware", "frictiongym.envs")}
+
+#: Edges the other parts of issue 18 remove (merged separately); deleted once they land.
+#: (importing part, imported part)
+PENDING = {
+    # hardware/firmware.py builds its plant from envs.core (the plant-core part).
+    ("frictiongym.hardware", "frictiongym.envs"),
+    # benchmark/scenarios.py takes RANDOMIZATION from residual/train.py (the devices part).
+    ("frictiongym.benchmark", "frictiongym.residual"),
+}
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def part_of(module: str) -> str | None:
+    """Return the part (subpackage or top module) ``module`` belongs to; None for the root."""
+    parts = module.split(".")
+    return ".".join(parts[:2]) if len(parts) > 1 else None
+
+
+def is_type_checking(test: ast.expr) -> bool:
+    return (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+        isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"
+    )
+
+
+def imports_of(path: Path) -> Iterator[tuple[str, int]]:
+    """Yield (imported module, line) of each import of ``frictiongym`` in the file at ``path``."""
+    module = module_name(path)
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    skipped: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and is_type_checking(node.test):
+            skipped.update(id(child) for stmt in node.body for child in ast.walk(stmt))
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")
+                anchor = anchor[: len(anchor) - node.level + 1]
+                base = ".".join([*anchor, base] if base else anchor)
+            names = [base]
+            if base == "frictiongym":  # ``from frictiongym import envs`` imports frictiongym.envs
+                names = [f"{base}.{alias.name}" for alias in node.names]
+        else:
+            continue
+        for name in names:
+            if name == "frictiongym" or name.startswith("frictiongym."):
+                yield name, node.lineno
+
+
+def import_edges() -> dict[tuple[str, str], list[str]]:
+    """Return (importing part, imported part) -> the ``module:line`` places of those imports."""
+    modules = sorted(PACKAGE.rglob("*.py"))
+    parts = {part_of(module_name(path)) for path in modules} - {None}
+    edges: dict[tuple[str, str], list[str]] = {}
+    for path in modules:
+        source = part_of(module_name(path))
+        if source is None:
+            continue
+        for imported, line in imports_of(path):
+            target = part_of(imported)
+            if target == source or target not in parts:
+                continue  # within the part, or the root (``from frictiongym import __version__``)
+            where = f"{path.relative_to(PACKAGE.parent)}:{line}"
+            edges.setdefault((source, target), []).append(where)
+    return edges
+
+
+def find_cycle(edges: set[tuple[str, str]]) -> list[str] | None:
+    """Return one cycle of the graph (its parts, the first repeated at the end), or None."""
+    graph: dict[str, list[str]] = {}
+    for source, target in sorted(edges):
+        graph.setdefault(source, []).append(target)
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for following in graph.get(node, []):
+            if state.get(following) == 1:
+                return [*path[path.index(following) :], following]
+            if following not in state and (cycle := visit(following)):
+                return cycle
+        state[node] = 2
+        path.pop()
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)):
+            return cycle
+    return None
+
+
+def upward(edges: dict[tuple[str, str], list[str]]) -> list[str]:
+    """Return the places of imports that point up the layer table."""
+    places = []
+    for (source, target), where in sorted(edges.items()):
+        if LAYERS[target] > LAYERS[source] or (source, target) in SAME_LAYER_FORBIDDEN:
+            places += [f"{place}: {source} (layer {LAYERS[source]}) imports {target} "
+                       f"(layer {LAYERS[target]})" for place in where]  # fmt: skip
+    return places
+
+
+def test_every_part_has_a_layer():
+    parts = {part_of(module_name(path)) for path in PACKAGE.rglob("*.py")} - {None}
+    assert parts <= LAYERS.keys(), f"give these a layer in LAYERS: {parts - LAYERS.keys()}"
+
+
+def test_no_cycle_between_parts():
+    edges = {edge for edge in import_edges() if edge not in PENDING}
+    cycle = find_cycle(edges)
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def test_no_import_points_up_the_layers():
+    edges = {edge: where for edge, where in import_edges().items() if edge not in PENDING}
+    places = upward(edges)
+    assert not places, "imports up the layer table:\n" + "\n".join(places)
+
+
+def test_pending_edges_still_exist():
+    """A pending edge that is gone must leave PENDING, so it cannot come back unnoticed."""
+    gone = PENDING - import_edges().keys()
+    assert not gone, f"remove from PENDING, these imports are gone: {sorted(gone)}"
+
+
+def test_the_checks_find_a_cycle_and_an_upward_import():
+    assert find_cycle({("a", "b"), ("b", "c"), ("c", "a")}) == ["a", "b", "c", "a"]
+    assert find_cycle({("a", "b"), ("b", "c")}) is None
+    places = upward({("frictiongym.friction", "frictiongym.cli"): ["friction/x.py:3"]})
+    assert places == ["friction/x.py:3: frictiongym.friction (layer 0) imports frictiongym.cli "
+                      "(layer 5)"]  # fmt: skip
