@@ -1,6 +1,9 @@
 """Writing files so that a reader never sees half of one, and runs that never mix their outputs.
 
-:func:`write_text_atomic` and :func:`write_file_atomic` replace one file whole.
+Every result the package writes goes through here. :func:`write_text_atomic`,
+:func:`write_json_atomic` (with :func:`csv_text` for CSV) and :func:`write_file_atomic` replace
+one file whole; :func:`save_figure` does so for a matplotlib figure, which :func:`pyplot`
+draws with the one backend the package uses (Agg: files, never a window).
 :class:`OutputDir` is a tool's ``--out`` folder: checked before the work starts, written by
 the run into a hidden folder inside it, and moved into place only when the run succeeds, so
 an error or a Ctrl-C leaves the folder as it was. A folder that holds an earlier run's
@@ -11,14 +14,19 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import csv
+import dataclasses
+import io
+import json
 import os
 import secrets
 import shutil
 import signal
 import threading
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 #: Prefix of the hidden folder a staged run writes into, inside its ``--out``.
 STAGING_PREFIX = ".frictiongym-partial-"
@@ -79,8 +87,68 @@ def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
     def fill() -> None:
         with os.fdopen(descriptor, "w", encoding="utf-8") as handle:
             handle.write(text)
+            handle.flush()
+            os.fsync(handle.fileno())  # on disk before the rename, so a power cut keeps one
 
     _replace_with(tmp, target, fill)
+
+
+def write_json_atomic(
+    path: str | os.PathLike[str], data: object, *, indent: int = 2, **options: Any
+) -> None:
+    """Write ``data`` as JSON and a newline to ``path`` whole or not at all.
+
+    ``options`` go to :func:`json.dumps`, e.g. ``allow_nan=False`` or ``default=json_value``.
+    """
+    write_text_atomic(path, json.dumps(data, indent=indent, **options) + "\n")
+
+
+def json_value(value: Any) -> Any:
+    """JSON form of a value ``json`` cannot write (a ``default`` for :func:`write_json_atomic`).
+
+    numpy scalars and arrays become numbers and lists, dataclasses dicts, anything else its
+    ``repr``.
+    """
+    if hasattr(value, "tolist"):  # numpy, without importing it here
+        return value.tolist()
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return dataclasses.asdict(value)
+    return repr(value)
+
+
+def csv_text(rows: Iterable[Sequence[object]]) -> str:
+    """Return ``rows`` as CSV text, one line (LF-ended) per row, for :func:`write_text_atomic`."""
+    out = io.StringIO()
+    csv.writer(out, lineterminator="\n").writerows(rows)
+    return out.getvalue()
+
+
+def pyplot() -> Any:
+    """Return ``matplotlib.pyplot`` on the Agg backend: the one place the package chooses it.
+
+    matplotlib is imported only when a figure is drawn: it is heavy, and the metrics are
+    complete without it. Raises ``ImportError`` without it.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot
+
+    return matplotlib.pyplot
+
+
+def save_figure(figure: Any, path: str | os.PathLike[str], dpi: int) -> Path:
+    """Write ``figure`` to ``path`` whole or not at all, then close it; return ``path``.
+
+    The format is the one the file name's suffix names (PNG without a suffix).
+    """
+    target = Path(path)
+    image_format = target.suffix[1:].lower() or "png"
+    try:
+        write_file_atomic(target, lambda tmp: figure.savefig(tmp, format=image_format, dpi=dpi))
+    finally:
+        pyplot().close(figure)
+    return target
 
 
 def add_output_arguments(parser: argparse.ArgumentParser, default: str, contents: str) -> None:

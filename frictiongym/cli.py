@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib
 import math
 import os
 import shlex
@@ -16,7 +17,7 @@ from types import FrameType
 from typing import Any
 
 from frictiongym import __version__
-from frictiongym._io import OutputError, check_file_target, write_file_atomic
+from frictiongym._io import OutputError, check_file_target, pyplot, save_figure
 
 
 def _format(value: float, unit: str) -> str:
@@ -46,23 +47,24 @@ def _nonzero_angle(text: str) -> float:
     return value
 
 
-def _check_plot(path: Path) -> str:
-    """Check ``--plot PATH`` before the simulation; return its image format."""
+def _check_plot(path: Path) -> None:
+    """Check ``--plot PATH`` before the simulation: its folder, and matplotlib has its format."""
     check_file_target(path, "--plot")
     image_format = path.suffix[1:].lower() or "png"
-    try:
+    try:  # matplotlib only for a plot: heavy, and optional for the metrics
         from matplotlib.backend_bases import FigureCanvasBase
     except ImportError:  # said after the metrics, which are complete without it
-        return image_format
+        return
     formats = FigureCanvasBase.get_supported_filetypes()
     if image_format not in formats:
         raise OutputError(f"--plot {path}: matplotlib cannot write .{image_format} files; "
                           f"end the name with one of .{', .'.join(sorted(formats))}")  # fmt: skip
-    return image_format
 
 
 def _demo(args: argparse.Namespace) -> int:
-    image_format = None if args.plot is None else _check_plot(args.plot)
+    if args.plot is not None:
+        _check_plot(args.plot)
+    # Imported here, so that `frictiongym --help` stays light (no numba, no gymnasium).
     from frictiongym.controllers.pid import PIDGains
     from frictiongym.friction import FrictionModel, NoFriction, friction_from_name
     from frictiongym.friction.presets import ROTARY_LUGRE, ROTARY_PAPER
@@ -102,7 +104,7 @@ def _demo(args: argparse.Namespace) -> int:
     print("SSE: mean |r - y| over the last 10 % of the run, % of the step; settling: 2 % band.")
     if args.plot:
         try:
-            import matplotlib
+            plt = pyplot()
         except ImportError:
             print(
                 "error: --plot needs matplotlib: pip install matplotlib (the metrics above are "
@@ -110,10 +112,6 @@ def _demo(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 1
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
         fig, (ax, ax_err) = plt.subplots(2, 1, figsize=(7, 5.5), sharex=True)
         for label, run in runs:
             (line,) = ax.plot(run.t, run.signal("position"), label=label)
@@ -130,32 +128,34 @@ def _demo(args: argparse.Namespace) -> int:
         ax_err.set(xlabel="time [s]", ylabel="error [% of step]", ylim=(-4.0, 4.0))
         ax_err.legend(loc="upper right", fontsize="small")
         fig.tight_layout()
-        write_file_atomic(args.plot, lambda tmp: fig.savefig(tmp, format=image_format, dpi=120))
+        save_figure(fig, args.plot, dpi=120)
         print(f"figure written to {args.plot}")
     return 0
 
 
-def _command_module(name: str) -> Any:
-    """Import the module of a tool command (only when the parser is built)."""
-    import importlib
+def _add_tool_arguments(name: str, parser: argparse.ArgumentParser) -> None:
+    """Give ``parser`` the description and arguments of the tool command ``name``.
 
-    return importlib.import_module(TOOLS[name][0])
+    This imports the tool's module (numba, scipy, gymnasium...), so only the chosen command's
+    parser is filled: ``frictiongym --help`` lists the commands from :data:`TOOLS` alone.
+    """
+    module = importlib.import_module(TOOLS[name][0])
+    parser.description = module.DESCRIPTION
+    module.add_arguments(parser)
+    parser.set_defaults(func=_run_tool)
 
 
 def _run_tool(args: argparse.Namespace) -> int:
-    status: int = _command_module(args.command).run(args, args.command_line)
+    status: int = importlib.import_module(TOOLS[args.command][0]).run(args, args.command_line)
     return status
 
 
 def tool_parser(name: str) -> argparse.ArgumentParser:
     """Build the parser of the tool command ``name`` alone (for its tests and help)."""
-    module = _command_module(name)
     parser = argparse.ArgumentParser(
-        prog=f"frictiongym {name}",
-        description=module.DESCRIPTION,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog=f"frictiongym {name}", formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    module.add_arguments(parser)
+    _add_tool_arguments(name, parser)
     return parser
 
 
@@ -168,6 +168,7 @@ def tool_main(name: str, argv: Sequence[str] | None = None) -> int:
 
 
 #: Tool commands: name -> (module with DESCRIPTION, add_arguments and run; one-line help).
+#: A module is imported only when its command is chosen.
 TOOLS = {
     "benchmark": (
         "frictiongym.benchmark.command",
@@ -196,8 +197,11 @@ TOOLS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Build the argument parser of ``frictiongym``."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """Build the argument parser of ``frictiongym``, with the arguments of ``command`` alone.
+
+    The other tool commands get their name and one-line help, which is all ``--help`` shows.
+    """
     parser = argparse.ArgumentParser(
         prog="frictiongym",
         description="Friction identification and compensation for motion control: "
@@ -243,15 +247,11 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_demo)
 
     for name, (_, summary) in TOOLS.items():
-        module = _command_module(name)
         tool = sub.add_parser(
-            name,
-            help=summary,
-            description=module.DESCRIPTION,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
+            name, help=summary, formatter_class=argparse.RawDescriptionHelpFormatter
         )
-        module.add_arguments(tool)
-        tool.set_defaults(func=_run_tool)
+        if name == command:
+            _add_tool_arguments(name, tool)
     return parser
 
 
@@ -302,7 +302,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     prog = "frictiongym"
     try:
         with _terminate_like_ctrl_c():
-            parser = build_parser()
+            # The top level takes no option with a value: the first other word is the command.
+            command = next((word for word in words if not word.startswith("-")), None)
+            parser = build_parser(command)
             args = parser.parse_args(words)
             args.command_line = shlex.join(["frictiongym", *words])
             if args.command is None:

@@ -38,12 +38,12 @@ import copy
 import json
 import math
 import os
-import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from frictiongym._io import write_text_atomic
 from frictiongym._validation import Rule, real_number
 from frictiongym.devices import DEVICES
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb
@@ -413,9 +413,9 @@ def save_params(path: str | os.PathLike[str], params: DeviceParams) -> Path:
     """Write ``params`` atomically as pretty JSON; return the file written.
 
     ``path`` ending in ``.json`` is the file; any other path is a directory (created if
-    needed) that receives ``friction.json``. The text goes to a temporary file beside the
-    target, then replaces it in one step (``os.replace``): an error leaves an existing file
-    untouched and no temporary file behind.
+    needed) that receives ``friction.json``. The file is replaced whole
+    (:func:`frictiongym._io.write_text_atomic`): an error leaves an existing file untouched and
+    no temporary file behind.
 
     Raises
     ------
@@ -432,17 +432,10 @@ def save_params(path: str | os.PathLike[str], params: DeviceParams) -> Path:
         raise _fail(
             str(file), f"cannot write as JSON ({err}); keep metadata to JSON values"
         ) from None
-    tmp = file.with_name(f".{file.name}.{secrets.token_hex(6)}.tmp")
     try:
         file.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        with os.fdopen(fd, "w", encoding="utf-8") as handle:
-            handle.write(text + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(tmp, file)
+        write_text_atomic(file, text + "\n")
     except OSError as err:
-        tmp.unlink(missing_ok=True)
         raise _fail(str(file), f"cannot write: {err.strerror or err}") from None
     return file
 

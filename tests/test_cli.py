@@ -62,3 +62,55 @@ def test_output_piped_into_a_closed_pipe_is_not_an_error():
     stderr = proc.stderr.read()
     assert proc.wait(timeout=120) == 0
     assert "Traceback" not in stderr
+
+
+HEAVY = ("numba", "scipy", "gymnasium", "matplotlib", "torch")
+
+
+def _imported(code_or_args):
+    """Run Python under ``-X importtime``; return the top-level modules it imported."""
+    args = ["-c", code_or_args] if isinstance(code_or_args, str) else code_or_args
+    out = subprocess.run(
+        [sys.executable, "-X", "importtime", *args], capture_output=True, text=True, check=True
+    )
+    lines = [line.split("|")[-1] for line in out.stderr.splitlines() if "|" in line]
+    return {line.strip().split(".")[0] for line in lines}
+
+
+@pytest.mark.parametrize("option", ["--help", "--version"])
+def test_help_imports_no_heavy_module(option):
+    imported = _imported(["-m", "frictiongym.cli", option])
+    assert "frictiongym" in imported  # the check sees the package's own imports
+    assert not imported & set(HEAVY), f"frictiongym {option} imported {imported & set(HEAVY)}"
+
+
+def test_a_tool_help_shows_its_arguments():
+    out = subprocess.run(
+        [sys.executable, "-m", "frictiongym.cli", "benchmark", "--help"],
+        capture_output=True,
+        text=True,
+    )
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("usage: frictiongym benchmark")
+    assert "--group" in out.stdout
+    assert "--heldout-seed" in out.stdout
+
+
+def test_import_frictiongym_alone_is_light():
+    imported = _imported("import frictiongym")
+    assert not {"numba", "gymnasium"} & imported
+
+
+@pytest.mark.parametrize(
+    "order",
+    [
+        "import frictiongym\nimport gymnasium as gym",
+        "import gymnasium as gym\nimport frictiongym",
+        "import frictiongym.envs\nimport gymnasium as gym",  # gymnasium first imported by envs
+    ],
+)
+def test_ids_registered_in_either_import_order(order):
+    code = f"{order}\nenv = gym.make('frictiongym/RotaryServo-v0')\nprint(env.reset(seed=0)[0])"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.startswith("[")

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from functools import partial
 from pathlib import Path
 
 import gymnasium as gym
@@ -580,7 +581,9 @@ def test_cli_prints_a_connectable_port_and_stops_on_sigint():
 
 
 def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
-    from frictiongym.hardware.command import main
+    from frictiongym.cli import tool_main
+
+    main = partial(tool_main, "emulate")
 
     assert main(["--device", "altino", "--tcp", "0", "--duration", "1.2"]) == 0
     out, err = capsys.readouterr()
@@ -604,8 +607,9 @@ def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
 
 
 def test_cli_help_and_unknown_device(capsys):
-    from frictiongym.cli import tool_parser
-    from frictiongym.hardware.command import main
+    from frictiongym.cli import tool_main, tool_parser
+
+    main = partial(tool_main, "emulate")
 
     text = tool_parser("emulate").format_help()
     for word in ("--device", "--tcp", "--drop", "--unplug-after", "serial://", "socket://"):

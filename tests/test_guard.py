@@ -13,6 +13,7 @@ import importlib.util
 import math
 import shutil
 import sys
+from functools import partial
 from pathlib import Path
 from types import ModuleType
 
@@ -204,7 +205,9 @@ def test_scan_summary_counts_contacts() -> None:
 def test_emulate_guard_mass_option(
     capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from frictiongym.hardware.command import main
+    from frictiongym.cli import tool_main
+
+    main = partial(tool_main, "emulate")
     from frictiongym.hardware.emulator import Emulator
 
     with pytest.raises(SystemExit) as exited:

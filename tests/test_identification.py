@@ -9,9 +9,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from frictiongym.cli import tool_main
 from frictiongym.controllers import PID, FrictionCompensator, PIDGains, rollout
 from frictiongym.friction import ALTINO_PAPER, ROTARY_PAPER
-from frictiongym.identification import command
 from frictiongym.identification.estimates import (
     SteadyPoint,
     fit_exponential,
@@ -180,7 +180,7 @@ def test_identified_file_drives_the_env_and_the_compensator(tmp_path):
 
 
 def test_command_writes_the_file_the_figure_and_the_summary(tmp_path, capsys):
-    status = command.main(["--env", ROTARY, "--out", str(tmp_path), "--quiet"])
+    status = tool_main("identify", ["--env", ROTARY, "--out", str(tmp_path), "--quiet"])
     assert status == 0
     assert (tmp_path / "friction.json").is_file()
     assert (tmp_path / "friction_map.png").stat().st_size > 10_000
@@ -199,7 +199,7 @@ def test_command_writes_the_file_the_figure_and_the_summary(tmp_path, capsys):
     ],
 )
 def test_command_rejects_bad_input(tmp_path, capsys, argv, message):
-    assert command.main([*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert tool_main("identify", [*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
 
@@ -207,7 +207,7 @@ def test_command_rejects_bad_input(tmp_path, capsys, argv, message):
 def test_command_rejects_a_file_as_out(tmp_path, capsys):
     target = tmp_path / "file"
     target.write_text("keep")
-    assert command.main(["--env", ROTARY, "--out", str(target), "--quiet"]) == 2
+    assert tool_main("identify", ["--env", ROTARY, "--out", str(target), "--quiet"]) == 2
     assert "is a file" in capsys.readouterr().err
     assert target.read_text() == "keep"
 

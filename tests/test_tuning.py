@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from frictiongym.cli import tool_main
 from frictiongym.controllers import PID, LoopSpec, PIDGains
 from frictiongym.friction import ROTARY_PAPER
 from frictiongym.metrics import step_metrics, step_metrics_batch
@@ -17,7 +18,6 @@ from frictiongym.tuning import (
     GainBounds,
     StepSpecs,
     TuningModel,
-    command,
     random_search,
     reference,
     rule_scores,
@@ -255,7 +255,7 @@ def test_search_rejects_bad_arguments():
 
 def test_cli_writes_tune_json_and_figure(tmp_path, capsys):
     out = tmp_path / "run"
-    status = command.main(["--samples", "300", "--seed", "0", "--out", str(out), "--quiet"])
+    status = tool_main("tune", ["--samples", "300", "--seed", "0", "--out", str(out), "--quiet"])
     assert status == 0
     assert (out / "tune.png").stat().st_size > 10_000
     rec = json.loads((out / "tune.json").read_text())
@@ -282,7 +282,7 @@ def test_cli_writes_tune_json_and_figure(tmp_path, capsys):
 def test_cli_friction_model_and_params_file(tmp_path, capsys):
     from frictiongym.params import DeviceParams, save_params
 
-    status = command.main(["--samples", "200", "--model", "friction", "--out",
+    status = tool_main("tune", ["--samples", "200", "--model", "friction", "--out",
                            str(tmp_path / "f"), "--no-figures"])  # fmt: skip
     assert status == 0
     assert "of 200 candidates feasible" in capsys.readouterr().out
@@ -290,7 +290,7 @@ def test_cli_friction_model_and_params_file(tmp_path, capsys):
     params = DeviceParams.from_model(ROTARY_PAPER.replace(viscous=0.0411), inertia=7.143e-3,
                                      damping=0.0446, device="RotaryServo")  # fmt: skip
     file = save_params(tmp_path / "id", params)
-    assert command.main(["--samples", "200", "--params", str(file), "--out",
+    assert tool_main("tune", ["--samples", "200", "--params", str(file), "--out",
                          str(tmp_path / "p"), "--no-figures", "--quiet"]) == 0  # fmt: skip
     model = json.loads((tmp_path / "p" / "tune.json").read_text())["model"]
     assert model["name"] == "params"
@@ -310,7 +310,7 @@ def test_cli_friction_model_and_params_file(tmp_path, capsys):
     ],
 )
 def test_cli_bad_inputs_exit_2_with_a_message(tmp_path, capsys, argv, message):
-    assert command.main([*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
+    assert tool_main("tune", [*argv, "--out", str(tmp_path / "o"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("error: ")
     assert message in err
@@ -320,18 +320,18 @@ def test_cli_bad_inputs_exit_2_with_a_message(tmp_path, capsys, argv, message):
 def test_cli_rejects_a_file_as_out_and_bad_params_files(tmp_path, capsys):
     file = tmp_path / "taken"
     file.write_text("x")
-    assert command.main(["--out", str(file), "--quiet"]) == 2
+    assert tool_main("tune", ["--out", str(file), "--quiet"]) == 2
     assert "is a file, not a directory" in capsys.readouterr().err
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
-    assert command.main(["--params", str(bad), "--out", str(tmp_path / "o")]) == 2
+    assert tool_main("tune", ["--params", str(bad), "--out", str(tmp_path / "o")]) == 2
     assert "not valid JSON" in capsys.readouterr().err
     from frictiongym.friction import ALTINO_PAPER
     from frictiongym.params import DeviceParams, save_params
 
     car = save_params(tmp_path / "car", DeviceParams.from_model(
         ALTINO_PAPER, inertia=2.2, damping=10.93, device="AltinoDistance"))  # fmt: skip
-    assert command.main(["--params", str(car), "--out", str(tmp_path / "o")]) == 2
+    assert tool_main("tune", ["--params", str(car), "--out", str(tmp_path / "o")]) == 2
     assert "RotaryServo" in capsys.readouterr().err
 
 

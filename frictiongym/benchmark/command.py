@@ -29,6 +29,7 @@ from frictiongym.benchmark.scenarios import (
     all_scenarios,
     residual_scenarios,
 )
+from frictiongym.controllers.residual import read_metadata
 
 DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
@@ -153,8 +154,6 @@ def select(args: argparse.Namespace) -> list[Scenario]:
 
 def _residual(args: argparse.Namespace) -> list[Scenario]:
     """Return the residual scenarios of ``--residual DEVICE=MODEL`` (ValueError if malformed)."""
-    from frictiongym.controllers.residual import read_metadata
-
     plants = args.heldout if args.heldout is not None else (4 if args.quick else HELDOUT_PLANTS)
     if plants < 1:
         raise ValueError(f"--heldout must be at least 1, got {plants}")

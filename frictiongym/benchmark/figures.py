@@ -3,39 +3,22 @@
 Responses as in Figs. 6, 7, 11 and 12, friction curves as in Figs. 8 and 10, and the
 compensator variants under model mismatch.
 
-matplotlib is imported inside the functions, with the non-interactive Agg backend.
+matplotlib is imported inside the functions (``frictiongym._io.pyplot``).
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from frictiongym._io import pyplot, save_figure
 from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
 from frictiongym.devices import DEVICES, get
 from frictiongym.friction import FRICTION_NAMES, FrictionModel, friction_from_name
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
-
-
-def _save(fig: Any, path: Path) -> Path:
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=120)
-    os.replace(tmp, path)
-    _pyplot().close(fig)
-    return path
 
 
 def _friction_panel(
@@ -57,7 +40,7 @@ def _friction_panel(
 
 def plot_friction_curves(path: Path) -> Path:
     """Steady friction of every law for both devices (the paper's Figs. 8(b), 10(b))."""
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     titles = ("QUBE-Servo 2 (B_e's viscous part is in the plant)", "Altino")
     for ax, device, title, v_max in zip(axes, DEVICES, titles, (6.0, 30.0), strict=True):
@@ -65,7 +48,7 @@ def plot_friction_curves(path: Path) -> Path:
         laws = {name: friction_from_name(name, *presets) for name in FRICTION_NAMES}
         _friction_panel(ax, title, laws, v_max, (device.command_unit, device.units["velocity"]))
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path, dpi=120)
 
 
 def _responses(
@@ -82,7 +65,7 @@ def _responses(
         return None
     device = get(chosen[0][1].scenario.env_id)
     units = (device.position_unit, device.command_unit)
-    plt = _pyplot()
+    plt = pyplot()
     fig, (ax, ax_err, ax_u) = plt.subplots(3, 1, figsize=(8, 8), sharex=True,
                                            gridspec_kw={"height_ratios": [3, 2, 2]})  # fmt: skip
     for label, r in chosen:
@@ -101,7 +84,7 @@ def _responses(
     ax_err.set(ylabel=f"error r - y [{units[0]}]", ylim=(-zoom, zoom))
     ax_u.set(xlabel="time [s]", ylabel=f"command [{units[1]}]")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path, dpi=120)
 
 
 def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
@@ -109,7 +92,7 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
     runs = [r for r in results if r.scenario.group == "mismatch"]
     if not runs:
         return None
-    plt = _pyplot()
+    plt = pyplot()
     devices = sorted({r.scenario.device for r in runs}, reverse=True)
     fig, axes = plt.subplots(2, len(devices), figsize=(5.5 * len(devices), 6.5), squeeze=False)
     for col, device in enumerate(devices):
@@ -130,7 +113,7 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
             ax.axvline(1.0, color="k", lw=0.6, ls=":")
             ax.legend(fontsize="small")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path, dpi=120)
 
 
 def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
@@ -144,7 +127,7 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
     devices = [d.kind for d in DEVICES if d.kind in heldout]
     if not devices:
         return None
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(len(devices), 2, figsize=(9, 4.2 * len(devices)), squeeze=False)
     for row, device in enumerate(devices):
         pairs = heldout[device]
@@ -165,7 +148,7 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
                    xlabel=f"compensated PID {label}", ylabel=f"residual {label}")  # fmt: skip
             ax.legend(fontsize="small", loc="upper left")
     fig.tight_layout()
-    return _save(fig, path)
+    return save_figure(fig, path, dpi=120)
 
 
 def write_figures(results: Sequence[Result], out: Path) -> list[Path]:

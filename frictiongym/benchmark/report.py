@@ -6,15 +6,13 @@ half-written file behind.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from frictiongym._io import write_text_atomic
+from frictiongym._io import csv_text, write_text_atomic
 from frictiongym.benchmark.run import METRICS, Result
 
 #: Table columns of the metrics: (field, header, format).
@@ -43,19 +41,17 @@ def to_json(results: Sequence[Result]) -> str:
 
 def to_csv(results: Sequence[Result]) -> str:
     """``results.csv``: one flat row per run (empty cells: never reached / no cycle)."""
-    out = io.StringIO()
-    writer = csv.writer(out, lineterminator="\n")
     head = ["scenario", "group", "env_id", "controller", "kp", "ki", "kd", "mode", "scale"]
-    writer.writerow([*head, "friction", "sensor_noise", "seed", "terminated", *METRICS])
+    rows: list[list[object]] = [[*head, "friction", "sensor_noise", "seed", "terminated", *METRICS]]
     for r in results:
         rec, s = r.record(), r.scenario
-        writer.writerow(
+        rows.append(
             [s.name, s.group, s.env_id, s.controller_name, s.gains.kp, s.gains.ki, s.gains.kd,
              s.mode or "", s.scale if s.mode else "", s.env_kwargs.get("friction", "paper"),
              s.env_kwargs.get("sensor_noise", False), r.seed, r.terminated,
              *("" if v is None else repr(v) for v in rec["metrics"].values())]
         )  # fmt: skip
-    return out.getvalue()
+    return csv_text(rows)
 
 
 def format_metric(value: float, fmt: str) -> str:

@@ -14,6 +14,7 @@ from typing import Any
 from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
 from frictiongym.controllers.compensation import MODES, Mode
+from frictiongym.controllers.residual import ResidualController
 from frictiongym.devices import ALTINO, DEVICES, ROTARY
 from frictiongym.friction import FRICTION_NAMES
 from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI20
@@ -94,8 +95,6 @@ class Scenario:
     def controller(self, env: Any) -> Controller:
         """Build the scenario's controller for ``env``."""
         if self.residual is not None:
-            from frictiongym.controllers.residual import ResidualController  # imports SB3
-
             return ResidualController.load(self.residual, env)
         pid = PID.for_env(env, self.gains)
         if self.mode is None:

@@ -1,9 +1,10 @@
 """Gymnasium environments: the QUBE-Servo 2 and the Altino car, each with pluggable friction.
 
-``import frictiongym`` registers ``frictiongym/RotaryServo-v0`` and
-``frictiongym/AltinoDistance-v0`` (single env through ``gym.make``, native vector env through
-``gym.make_vec(..., vectorization_mode="vector_entry_point")``). The env modules are imported
-only when an env is made.
+Importing this package (which ``import frictiongym`` does as soon as gymnasium is imported)
+registers ``frictiongym/RotaryServo-v0`` and ``frictiongym/AltinoDistance-v0`` (single env
+through ``gym.make``, native vector env through ``gym.make_vec(...,
+vectorization_mode="vector_entry_point")``). The env modules are imported only when an env is
+made.
 """
 
 from __future__ import annotations
@@ -55,6 +56,9 @@ def register_envs() -> None:
             vector_entry_point=f"{module}:{vector}",
             max_episode_steps=steps,
         )
+
+
+register_envs()
 
 
 def __getattr__(name: str) -> Any:

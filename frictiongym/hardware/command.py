@@ -13,7 +13,9 @@ from types import FrameType
 from typing import Any
 
 from frictiongym._validation import check_seed
+from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS
+from frictiongym.hardware.emulator import Emulator, Faults
 
 DESCRIPTION = """\
 Emulate a device: run the simulated plant (with its own "true" parameters, which may differ
@@ -138,8 +140,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _status_line(emu: Any) -> str:
-    from frictiongym.hardware import protocol as p
-
     s = emu.stats(timing=False)  # no percentiles: the device thread must not wait
     bits = "|".join(bit.name or "" for bit in p.Status if emu.status & bit) or "OK"
     return (
@@ -151,8 +151,6 @@ def _status_line(emu: Any) -> str:
 
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
-    from frictiongym.hardware.emulator import Emulator, Faults
-
     if args.run_for is not None and not (math.isfinite(args.run_for) and args.run_for > 0):
         print(f"error: --duration must be a positive number of seconds, got {args.run_for}",
               file=sys.stderr)  # fmt: skip

@@ -14,14 +14,13 @@ an existing name (a link among them) instead of sharing or following it.
 from __future__ import annotations
 
 import csv
-import json
 import math
 import os
 import platform
 import sys
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any, NoReturn
@@ -29,7 +28,8 @@ from typing import Any, NoReturn
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._io import NEW_FILE_FLAGS, write_text_atomic
+from frictiongym import __version__
+from frictiongym._io import NEW_FILE_FLAGS, json_value, write_json_atomic
 
 #: Columns of ``steps.csv`` before the observation's (which are named by the env).
 STEP_COLUMNS = (
@@ -82,25 +82,8 @@ def _make_folder(folder: Path, what: str) -> None:
     folder.mkdir(parents=True, exist_ok=True)
 
 
-def write_json_atomic(path: Path, data: Mapping[str, Any]) -> None:
-    """Write ``data`` as JSON to ``path`` through a temporary file: never half-written."""
-    write_text_atomic(path, json.dumps(data, indent=2, default=_jsonable) + "\n")
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if hasattr(value, "__dataclass_fields__"):
-        return asdict(value)
-    return repr(value)
-
-
 def software() -> dict[str, str]:
     """Versions that produced a run."""
-    from frictiongym import __version__
-
     return {
         "frictiongym": __version__,
         "python": sys.version.split()[0],
@@ -184,7 +167,7 @@ class RunLog:
                 "columns": list(self.columns),
                 **metadata,
             }
-            write_json_atomic(self.meta_path, self.metadata)
+            write_json_atomic(self.meta_path, self.metadata, default=json_value)
         except BaseException:  # no log without its metadata
             self._file.close()
             self.steps_path.unlink(missing_ok=True)
@@ -214,7 +197,7 @@ class RunLog:
     def update(self, **metadata: Any) -> None:
         """Add to ``meta.json`` (rewritten atomically)."""
         self.metadata.update(metadata)
-        write_json_atomic(self.meta_path, self.metadata)
+        write_json_atomic(self.meta_path, self.metadata, default=json_value)
 
     def close(self, **metadata: Any) -> None:
         """Close ``steps.csv`` and write the final metadata (idempotent)."""

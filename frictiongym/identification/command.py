@@ -5,15 +5,18 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from typing import Any
 
 from frictiongym import devices
-from frictiongym._io import OutputDir, add_output_arguments
+from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
 from frictiongym._validation import check_seed
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.estimates import IdentificationError
+from frictiongym.identification.figures import plot_map
 from frictiongym.identification.fit import LAWS
 from frictiongym.identification.identify import Identification, identify, make_env, plan_for
+from frictiongym.params import save_params
 
 DESCRIPTION = """\
 Identify the friction and the linear part of a device through its env, as the paper does
@@ -180,18 +183,12 @@ def _identify(
         if bar is not None:
             bar.close()
         env.close()
-    from dataclasses import replace
-
-    from frictiongym.params import save_params
-
     params = result.params(args.law)
     metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
     save_params(out.path / "friction.json", replace(params, metadata=metadata))
     table = summary(result, args.law, _truth(env) if sim else None)
-    (out.path / "summary.md").write_text(table)
+    write_text_atomic(out.path / "summary.md", table)
     if not args.no_figures:
-        from frictiongym.identification.figures import plot_map
-
         units = devices.get(result.device).units
         plot_map(result, out.path / "friction_map.png", (units["velocity"], units["force"]))
     print(table)

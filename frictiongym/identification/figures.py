@@ -6,13 +6,14 @@ from pathlib import Path
 
 import numpy as np
 
+from frictiongym._io import pyplot, save_figure
 from frictiongym.identification.identify import Identification
 
 _COLORS = {"paper": "C0", "stribeck": "C1", "smooth": "C2", "coulomb": "C3"}
 
 
 def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -> Path:
-    """Write the map, the fits and their residuals to ``path`` (PNG).
+    """Write the map, the fits and their residuals to ``path`` (PNG) whole; return it.
 
     Parameters
     ----------
@@ -21,11 +22,7 @@ def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -
     units : tuple of str
         Velocity and command units for the axis labels, e.g. ``("rad/s", "V")``.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     vel_unit, cmd_unit = units
     moving = [p for p in result.points if p.moved]
     v = np.array([p.sign * p.velocity for p in moving])
@@ -92,7 +89,4 @@ def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -
                title="goodness of fit: measured minus fitted level")  # fmt: skip
     ax_res.legend(fontsize="small", ncol=4)
     fig.tight_layout()
-    out = Path(path)
-    fig.savefig(out, dpi=110)
-    plt.close(fig)
-    return out
+    return save_figure(fig, path, dpi=110)

@@ -16,6 +16,10 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from frictiongym.benchmark.report import residual_comparisons
+from frictiongym.benchmark.run import run_scenario
+from frictiongym.benchmark.scenarios import residual_scenarios
+from frictiongym.controllers.residual import ResidualController
 from frictiongym.controllers.residual_core import ResidualConfig, make_base
 
 #: First seed of the validation plants: below the benchmark's held-out seeds (1000 and up,
@@ -72,9 +76,6 @@ class Validation:
         config: ResidualConfig,
         plants: int = VALIDATION_PLANTS,
     ) -> None:
-        from frictiongym.benchmark.run import run_scenario
-        from frictiongym.benchmark.scenarios import residual_scenarios
-
         scenarios = residual_scenarios(
             device, "(in training)", plants, randomize, first_seed=VALIDATION_SEED
         )
@@ -85,9 +86,6 @@ class Validation:
 
     def __call__(self, model: Any) -> Score:
         """Score ``model`` (anything with SB3's ``predict``) on the base the training used."""
-        from frictiongym.benchmark.report import residual_comparisons
-        from frictiongym.benchmark.run import run_scenario
-        from frictiongym.controllers.residual import ResidualController
 
         def build(env: Any) -> ResidualController:
             return ResidualController(make_base(env), model, self.config)

@@ -23,8 +23,8 @@ from typing import Any
 
 import gymnasium as gym
 
-from frictiongym import devices
-from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_text_atomic
+from frictiongym import __version__, devices
+from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_json_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
 from frictiongym.controllers.residual_core import ResidualConfig
@@ -216,8 +216,6 @@ def _versions() -> dict[str, str]:
     import numpy
     import stable_baselines3
     import torch
-
-    from frictiongym import __version__
 
     return {
         "frictiongym": __version__,
@@ -588,7 +586,7 @@ def _train(
         "versions": _versions(),
         "command_line": settings.command_line,
     }
-    write_text_atomic(out / "train.json", json.dumps(summary, indent=2) + "\n")
+    write_json_atomic(out / "train.json", summary)
     return summary
 
 

@@ -13,8 +13,7 @@ from typing import Any
 import numpy as np
 
 from frictiongym import devices
-from frictiongym._io import write_text_atomic
-from frictiongym.hardware.runlog import write_json_atomic
+from frictiongym._io import json_value, pyplot, save_figure, write_json_atomic, write_text_atomic
 from frictiongym.sim2real.run import (
     COMPLETE,
     DEVICE_LIMIT,
@@ -173,7 +172,7 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
     """
     out.mkdir(parents=True, exist_ok=True)
     data = summary(result)
-    write_json_atomic(out / "sim2real.json", {"command": command, **data})
+    write_json_atomic(out / "sim2real.json", {"command": command, **data}, default=json_value)
     if figures:
         write_figures(result, out)
     units = _units(result.env_id)
@@ -275,11 +274,7 @@ def write_figures(result: Sim2RealResult, out: Path) -> None:
 
     ``overlay.png`` needs a complete device run, and is not drawn without one.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     if result.device:
         _write_overlay(result, out, plt)
     fig, ax = plt.subplots(figsize=(7, 3.5))
@@ -289,8 +284,7 @@ def write_figures(result: Sim2RealResult, out: Path) -> None:
     ax.set(xlabel="host period between steps [ms]", ylabel="steps", yscale="log")
     ax.legend()
     fig.tight_layout()
-    fig.savefig(out / "timing.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "timing.png", dpi=110)
 
 
 def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
@@ -319,8 +313,7 @@ def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
     axes[3].legend(loc="best", fontsize="small")
     fig.suptitle(f"{result.env_id}: {result.controller} on the device and in simulation")
     fig.tight_layout()
-    fig.savefig(out / "overlay.png", dpi=110)
-    plt.close(fig)
+    save_figure(fig, out / "overlay.png", dpi=110)
 
 
 def load_summary(path: Path) -> dict[str, Any]:

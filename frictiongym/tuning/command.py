@@ -4,15 +4,16 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import math
 import sys
 from pathlib import Path
 
-from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
+from frictiongym._io import OutputDir, add_output_arguments, write_json_atomic
 from frictiongym._validation import check_seed
 from frictiongym.devices import ROTARY
+from frictiongym.params import load_params
 from frictiongym.tuning.evaluate import TuningModel
+from frictiongym.tuning.figures import plot_feasible_set
 from frictiongym.tuning.search import (
     DEFAULT_CHUNK,
     DEFAULT_HORIZON,
@@ -103,8 +104,6 @@ def _model(args: argparse.Namespace) -> TuningModel:
     """Build the model chosen by --model/--params (ValueError with the reason)."""
     if args.params is None:
         return TuningModel.paper(with_friction=args.model == "friction")
-    from frictiongym.params import load_params
-
     params = load_params(args.params)  # ParamsFileError (a ValueError) names the file
     if params.device not in (None, ROTARY.name):
         raise ValueError(
@@ -181,11 +180,8 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
                 chunk=args.chunk, early_stop=not args.full, progress=bar.update,
             )  # fmt: skip
         result.extra["command"] = command_line
-        record = json.dumps(result.record(), indent=1, allow_nan=False) + "\n"
-        write_text_atomic(out.path / "tune.json", record)
+        write_json_atomic(out.path / "tune.json", result.record(), indent=1, allow_nan=False)
         if not args.no_figures:
-            from frictiongym.tuning.figures import plot_feasible_set
-
             plot_feasible_set(result, out.path / "tune.png")
         written = out.commit()
     if not args.quiet:

@@ -1,16 +1,16 @@
 """``tune.png``: the feasible set in the three gain planes and the feasible step responses.
 
-matplotlib is imported inside the functions, with the non-interactive Agg backend.
+matplotlib is imported inside the functions (``frictiongym._io.pyplot``).
 """
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from frictiongym._io import pyplot, save_figure
 from frictiongym.tuning.evaluate import STEP, simulate
 from frictiongym.tuning.search import PAPER_GAINS, RULES, TuneResult
 
@@ -21,15 +21,6 @@ MAX_GREY = 4_000
 MAX_RESPONSES = 200
 
 _LABELS = {0: "Kp [V/rad]", 1: "Ki [V/(rad·s)]", 2: "Kd [V·s/rad]"}
-
-
-def _pyplot() -> Any:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _zoom(result: TuneResult, i: int) -> tuple[float, float]:
@@ -104,7 +95,7 @@ def plot_feasible_set(result: TuneResult, path: Path, responses: bool = True) ->
     Top row: the three gain planes over the full bounds; bottom row: the Kp-Kd and Ki-Kd
     planes zoomed on the feasible set, and the feasible step responses with the spec limits.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 3, figsize=(15, 9), layout="constrained")
     _planes(axes[0], result, ((0, 1), (0, 2), (1, 2)), zoom=False)
     sc = _planes(axes[1, :2], result, ((0, 2), (1, 2)), zoom=True)
@@ -125,8 +116,4 @@ def plot_feasible_set(result: TuneResult, path: Path, responses: bool = True) ->
         f"chosen by {result.rule}: {RULES[result.rule].split(',')[0]}",
         fontsize="medium",
     )
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    fig.savefig(tmp, dpi=100)
-    os.replace(tmp, path)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)

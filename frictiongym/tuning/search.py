@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym import __version__
 from frictiongym.metrics.step import StepMetricsBatch
 from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 from frictiongym.tuning.evaluate import STOP_REASONS, Evaluation, TuningModel, simulate
@@ -147,8 +148,6 @@ class TuneResult:
     def record(self) -> dict[str, Any]:
         """Return the content of ``tune.json``."""
         import numba
-
-        from frictiongym import __version__
 
         ev = self.evaluation
         stopped = {
