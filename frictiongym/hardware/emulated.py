@@ -13,6 +13,7 @@ from collections.abc import Callable
 from typing import Any
 
 from frictiongym.hardware.base import KINDS, DeviceInfo
+from frictiongym.hardware.emulator import Emulator
 from frictiongym.hardware.serial_backend import SerialBackend
 from frictiongym.hardware.uri import flag, integer, positive, uri_options
 
@@ -72,8 +73,6 @@ class EmulatedBackend(SerialBackend):
         return cls(path.strip("/") or "rotary", lockstep=lockstep, **settings)
 
     def _open(self) -> DeviceInfo:
-        from frictiongym.hardware.emulator import Emulator
-
         settings = dict(self.emulator_settings)
         if self.lockstep:  # device time waits for the host: only a long silence is a fault
             settings.setdefault("watchdog_ms", LOCKSTEP_WATCHDOG_MS)
