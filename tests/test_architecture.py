@@ -3,7 +3,9 @@
 Every module of ``frictiongym/`` is parsed with :mod:`ast`; its imports of the package's own
 modules, at module level and inside functions alike (relative ones resolved), become edges
 between the package's parts (a subpackage such as ``frictiongym.envs``, or a top module such
-as ``frictiongym.cli``). Imports under ``if TYPE_CHECKING:`` are left out: they never run, and
+as ``frictiongym.cli``). A string holding a module's dotted name (``"frictiongym.envs.rotary"``)
+counts as an import too: the tables that import modules by name (``cli.TOOLS``, the env ids,
+the lazy names) are seen. Imports under ``if TYPE_CHECKING:`` are left out: they never run, and
 annotations may name a higher layer's types. The package root ``frictiongym/__init__.py``
 (which registers the Gymnasium ids) is no layer and is left out too.
 """
@@ -11,12 +13,14 @@ annotations may name a higher layer's types. The package root ``frictiongym/__in
 from __future__ import annotations
 
 import ast
+import re
 from collections.abc import Iterator
 from pathlib import Path
 
 import frictiongym
 
 PACKAGE = Path(frictiongym.__file__).parent
+MODULE_NAME = re.compile(r"frictiongym(\.[a-z_]+)+")
 
 #: Layer of each part, lowest first. A part may import its own layer's parts or lower ones.
 LAYERS: dict[str, int] = {
@@ -83,7 +87,9 @@ def imports_of(path: Path) -> Iterator[tuple[str, int]]:
     for node in ast.walk(tree):
         if id(node) in skipped:
             continue
-        if isinstance(node, ast.Import):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str):
+            names = [node.value] if MODULE_NAME.fullmatch(node.value) else []
+        elif isinstance(node, ast.Import):
             names = [alias.name for alias in node.names]
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
