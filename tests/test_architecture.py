@@ -47,7 +47,8 @@ LAYERS: dict[str, int] = {
 SAME_LAYER_FORBIDDEN = {("frictiongym.hardware", "frictiongym.envs")}
 
 #: Edges the other parts of issue 18 remove (merged separately); deleted once they land.
-#: (importing part, imported part)
+#: (importing part, imported part). The attribute probes of env internals
+#: (``getattr(env.unwrapped, "sim")``) that the devices part replaces are no imports.
 PENDING = {
     # hardware/firmware.py builds its plant from envs.core (the plant-core part).
     ("frictiongym.hardware", "frictiongym.envs"),
