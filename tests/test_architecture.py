@@ -52,8 +52,6 @@ SAME_LAYER_FORBIDDEN = {("frictiongym.hardware", "frictiongym.envs")}
 PENDING = {
     # hardware/firmware.py builds its plant from envs.core (the plant-core part).
     ("frictiongym.hardware", "frictiongym.envs"),
-    # benchmark/scenarios.py takes RANDOMIZATION from residual/train.py (the devices part).
-    ("frictiongym.benchmark", "frictiongym.residual"),
 }
 
 
