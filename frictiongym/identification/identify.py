@@ -22,11 +22,13 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
 from frictiongym.controllers.rollout import Rollout
+from frictiongym.envs import ENV_IDS  # importing the envs registers their ids
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.experiments import Runner, Span
@@ -395,8 +397,6 @@ def _refined(
 
 def plan_for(env_id: str) -> Plan:
     """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
-    from frictiongym.envs import ENV_IDS
-
     if env_id not in ENV_IDS:
         raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
     return Plan.for_device(env_id)
@@ -407,9 +407,5 @@ def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:
 
     Each run ends by its own duration, so the episode limit only has to stay out of the way.
     """
-    import gymnasium as gym
-
-    import frictiongym  # noqa: F401  (registers the ids)
-
     plan = plan or plan_for(env_id)
     return gym.make(env_id, max_episode_steps=_NO_EPISODE_LIMIT, **{**plan.env_kwargs, **kwargs})
