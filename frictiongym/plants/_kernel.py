@@ -74,6 +74,60 @@ S_FRICTION = 4  #: friction force averaged over the last step (nonlinear + visco
 S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
 STATE_SIZE = 7
+#: The state columns by what they hold, for the plant's named accessors.
+COLUMNS = {"position": S_X, "velocity": S_V, "bristle": S_Z, "lag": S_LAG,
+           "friction_force": S_FRICTION, "command": S_COMMAND, "stuck": S_STUCK}  # fmt: skip
+
+
+def pack_row(
+    inertia: float,
+    damping: float,
+    command_limit: float,
+    lag: float,
+    end_stop: float,
+    friction: npt.NDArray[np.float64],
+) -> npt.NDArray[np.float64]:
+    """One plant row: the plant's parameters, then the packed friction row."""
+    return np.concatenate(([inertia, damping, command_limit, lag, end_stop], friction))
+
+
+def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """The end stop of each plant row (a view)."""
+    return rows[:, I_STOP]
+
+
+def scale_row(
+    row: npt.NDArray[np.float64], friction: float, inertia: float, damping: float
+) -> npt.NDArray[np.float64]:
+    """A copy of a plant row with its friction levels, inertia and damping scaled.
+
+    ``friction`` scales every break-away and Coulomb level, ``damping`` the plant's ``B`` and
+    the law's viscous slope together.
+    """
+    scaled = row.copy()
+    levels = [F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG)]
+    scaled[levels] *= friction
+    scaled[I_J] *= inertia
+    scaled[[I_B, F0 + fc.I_VISCOUS]] *= damping
+    return scaled
+
+
+def reset_rows(
+    state: npt.NDArray[np.float64],
+    index: slice | npt.NDArray[np.bool_],
+    position: npt.NDArray[np.float64],
+    velocity: npt.NDArray[np.float64],
+) -> None:
+    """Put the plants of ``index`` at ``position`` with ``velocity``, the rest relaxed (zero).
+
+    A velocity of exactly 0.0 starts a plant stuck.
+    """
+    selected = state[index]
+    selected[:] = 0.0
+    selected[:, S_X] = position
+    selected[:, S_V] = velocity
+    selected[:, S_STUCK] = velocity == 0.0
+    state[index] = selected
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.
 #: Array views cost a reference-count round trip each; per plant that was most of the step.
