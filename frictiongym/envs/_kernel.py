@@ -65,6 +65,46 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 CONFIG_SIZE = 11
+_CONFIG_NAMES = "sensor quantize noise encoder_step pole error_scale effort_weight penalty"
+#: Config entries by name, in column order (:func:`pack_config`, :func:`setting`).
+CONFIG = {
+    name: c for c, name in enumerate(f"{_CONFIG_NAMES} limit max_steps velocity_floor".split())
+}
+#: The env's own state columns by name, in column order (:func:`task_state`).
+STATE_COLUMNS = {
+    name: E_STEPS + c
+    for c, name in enumerate(("steps", "estimate", "velocity_estimate", "reference"))
+}
+TASK_COLUMNS = ENV_STATE_SIZE - pk.STATE_SIZE
+if len(CONFIG) != CONFIG_SIZE or len(STATE_COLUMNS) != TASK_COLUMNS:
+    raise ImportError("frictiongym.envs._kernel: a name of CONFIG or STATE_COLUMNS is missing")
+
+
+def pack_config(**settings: float) -> npt.NDArray[np.float64]:
+    """Return the config array of these settings (names of :data:`CONFIG`; the rest 0.0)."""
+    config = np.zeros(CONFIG_SIZE)
+    for name, value in settings.items():
+        config[CONFIG[name]] = value
+    return config
+
+
+def setting(config: npt.NDArray[np.float64], name: str) -> float:
+    """One setting of a config array, by its name in :data:`CONFIG`."""
+    return float(config[CONFIG[name]])
+
+
+def task_state(state: npt.NDArray[np.float64], name: str) -> npt.NDArray[np.float64]:
+    """One of the env's own state columns (a view), by its name in :data:`STATE_COLUMNS`."""
+    return state[:, STATE_COLUMNS[name]]
+
+
+def set_episode(
+    rows: npt.NDArray[np.float64], i: int, gain: float, reference: npt.NDArray[np.float64]
+) -> None:
+    """Write env ``i``'s drawn sensor gain and packed reference into its task row."""
+    rows[i, T_GAIN] = gain
+    rows[i, T_REF:] = reference
+
 
 # Outputs.
 O_REWARD = 0

@@ -13,36 +13,26 @@ import numbers
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import check_number
 from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel, friction_from_name
 from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
-from frictiongym.plants.plant import PlantParams, default_substeps, plant_row
+from frictiongym.plants.plant import Plant, PlantParams, default_substeps
 from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
-from frictiongym.plants.threads import select_kernel
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 
 #: Keys accepted in ``reset(options=...)``.
 RESET_OPTIONS = ("position", "velocity", "reference")
-
-
-def _number(name: str, value: object, rule: str = "finite") -> float:
-    """``value`` as a float, checked to be finite and, by ``rule``, ``">= 0"`` or ``"> 0"``."""
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool)):
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
-        raise ValueError(f"{name} must be {rule}, got {value!r}")
-    return v
 
 
 def _device_params(
@@ -72,8 +62,70 @@ def _device_params(
     return loaded
 
 
+class Frame(NamedTuple):
+    """What a frame of env ``i`` draws: its position (plant coordinates) and task."""
+
+    position: float
+    reference: float
+    stuck: bool
+    steps: float  #: steps of the episode so far
+    command: float
+
+
+class EnvCore(Protocol):
+    """What the env classes drive: a :class:`Simulation` of N envs, or a device session of one.
+
+    ``run`` after ``prepare_reset`` observes the envs of its mask; then each ``run`` steps them
+    (:class:`~frictiongym.envs.device.DeviceSession` on a device).
+    """
+
+    device: Device
+    num_envs: int
+    dt: float
+    plant: PlantParams
+    params: DeviceParams | None
+    model_friction: FrictionModel
+    limit: float
+    #: Whether a device runs the env (then it is nondeterministic).
+    on_device: bool
+
+    @property
+    def observation_size(self) -> int:
+        """Length of one env's observation."""
+
+    def prepare_reset(
+        self,
+        mask: BoolArray,
+        rng_of: Callable[[int], np.random.Generator],
+        options: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Reset the envs of ``mask``; the next :meth:`run` with ``fresh=mask`` observes them."""
+
+    def run(
+        self,
+        command: npt.NDArray[np.floating[Any]],
+        fresh: BoolArray,
+        obs: npt.NDArray[np.float32],
+        out: FloatArray,
+        flags: BoolArray,
+    ) -> None:
+        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
+
+    def frame(self, i: int) -> Frame:
+        """Return what a frame of env ``i`` draws."""
+
+    def stop(self) -> None:
+        """Zero a device's motor after an error."""
+
+    def close(self) -> None:
+        """Release what the core holds (a device's link)."""
+
+
 class Simulation:
-    """N simulated envs of one device.
+    """N simulated envs of one device: the task (sensor, reference, reward, resets) on a plant.
+
+    The plant is a :class:`~frictiongym.plants.Plant` of N (:attr:`plants`) whose kernel is the
+    env kernel: it steps the plant, reads the sensor and scores the step in one compiled loop.
 
     Parameters
     ----------
@@ -126,15 +178,13 @@ class Simulation:
     model_friction: FrictionModel
     params: DeviceParams | None
     plant: PlantParams
-    delay_steps: int
     reference: Reference
     randomize: DomainRandomization | None
     limit: float
     config: FloatArray
-    substeps: int
-    head: int
-    parallel: bool
-    _kernel: Callable[..., int]
+    #: The N plants, stepped by the env kernel (their state has the env's columns after theirs).
+    plants: Plant
+    on_device = False
     _nominal_row: FloatArray
     _default_x0: float
     _default_reference_row: FloatArray
@@ -163,7 +213,36 @@ class Simulation:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.device = device
         self.num_envs = int(num_envs)
-        self.dt = device.dt if dt is None else _number("dt", dt, "> 0")
+        self.dt = device.dt if dt is None else check_number("dt", dt, "> 0")
+        self._set_physics(friction, plant, params, delay)
+        self.reference = resolve_reference(reference, device.references)
+        self.randomize = DomainRandomization.from_spec(randomize)
+        self.limit = (
+            device.limit
+            if safety_limit is None
+            else check_number("safety_limit", safety_limit, ">= 0")
+        )
+        self.config = self._task_config(
+            sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
+        )
+        self.plants = self._new_plants(parallel)
+        self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
+        # A random reference is sampled per env at reset; the zero row only fills the argument.
+        self._default_reference_row = (
+            self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
+        )
+        self.rows: FloatArray = np.zeros((self.num_envs, ek.TASK_ROW_SIZE))
+        self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
+
+    def _set_physics(
+        self,
+        friction: str | FrictionModel | None,
+        plant: PlantParams | None,
+        params: str | os.PathLike[str] | DeviceParams | None,
+        delay: float | None,
+    ) -> None:
+        """Set :attr:`params`, :attr:`friction`, :attr:`model_friction` and :attr:`plant`."""
+        device = self.device
         self.params = None if params is None else _device_params(device, params, friction, plant)
         if self.params is not None:
             friction = self.params.plant_friction()
@@ -183,18 +262,26 @@ class Simulation:
             delay = round(nominal.dead_time / self.dt) * self.dt
         self.plant = replace(
             nominal,
-            dead_time=_number("delay", delay, ">= 0"),
+            dead_time=check_number("delay", delay, ">= 0"),
             end_stop=min(nominal.end_stop, device.end_stop),
         )
-        self.delay_steps = self.plant.delay_steps(self.dt)
-        self.reference = resolve_reference(reference, device.references)
-        self.randomize = DomainRandomization.from_spec(randomize)
+
+    def _task_config(
+        self,
+        sensor_noise: bool | float,
+        quantize: bool,
+        effort_weight: float | None,
+        limit_penalty: float | None,
+        max_episode_steps: int | None,
+    ) -> FloatArray:
+        """Return the env kernel's settings: sensor, velocity filter, reward and episode end."""
+        device = self.device
         if sensor_noise is True:
             noise = device.noise_std
         elif sensor_noise is False:
             noise = 0.0
         else:
-            noise = _number("sensor_noise", sensor_noise, ">= 0")
+            noise = check_number("sensor_noise", sensor_noise, ">= 0")
         if not isinstance(quantize, bool | np.bool_):
             raise TypeError(f"quantize must be True or False, got {quantize!r}")
         if max_episode_steps is not None and (
@@ -203,57 +290,54 @@ class Simulation:
             raise ValueError(
                 f"max_episode_steps must be a positive integer, got {max_episode_steps!r}"
             )
-        self.limit = (
-            device.limit if safety_limit is None else _number("safety_limit", safety_limit, ">= 0")
-        )
-        self.config = np.zeros(ek.CONFIG_SIZE)
-        self.config[ek.C_SENSOR] = device.sensor
-        self.config[ek.C_QUANTIZE] = float(quantize)
-        self.config[ek.C_NOISE] = noise
-        self.config[ek.C_ENCODER_STEP] = QUBE_ENCODER_STEP
         cutoff = device.velocity_cutoff
         pole = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
-        self.config[ek.C_POLE] = pole
         quantum = QUBE_ENCODER_STEP if device.sensor == ek.SENSOR_ENCODER else ir_quantum()
-        self.config[ek.C_VELOCITY_FLOOR] = velocity_floor(quantum, pole, self.dt)
-        self.config[ek.C_ERROR_SCALE] = device.error_scale
-        self.config[ek.C_EFFORT_WEIGHT] = (
-            device.effort_weight
+        return ek.pack_config(
+            sensor=device.sensor,
+            quantize=float(quantize),
+            noise=noise,
+            encoder_step=QUBE_ENCODER_STEP,
+            pole=pole,
+            velocity_floor=velocity_floor(quantum, pole, self.dt),
+            error_scale=device.error_scale,
+            effort_weight=device.effort_weight
             if effort_weight is None
-            else _number("effort_weight", effort_weight, ">= 0")
-        )
-        self.config[ek.C_PENALTY] = (
-            device.limit_penalty
+            else check_number("effort_weight", effort_weight, ">= 0"),
+            penalty=device.limit_penalty
             if limit_penalty is None
-            else _number("limit_penalty", limit_penalty, ">= 0")
+            else check_number("limit_penalty", limit_penalty, ">= 0"),
+            limit=self.limit,
+            max_steps=max_episode_steps or 0,
         )
-        self.config[ek.C_LIMIT] = self.limit
-        self.config[ek.C_MAX_STEPS] = max_episode_steps or 0
 
+    def _new_plants(self, parallel: bool | None) -> Plant:
+        """Build the N plants on the env kernel; randomised envs get a parameter row each."""
         worst = self.plant  # the smallest inertia a reset can draw sets the substeps
         if self.randomize is not None and self.randomize.inertia is not None:
             worst = replace(self.plant, inertia=self.plant.inertia * self.randomize.inertia[0])
-        self.substeps = default_substeps([worst], [friction], self.dt)
-        self._nominal_row = plant_row(self.plant, friction)
-        self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
-        # A random reference is sampled per env at reset; the zero row only fills the argument.
-        self._default_reference_row = (
-            self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
+        plants = Plant(
+            self.plant,
+            self.friction,
+            self.dt,
+            self.num_envs,
+            substeps=default_substeps([worst], [self.friction], self.dt),
+            parallel=parallel,
+            task_columns=ek.TASK_COLUMNS,
+            kernels=(ek.step_envs, ek.step_envs_parallel),
         )
-        n = self.num_envs
-        self.plant_rows: FloatArray = self._nominal_row[None].copy()
+        self._nominal_row = plants.rows[0].copy()
         if self.randomize is not None:
-            self.plant_rows = np.repeat(self.plant_rows, n, axis=0)
-        self.rows: FloatArray = np.zeros((n, ek.TASK_ROW_SIZE))
-        self.state: FloatArray = np.zeros((n, ek.ENV_STATE_SIZE))
-        self.delay_buffer: FloatArray = np.zeros((n, self.delay_steps))
-        self.noise_state: npt.NDArray[np.uint64] = np.zeros(n, dtype=np.uint64)
-        self.head = 0
-        self._kernel = select_kernel(ek.step_envs, ek.step_envs_parallel, n, parallel)
-        self.parallel = self._kernel is not ek.step_envs  # threads may run
+            plants.own_rows()
+        return plants
+
+    @property
+    def state(self) -> FloatArray:
+        """The envs' state: the plant's columns, then the env kernel's own."""
+        return self.plants.state
 
     def close(self) -> None:
-        """Release what the simulation holds (nothing; a device session closes its link)."""
+        """Release what the simulation holds (nothing)."""
 
     def stop(self) -> None:
         """Zero a device's motor after an error (a simulation has none to stop)."""
@@ -263,7 +347,18 @@ class Simulation:
         """Length of one env's observation."""
         return len(self.device.observation_names)
 
-    def _start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
+    def frame(self, i: int) -> Frame:
+        """Return what a frame of env ``i`` draws: its true position and the task's state."""
+        plants = self.plants
+        return Frame(
+            float(plants.position[i]),
+            float(ek.task_state(self.state, "reference")[i]),
+            bool(plants.stuck[i]),
+            float(ek.task_state(self.state, "steps")[i]),
+            float(plants.command[i]),
+        )
+
+    def start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
         """Plant position and velocity at reset, from the options (in env units) or defaults."""
         if "position" not in options and "velocity" not in options:
             return np.full(count, self._default_x0), np.zeros(count)
@@ -310,8 +405,8 @@ class Simulation:
                 reference = resolve_reference(options["reference"], self.device.references)
         else:
             options = {}
-        x0, v0 = self._start_state(options, int(np.count_nonzero(mask)))
-        noisy = self.config[ek.C_NOISE] > 0.0
+        x0, v0 = self.start_state(options, int(np.count_nonzero(mask)))
+        noisy = ek.setting(self.config, "noise") > 0.0
         draws = self.randomize is not None or reference.random or noisy
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
         if not draws and reference is not self.reference:
@@ -322,12 +417,14 @@ class Simulation:
                 gain = 1.0
                 if self.randomize is not None:
                     factors = self.randomize.draw(rng)
-                    self.plant_rows[j], gain = apply_factors(self._nominal_row, factors)
-                self.rows[j, ek.T_GAIN] = gain
-                self.rows[j, ek.T_REF :] = reference.sample(rng)
+                    self.plants.rows[j], gain = apply_factors(self._nominal_row, factors)
+                ek.set_episode(self.rows, int(j), gain, reference.sample(rng))
                 if noisy:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
-        ek.reset_envs(mask, self.state, self.delay_buffer, self.rows, x0, v0, ref_row, not draws)
+        plants = self.plants
+        ek.reset_envs(
+            mask, plants.state, plants.delay_buffer, self.rows, x0, v0, ref_row, not draws
+        )
 
     def run(
         self,
@@ -338,14 +435,10 @@ class Simulation:
         flags: BoolArray,
     ) -> None:
         """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
-        bad = self._kernel(
-            self.state, self.delay_buffer, self.head, command, self.dt, self.substeps,
-            self.plant_rows, self.rows, self.noise_state, self.config, fresh, obs, out, flags,
-        )  # fmt: skip
+        task = (self.rows, self.noise_state, self.config, fresh, obs, out, flags)
+        bad = self.plants.run(command, *task)
         if bad >= 0:
             raise ValueError(
                 f"action {command[bad]!r} (env {bad}) is not a finite number; actions must be "
                 "finite commands in physical units"
             )
-        if self.delay_steps:
-            self.head = (self.head + 1) % self.delay_steps

@@ -9,15 +9,10 @@ from dataclasses import dataclass, fields
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym.friction import _core as fc
 from frictiongym.plants import _kernel as pk
 
 FloatArray = npt.NDArray[np.float64]
 Range = tuple[float, float]
-
-# Columns of a plant row each factor scales.
-_FRICTION_LEVELS = tuple(pk.F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG))
-_DAMPING = (pk.I_B, pk.F0 + fc.I_VISCOUS)
 
 
 @dataclass(frozen=True)
@@ -99,11 +94,5 @@ class DomainRandomization:
 
 def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
     """Scaled copy of a plant row, and the sensor-gain factor."""
-    row = plant_row.copy()
-    if "friction" in factors:
-        row[list(_FRICTION_LEVELS)] *= factors["friction"]
-    if "inertia" in factors:
-        row[pk.I_J] *= factors["inertia"]
-    if "damping" in factors:
-        row[list(_DAMPING)] *= factors["damping"]
-    return row, factors.get("sensor_gain", 1.0)
+    scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping"))
+    return pk.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)

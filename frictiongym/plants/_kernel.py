@@ -92,14 +92,14 @@ def pack_row(
 
 
 def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
-    """The end stop of each plant row (a view)."""
+    """Return the end stop of each plant row (a view)."""
     return rows[:, I_STOP]
 
 
 def scale_row(
     row: npt.NDArray[np.float64], friction: float, inertia: float, damping: float
 ) -> npt.NDArray[np.float64]:
-    """A copy of a plant row with its friction levels, inertia and damping scaled.
+    """Return a copy of a plant row with its friction levels, inertia and damping scaled.
 
     ``friction`` scales every break-away and Coulomb level, ``damping`` the plant's ``B`` and
     the law's viscous slope together.
@@ -128,6 +128,7 @@ def reset_rows(
     selected[:, S_V] = velocity
     selected[:, S_STUCK] = velocity == 0.0
     state[index] = selected
+
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.
 #: Array views cost a reference-count round trip each; per plant that was most of the step.

@@ -150,6 +150,7 @@ class Plant:
     #: Slot of :attr:`delay_buffer` holding the command due now.
     head: int
     _step_kernel: Kernel
+    _serial: Kernel
 
     def __init__(
         self,
