@@ -21,11 +21,11 @@ import numpy.typing as npt
 from frictiongym._validation import check_number
 from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
-from frictiongym.friction import FrictionModel, friction_from_name
-from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
+from frictiongym.friction import FrictionModel
+from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, PlantParams, default_substeps
+from frictiongym.plants.randomization import DomainRandomization, apply_factors
 from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
@@ -33,33 +33,6 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: Keys accepted in ``reset(options=...)``.
 RESET_OPTIONS = ("position", "velocity", "reference")
-
-
-def _device_params(
-    device: Device,
-    params: str | os.PathLike[str] | DeviceParams,
-    friction: object,
-    plant: object,
-) -> DeviceParams:
-    """Load ``params`` and check it fits this device and is the only source of the physics.
-
-    ``friction="paper"``, the default law, is accepted: the file's law replaces it.
-    """
-    pairs = (("friction", None if friction == "paper" else friction), ("plant", plant))
-    given = [name for name, value in pairs if value is not None]
-    if given:
-        raise ValueError(
-            f"params and {' and '.join(given)} both set the simulated physics; pick one: "
-            "params=PATH (the identified file) or friction=/plant= (presets or objects)"
-        )
-    loaded = resolve_params(params)
-    if loaded.device is not None and loaded.device != device.name:
-        raise ParamsFileError(
-            f"{loaded.source or 'params'}: identified on device {loaded.device!r}, but this env "
-            f"simulates {device.name!r}; their units differ (identify this device, or make the "
-            f"env of {loaded.device!r})"
-        )
-    return loaded
 
 
 class Frame(NamedTuple):
@@ -214,7 +187,8 @@ class Simulation:
         self.device = device
         self.num_envs = int(num_envs)
         self.dt = device.dt if dt is None else check_number("dt", dt, "> 0")
-        self._set_physics(friction, plant, params, delay)
+        physics = device_physics(device, self.dt, friction, plant, params, delay)
+        self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)
         self.limit = (
@@ -233,38 +207,6 @@ class Simulation:
         )
         self.rows: FloatArray = np.zeros((self.num_envs, ek.TASK_ROW_SIZE))
         self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
-
-    def _set_physics(
-        self,
-        friction: str | FrictionModel | None,
-        plant: PlantParams | None,
-        params: str | os.PathLike[str] | DeviceParams | None,
-        delay: float | None,
-    ) -> None:
-        """Set :attr:`params`, :attr:`friction`, :attr:`model_friction` and :attr:`plant`."""
-        device = self.device
-        self.params = None if params is None else _device_params(device, params, friction, plant)
-        if self.params is not None:
-            friction = self.params.plant_friction()
-            plant = self.params.plant(device.plant)
-        elif friction is None:
-            friction = "paper"
-        if isinstance(friction, str):
-            friction = friction_from_name(friction, device.paper_friction, device.lugre_friction)
-        if not isinstance(friction, FrictionModel):
-            raise TypeError(f"friction must be a law's name or a FrictionModel, got {friction!r}")
-        self.friction = friction
-        self.model_friction = device.paper_friction if self.params is None else self.params.friction
-        nominal = device.plant if plant is None else plant
-        if not isinstance(nominal, PlantParams):
-            raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
-        if delay is None:  # the device's dead time, in whole periods of this dt
-            delay = round(nominal.dead_time / self.dt) * self.dt
-        self.plant = replace(
-            nominal,
-            dead_time=check_number("delay", delay, ">= 0"),
-            end_stop=min(nominal.end_stop, device.end_stop),
-        )
 
     def _task_config(
         self,
