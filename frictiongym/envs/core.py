@@ -12,7 +12,6 @@ import math
 import numbers
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import replace
 from typing import Any, NamedTuple, Protocol
 
 import numpy as np
@@ -26,7 +25,7 @@ from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, PlantParams, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
-from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
+from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, noise_std, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -218,12 +217,6 @@ class Simulation:
     ) -> FloatArray:
         """Return the env kernel's settings: sensor, velocity filter, reward and episode end."""
         device = self.device
-        if sensor_noise is True:
-            noise = device.noise_std
-        elif sensor_noise is False:
-            noise = 0.0
-        else:
-            noise = check_number("sensor_noise", sensor_noise, ">= 0")
         if not isinstance(quantize, bool | np.bool_):
             raise TypeError(f"quantize must be True or False, got {quantize!r}")
         if max_episode_steps is not None and (
@@ -238,7 +231,7 @@ class Simulation:
         return ek.pack_config(
             sensor=device.sensor,
             quantize=float(quantize),
-            noise=noise,
+            noise=noise_std(sensor_noise, device.noise_std),
             encoder_step=QUBE_ENCODER_STEP,
             pole=pole,
             velocity_floor=velocity_floor(quantum, pole, self.dt),
@@ -255,9 +248,7 @@ class Simulation:
 
     def _new_plants(self, parallel: bool | None) -> Plant:
         """Build the N plants on the env kernel; randomised envs get a parameter row each."""
-        worst = self.plant  # the smallest inertia a reset can draw sets the substeps
-        if self.randomize is not None and self.randomize.inertia is not None:
-            worst = replace(self.plant, inertia=self.plant.inertia * self.randomize.inertia[0])
+        worst = self.plant if self.randomize is None else self.randomize.lightest(self.plant)
         plants = Plant(
             self.plant,
             self.friction,

@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym.plants import _kernel as pk
+from frictiongym.plants.plant import PlantParams
 
 FloatArray = npt.NDArray[np.float64]
 Range = tuple[float, float]
@@ -81,6 +82,12 @@ class DomainRandomization:
             f"randomize must be None, a dict or a DomainRandomization, got {spec!r} "
             "(e.g. randomize={'friction': (0.8, 1.2)})"
         )
+
+    def lightest(self, plant: PlantParams) -> PlantParams:
+        """Return ``plant`` at the least inertia a draw can give (it sets the substeps)."""
+        if self.inertia is None:
+            return plant
+        return replace(plant, inertia=plant.inertia * self.inertia[0])
 
     def draw(self, rng: np.random.Generator) -> dict[str, float]:
         """One factor per randomised field, in field order."""

@@ -15,6 +15,8 @@ import numpy as np
 import numpy.typing as npt
 from numba import float64, njit, vectorize
 
+from frictiongym._validation import check_number
+
 FloatArray = npt.NDArray[np.float64]
 
 SENSOR_ENCODER = 0  #: servo: angle through an encoder, observation [angle, velocity, reference]
@@ -61,6 +63,13 @@ def ir_count(
 def ir_estimate(readout: float) -> float:
     """Distance in cm that a readout stands for, by the paper's calibration, Eq. (1)."""
     return IR_NUMERATOR / (readout + IR_OFFSET)
+
+
+def noise_std(setting: bool | float, default: float) -> float:
+    """Sensor noise of a ``sensor_noise`` setting: none (False), ``default`` (True) or a std."""
+    if setting is True or setting is False:
+        return default if setting else 0.0
+    return check_number("sensor_noise", setting, ">= 0")
 
 
 def ir_quantum() -> float:
