@@ -295,20 +295,13 @@ def reset_envs(
     With ``set_rows`` their task rows also get unit sensor gain and the ``reference`` row;
     otherwise the caller has set the rows. The sensor offset is always zeroed.
     """
-    k = 0
+    pk.reset_plants(mask, state, delay_buffer, position, velocity)
     for i in range(mask.shape[0]):
-        if not mask[i]:
-            continue
-        state[i, :] = 0.0
-        state[i, pk.S_X] = position[k]
-        state[i, pk.S_V] = velocity[k]
-        state[i, pk.S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
-        delay_buffer[i, :] = 0.0
-        if set_rows:
-            rows[i, T_GAIN] = 1.0
-            rows[i, T_REF:] = reference
-        rows[i, T_OFFSET] = 0.0
-        k += 1
+        if mask[i]:
+            if set_rows:
+                rows[i, T_GAIN] = 1.0
+                rows[i, T_REF:] = reference
+            rows[i, T_OFFSET] = 0.0
 
 
 @pk.serial_njit

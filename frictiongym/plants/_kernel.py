@@ -112,22 +112,28 @@ def scale_row(
     return scaled
 
 
-def reset_rows(
+@njit(cache=True)
+def reset_plants(
+    mask: npt.NDArray[np.bool_],
     state: npt.NDArray[np.float64],
-    index: slice | npt.NDArray[np.bool_],
+    delay_buffer: npt.NDArray[np.float64],
     position: npt.NDArray[np.float64],
     velocity: npt.NDArray[np.float64],
 ) -> None:
-    """Put the plants of ``index`` at ``position`` with ``velocity``, the rest relaxed (zero).
+    """Put the plants of ``mask`` at rest-or-moving starts (k-th masked one: ``position[k]``).
 
-    A velocity of exactly 0.0 starts a plant stuck.
+    The rest of their state (a task's columns too) and their commands in flight are zeroed; a
+    velocity of exactly 0.0 starts a plant stuck.
     """
-    selected = state[index]
-    selected[:] = 0.0
-    selected[:, S_X] = position
-    selected[:, S_V] = velocity
-    selected[:, S_STUCK] = velocity == 0.0
-    state[index] = selected
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            state[i, :] = 0.0
+            state[i, S_X] = position[k]
+            state[i, S_V] = velocity[k]
+            state[i, S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
+            delay_buffer[i, :] = 0.0
+            k += 1
 
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.

@@ -261,9 +261,9 @@ class Plant:
         elif isinstance(kernel, AdaptiveKernel):
             kernel.rescale(self.num_plants / size)
 
-    def _selection(self, mask: npt.ArrayLike | None) -> slice | npt.NDArray[np.bool_]:
+    def _selection(self, mask: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
         if mask is None:
-            return slice(None)
+            return np.ones(self.num_plants, dtype=bool)
         selection = np.asarray(mask, dtype=bool)
         if selection.shape != (self.num_plants,):
             raise ValueError(f"mask must have shape ({self.num_plants},), got {selection.shape}")
@@ -280,21 +280,20 @@ class Plant:
         A velocity of exactly 0.0 starts the plant stuck; the actuator lag, dead-time buffer
         and LuGre bristles start relaxed (zero).
         """
-        idx = self._selection(mask)
-        count = self.state[idx].shape[0]
+        selected = self._selection(mask)
+        count = int(np.count_nonzero(selected))
         pos = np.broadcast_to(np.asarray(position, dtype=np.float64), count)
         vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), count)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset position and velocity must be finite")
-        stops = np.broadcast_to(k.end_stops(self.rows), self.num_plants)[idx]
-        beyond = pos > stops
+        beyond = pos > np.broadcast_to(k.end_stops(self.rows), self.num_plants)[selected]
         if np.any(beyond):
             raise ValueError(
                 f"reset position {pos[beyond][0]!r} lies beyond the plant's end stop; "
                 "start at or before it"
             )
-        k.reset_rows(self.state, idx, pos, vel)
-        self.delay_buffer[idx] = 0.0
+        start = (np.ascontiguousarray(pos), np.ascontiguousarray(vel))
+        k.reset_plants(selected, self.state, self.delay_buffer, *start)
 
     def place(
         self, position: float, *, stop: bool = False, mask: npt.ArrayLike | None = None
@@ -304,11 +303,11 @@ class Plant:
         An encoder reset moves the origin (the disk's dynamics do not depend on its angle); an
         inelastic stop (``stop=True``) leaves the body stuck there at rest.
         """
-        idx = self._selection(mask)
-        self._column("position")[idx] = position
+        selected = self._selection(mask)
+        self._column("position")[selected] = position
         if stop:
-            self._column("velocity")[idx] = 0.0
-            self._column("stuck")[idx] = 1.0
+            self._column("velocity")[selected] = 0.0
+            self._column("stuck")[selected] = 1.0
 
     def step(self, command: float | npt.ArrayLike) -> None:
         """Hold ``command`` over one control period for every plant.
