@@ -42,7 +42,7 @@ import secrets
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any
 
 from frictiongym._validation import Rule, check_number, real_number
 from frictiongym.devices import DEVICES
@@ -57,7 +57,6 @@ __all__ = [
     "PARAM_KEYS",
     "DeviceParams",
     "ParamsFileError",
-    "Physics",
     "device_physics",
     "load_params",
     "resolve_params",
@@ -461,16 +460,6 @@ def resolve_params(value: str | os.PathLike[str] | DeviceParams) -> DeviceParams
     )
 
 
-class Physics(NamedTuple):
-    """What a simulated device runs (:func:`device_physics`)."""
-
-    params: DeviceParams | None  #: the identified file, if one sets the physics
-    friction: FrictionModel  #: the plant's law (without the viscous slope a file puts in ``B``)
-    #: The friction a compensator models by default: the file's law, else the paper preset.
-    model_friction: FrictionModel
-    plant: PlantParams
-
-
 def device_physics(
     device: Any,
     dt: float,
@@ -478,13 +467,15 @@ def device_physics(
     plant: PlantParams | None = None,
     params: str | os.PathLike[str] | DeviceParams | None = None,
     delay: float | None = None,
-) -> Physics:
+) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
     """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
 
     ``device`` gives the defaults: ``name``, ``plant``, ``paper_friction``, ``lugre_friction``
     and ``end_stop``. ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"``
     (the default law, which the file's replaces); ``delay`` defaults to the plant's dead time in
-    whole periods of ``dt``.
+    whole periods of ``dt``. Returns the loaded params (or None), the plant's friction law
+    (without the viscous slope a file puts in ``B``), the law a compensator models by default
+    (the file's, else the paper preset) and the plant.
     """
     loaded = None
     if params is not None:
@@ -516,6 +507,4 @@ def device_physics(
     dead_time = check_number("delay", delay, ">= 0")
     end_stop = min(nominal.end_stop, device.end_stop)
     model = device.paper_friction if loaded is None else loaded.friction
-    return Physics(
-        loaded, friction, model, replace(nominal, dead_time=dead_time, end_stop=end_stop)
-    )
+    return loaded, friction, model, replace(nominal, dead_time=dead_time, end_stop=end_stop)

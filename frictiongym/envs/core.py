@@ -105,40 +105,12 @@ class Simulation:
         What to simulate.
     num_envs : int
         Batch size.
-    friction : str or FrictionModel, optional
-        A law's name (``paper``, ``none``, ``coulomb``, ``stribeck``, ``lugre``) built from the
-        device's presets, or a model (default ``"paper"``; with ``params``, the file's law).
-    dt : float, optional
-        Control period, s (default: the device's).
-    reference : str, float or Reference, default "step"
-        Default reference of every episode (see :func:`resolve_reference`).
-    sensor_noise : bool or float, default False
-        Additive sensor noise: False (none), True (the device's default level) or a standard
-        deviation in sensor units (rad for the encoder, readout units for the IR sensor).
-    quantize : bool, default True
-        Quantise as the sensor does (encoder counts, integer IR readout).
-    delay : float, optional
-        Actuator dead time, s, a whole number of periods (default: the device's, rounded to
-        whole periods).
-    randomize : dict or DomainRandomization, optional
-        Factors drawn at each reset.
-    plant : PlantParams, optional
-        Nominal plant (default: the device's).
-    params : str, PathLike or DeviceParams, optional
-        Identified parameters (a ``friction.json``, its directory, or loaded): the plant gets
-        the file's ``J`` and total damping ``B``, the friction its law without the viscous
-        slope (``B`` includes it; :mod:`frictiongym.params`). Excludes ``plant`` and
-        a ``friction`` other than ``"paper"``. Also the compensators' default model
-        (:attr:`model_friction`).
-    effort_weight, safety_limit, limit_penalty : float, optional
-        Reward and safety settings (defaults: the device's).
-    max_episode_steps : int, optional
-        Truncate episodes after this many steps (the vector env; the single env leaves it to
-        the registered ``TimeLimit``).
-    parallel : bool, optional
-        ``True``: numba's threads; ``False``: one thread. Default: from
-        ``PARALLEL_MIN_PLANTS`` envs on, whichever is faster at the moment
-        (:class:`~frictiongym.plants.threads.AdaptiveKernel`; results are bit-identical).
+    **settings
+        The env's arguments, as the env classes document them (``friction``, ``dt``,
+        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``randomize``, ``plant``,
+        ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
+        :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
+        (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
     """
 
     device: Device

@@ -132,8 +132,9 @@ class Firmware:
         self.dt = self.device.dt
         self.scale = self.device.command_scale  #: command counts per unit
         altino = kind == "altino"
-        physics = device_physics(self.device, self.dt, friction, params=params)
-        self.plant_params, self.friction = physics.plant, physics.friction
+        _, self.friction, _, self.plant_params = device_physics(
+            self.device, self.dt, friction, params=params
+        )
         spread = self.randomize = DomainRandomization.from_spec(randomize)
         lightest = self.plant_params if spread is None else spread.lightest(self.plant_params)
         substeps = default_substeps([lightest], [self.friction], self.dt)

@@ -80,15 +80,10 @@ COLUMNS = {"position": S_X, "velocity": S_V, "bristle": S_Z, "lag": S_LAG,
 
 
 def pack_row(
-    inertia: float,
-    damping: float,
-    command_limit: float,
-    lag: float,
-    end_stop: float,
-    friction: npt.NDArray[np.float64],
+    plant: tuple[float, ...], friction: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
-    """One plant row: the plant's parameters, then the packed friction row."""
-    return np.concatenate(([inertia, damping, command_limit, lag, end_stop], friction))
+    """Return one plant row: ``(J, B, u_max, lag, end stop)``, then the packed friction row."""
+    return np.concatenate((plant, friction))
 
 
 def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:

@@ -80,7 +80,7 @@ class PlantParams:
 def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     """Pack plant and friction parameters into one kernel row."""
     plant = (params.inertia, params.damping, params.command_limit, params.lag, params.end_stop)
-    return k.pack_row(*plant, friction.row())
+    return k.pack_row(plant, friction.row())
 
 
 def default_substeps(
