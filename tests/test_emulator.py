@@ -189,7 +189,7 @@ def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
     start = 15.0 if kind == "altino" else 0.5  # the IR sensor reads 0 beyond 21 cm
     fw = Firmware(kind, sensor_noise=True, randomize=spread, seed=7, start=start)
     limit = 0.0 if kind == "altino" else 1e9  # the firmware ends nothing; the car stays ahead
-    sim = Simulation(devices()[kind], 1, sensor_noise=True, randomize=spread, reference=0.0,
+    sim = Simulation(fw.device, 1, sensor_noise=True, randomize=spread, reference=0.0,
                      safety_limit=limit, parallel=False)  # fmt: skip
     rng, fresh = np.random.default_rng(7), np.ones(1, dtype=bool)
     obs = np.zeros((1, sim.observation_size), dtype=np.float32)
