@@ -64,11 +64,7 @@ def real_number(
 
 
 def check_number(name: str, value: object, rule: str = "finite") -> float:
-    """Return ``value`` as a float: a real, finite number and, by ``rule``, ``">= 0"`` or ``"> 0"``.
-
-    For settings given as arguments rather than fields (``TypeError``/``ValueError``, e.g.
-    ``dt must be > 0, got 0.0``).
-    """
+    """Return an argument as a float, checked finite and, by ``rule``, ``">= 0"`` or ``"> 0"``."""
     if not isinstance(value, numbers.Real) or isinstance(value, bool):
         raise TypeError(f"{name} must be a number, got {value!r}")
     number = float(value)

@@ -45,7 +45,7 @@ from pathlib import Path
 from typing import Any
 
 from frictiongym._validation import Rule, check_number, real_number
-from frictiongym.devices import DEVICES
+from frictiongym.devices import DEVICES, Device
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb, friction_from_name
 from frictiongym.friction import _core as fc
 from frictiongym.plants.plant import PlantParams
@@ -461,7 +461,7 @@ def resolve_params(value: str | os.PathLike[str] | DeviceParams) -> DeviceParams
 
 
 def device_physics(
-    device: Any,
+    device: Device,
     dt: float,
     friction: str | FrictionModel | None = None,
     plant: PlantParams | None = None,
@@ -470,12 +470,11 @@ def device_physics(
 ) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
     """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
 
-    ``device`` gives the defaults: ``name``, ``plant``, ``paper_friction``, ``lugre_friction``
-    and ``end_stop``. ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"``
-    (the default law, which the file's replaces); ``delay`` defaults to the plant's dead time in
-    whole periods of ``dt``. Returns the loaded params (or None), the plant's friction law
-    (without the viscous slope a file puts in ``B``), the law a compensator models by default
-    (the file's, else the paper preset) and the plant.
+    ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"`` (the default law,
+    which the file's replaces); ``delay`` defaults to the device's dead time in whole periods of
+    ``dt``. Returns the file (or None), the plant's law (without the viscous slope a file puts
+    in ``B``), the law a compensator models by default (the file's, else the paper preset) and
+    the plant.
     """
     loaded = None
     if params is not None:

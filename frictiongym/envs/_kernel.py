@@ -62,19 +62,17 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 CONFIG_SIZE = 11
-_CONFIG_NAMES = "sensor quantize noise encoder_step pole error_scale effort_weight penalty"
-#: Config entries by name, in column order (:func:`pack_config`, :func:`setting`).
-CONFIG = {
-    name: c for c, name in enumerate(f"{_CONFIG_NAMES} limit max_steps velocity_floor".split())
-}
-#: The env's own state columns by name, in column order (:func:`task_state`).
-STATE_COLUMNS = {
-    name: E_STEPS + c
-    for c, name in enumerate(("steps", "estimate", "velocity_estimate", "reference"))
-}
-TASK_COLUMNS = ENV_STATE_SIZE - pk.STATE_SIZE
-if len(CONFIG) != CONFIG_SIZE or len(STATE_COLUMNS) != TASK_COLUMNS:
-    raise ImportError("frictiongym.envs._kernel: a name of CONFIG or STATE_COLUMNS is missing")
+TASK_COLUMNS = ENV_STATE_SIZE - pk.STATE_SIZE  #: the env's state columns after the plant's
+
+
+def _named(prefix: str) -> dict[str, int]:
+    """Return this module's layout constants ``<prefix>NAME`` by lower-case name."""
+    return {key[len(prefix) :].lower(): n for key, n in globals().items() if key.startswith(prefix)}
+
+
+#: Config entries (``C_NOISE``: ``"noise"``) and the env's state columns (``E_STEPS``:
+#: ``"steps"``) by name, for :func:`pack_config`, :func:`setting` and :func:`task_state`.
+CONFIG, STATE_COLUMNS = _named("C_"), _named("E_")
 
 
 def pack_config(**settings: float) -> npt.NDArray[np.float64]:

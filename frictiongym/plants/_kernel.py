@@ -94,11 +94,7 @@ def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 def scale_row(
     row: npt.NDArray[np.float64], friction: float, inertia: float, damping: float
 ) -> npt.NDArray[np.float64]:
-    """Return a copy of a plant row with its friction levels, inertia and damping scaled.
-
-    ``friction`` scales every break-away and Coulomb level, ``damping`` the plant's ``B`` and
-    the law's viscous slope together.
-    """
+    """Return a plant row with its friction levels, inertia and damping (B, viscous) scaled."""
     scaled = row.copy()
     levels = [F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG)]
     scaled[levels] *= friction

@@ -135,10 +135,9 @@ def normal_draw(rng: npt.NDArray[np.uint64], i: int) -> float:
 def measure(
     x: float, encoder: bool, gain: float, offset: float, noise: float, quantize: bool, step: float
 ) -> float:
-    """Return what the sensor reads of a plant at ``x``: the encoder angle, or the IR readout.
+    """Return the encoder angle (``step``: rad per count) or the IR readout of a plant at ``x``.
 
-    The IR sensor faces a wall at ``x = 0`` that the plant approaches from below, at the
-    distance ``-x``; ``step`` is the encoder's resolution, rad.
+    The IR sensor faces a wall at ``x = 0``, which the plant approaches from below.
     """
     if encoder:
         angle = gain * x + noise
