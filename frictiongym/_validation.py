@@ -63,20 +63,6 @@ def real_number(
     return number
 
 
-def check_number(name: str, value: object, rule: str = "finite") -> float:
-    """Return an argument as a float, checked finite and, by ``rule``, ``">= 0"`` or ``"> 0"``."""
-    if not isinstance(value, numbers.Real) or isinstance(value, bool):
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    number = float(value)
-    if (
-        not math.isfinite(number)
-        or (rule == ">= 0" and number < 0.0)
-        or (rule == "> 0" and number <= 0.0)
-    ):
-        raise ValueError(f"{name} must be {rule}, got {value!r}")
-    return number
-
-
 def check_finite(obj: object, *names: str) -> None:
     """Raise unless every named field of ``obj`` is a finite real number."""
     for name in names:

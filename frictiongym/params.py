@@ -44,7 +44,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from frictiongym._validation import Rule, check_number, real_number
+from frictiongym._validation import Rule, real_number
 from frictiongym.devices import DEVICES, Device
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb, friction_from_name
 from frictiongym.friction import _core as fc
@@ -503,7 +503,7 @@ def device_physics(
         raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
     if delay is None:  # the device's dead time, in whole periods of this dt
         delay = round(nominal.dead_time / dt) * dt
-    dead_time = check_number("delay", delay, ">= 0")
+    dead_time = real_number("delay", delay, ">= 0")
     end_stop = min(nominal.end_stop, device.end_stop)
     model = device.paper_friction if loaded is None else loaded.friction
     return loaded, friction, model, replace(nominal, dead_time=dead_time, end_stop=end_stop)

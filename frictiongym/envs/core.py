@@ -17,7 +17,7 @@ from typing import Any, NamedTuple, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._validation import check_number
+from frictiongym._validation import real_number
 from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
 from frictiongym.envs.references import Reference, resolve_reference
@@ -157,7 +157,7 @@ class Simulation:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.device = device
         self.num_envs = int(num_envs)
-        self.dt = device.dt if dt is None else check_number("dt", dt, "> 0")
+        self.dt = device.dt if dt is None else real_number("dt", dt, "> 0")
         physics = device_physics(device, self.dt, friction, plant, params, delay)
         self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
@@ -165,7 +165,7 @@ class Simulation:
         self.limit = (
             device.limit
             if safety_limit is None
-            else check_number("safety_limit", safety_limit, ">= 0")
+            else real_number("safety_limit", safety_limit, ">= 0")
         )
         self.config = self._task_config(
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
@@ -210,10 +210,10 @@ class Simulation:
             error_scale=device.error_scale,
             effort_weight=device.effort_weight
             if effort_weight is None
-            else check_number("effort_weight", effort_weight, ">= 0"),
+            else real_number("effort_weight", effort_weight, ">= 0"),
             penalty=device.limit_penalty
             if limit_penalty is None
-            else check_number("limit_penalty", limit_penalty, ">= 0"),
+            else real_number("limit_penalty", limit_penalty, ">= 0"),
             limit=self.limit,
             max_steps=max_episode_steps or 0,
         )

@@ -15,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 from numba import float64, njit, vectorize
 
-from frictiongym._validation import check_number
+from frictiongym._validation import real_number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -69,7 +69,7 @@ def noise_std(setting: bool | float, default: float) -> float:
     """Sensor noise of a ``sensor_noise`` setting: none (False), ``default`` (True) or a std."""
     if setting is True or setting is False:
         return default if setting else 0.0
-    return check_number("sensor_noise", setting, ">= 0")
+    return real_number("sensor_noise", setting, ">= 0")
 
 
 def ir_quantum() -> float:
