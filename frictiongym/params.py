@@ -45,8 +45,8 @@ from typing import Any
 
 from frictiongym._io import write_text_atomic
 from frictiongym._validation import Rule, real_number
-from frictiongym.devices import DEVICES
-from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb
+from frictiongym.devices import DEVICES, Device
+from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb, friction_from_name
 from frictiongym.friction import _core as fc
 from frictiongym.plants.plant import PlantParams
 
@@ -57,6 +57,7 @@ __all__ = [
     "PARAM_KEYS",
     "DeviceParams",
     "ParamsFileError",
+    "device_physics",
     "load_params",
     "resolve_params",
     "save_params",
@@ -450,3 +451,52 @@ def resolve_params(value: str | os.PathLike[str] | DeviceParams) -> DeviceParams
         f"params must be a path to a friction.json (or its directory) or a DeviceParams, "
         f"got {value!r}"
     )
+
+
+def device_physics(
+    device: Device,
+    dt: float,
+    friction: str | FrictionModel | None = None,
+    plant: PlantParams | None = None,
+    params: str | os.PathLike[str] | DeviceParams | None = None,
+    delay: float | None = None,
+) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
+    """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
+
+    ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"`` (the default law,
+    which the file's replaces); ``delay`` defaults to the device's dead time in whole periods of
+    ``dt``. Returns the file (or None), the plant's law (without the viscous slope a file puts
+    in ``B``), the law a compensator models by default (the file's, else the paper preset) and
+    the plant.
+    """
+    loaded = None
+    if params is not None:
+        pairs = (("friction", None if friction == "paper" else friction), ("plant", plant))
+        given = [name for name, value in pairs if value is not None]
+        if given:
+            raise ValueError(
+                f"params and {' and '.join(given)} both set the simulated physics; pick one: "
+                "params=PATH (the identified file) or friction=/plant= (presets or objects)"
+            )
+        loaded = resolve_params(params)
+        if loaded.device is not None and loaded.device != device.name:
+            raise ParamsFileError(
+                f"{loaded.source or 'params'}: identified on device {loaded.device!r}, but this "
+                f"env simulates {device.name!r}; their units differ (identify this device, or "
+                f"make the env of {loaded.device!r})"
+            )
+        friction, plant = loaded.plant_friction(), loaded.plant(device.plant)
+    if isinstance(friction, str) or friction is None:
+        law = "paper" if friction is None else friction
+        friction = friction_from_name(law, device.paper_friction, device.lugre_friction)
+    if not isinstance(friction, FrictionModel):
+        raise TypeError(f"friction must be a law's name or a FrictionModel, got {friction!r}")
+    nominal = device.plant if plant is None else plant
+    if not isinstance(nominal, PlantParams):
+        raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
+    if delay is None:  # the device's dead time, in whole periods of this dt
+        delay = round(nominal.dead_time / dt) * dt
+    dead_time = real_number("delay", delay, ">= 0")
+    end_stop = min(nominal.end_stop, device.end_stop)
+    model = device.paper_friction if loaded is None else loaded.friction
+    return loaded, friction, model, replace(nominal, dead_time=dead_time, end_stop=end_stop)

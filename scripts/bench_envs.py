@@ -231,9 +231,9 @@ def kernel_of(env: Any) -> str:
     sim = getattr(env, "sim", None)
     if sim is None:
         return "-"
-    if isinstance(sim._kernel, AdaptiveKernel):
+    if isinstance(sim.plants._step_kernel, AdaptiveKernel):
         return "adaptive"
-    return "parallel" if sim.parallel else "serial"
+    return "parallel" if sim.plants.parallel else "serial"
 
 
 def vector_variant(
@@ -378,7 +378,7 @@ def threads_runner(
             obs = step(actions)[0]
             policy(obs)
 
-    return run, env.sim._kernel
+    return run, env.sim.plants._step_kernel
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -140,11 +140,11 @@ def test_boots_disabled_and_streams_states_at_its_rate(serve):
     ("altino", "frictiongym/AltinoDistance-v0", [400] * 15 + [-200] * 10 + [300] * 15 + [0] * 5),
 ])  # fmt: skip
 def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands):
+    env = gym.make(env_id).unwrapped
+    obs, _ = env.reset(seed=0)  # first: compiling the env's kernel must not trip the watchdog
     emu, host = serve(kind, lockstep=True)
     hello = host.hello()
     first = host.step(0, ARM | p.Flag.ZERO_POSITION)
-    env = gym.make(env_id).unwrapped
-    obs, _ = env.reset(seed=0)
     assert first.status == p.Status(0)
     assert first.sensor == (0 if kind == "rotary" else int(obs[0]))
     for counts in commands:
@@ -177,10 +177,53 @@ def test_zero_position_at_rest_equals_a_fresh_reset(law):
     assert fw.velocity == velocity
     fresh = Simulation(ROTARY, 1, friction=law, reference=0.0)
     fresh.prepare_reset(np.ones(1, bool), lambda _: np.random.default_rng(0))
-    physics = [*range(pk.STATE_SIZE), ek.E_ESTIMATE]
     if law in ("paper", "coulomb", "stribeck"):  # laws with stiction come to rest exactly
         assert velocity == 0.0
-        np.testing.assert_array_equal(fw.sim.state[0, physics], fresh.state[0, physics])
+        np.testing.assert_array_equal(fw.plant.state[0], fresh.state[0, : pk.STATE_SIZE])
+        assert fw.sensor == ek.task_state(fresh.state, "estimate")[0] == 0.0
+
+
+@pytest.mark.parametrize("kind", ["rotary", "altino"])
+def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
+    """Noise, a randomised plant and sensor gain: the firmware's readings are the env's own."""
+    spread = {"friction": (0.7, 1.3), "inertia": (0.8, 1.2), "sensor_gain": (0.9, 1.1)}
+    start = 15.0 if kind == "altino" else 0.5  # the IR sensor reads 0 beyond 21 cm
+    fw = Firmware(kind, sensor_noise=True, randomize=spread, seed=7, start=start)
+    limit = 0.0 if kind == "altino" else 1e9  # the firmware ends nothing; the car stays ahead
+    sim = Simulation(fw.device, 1, sensor_noise=True, randomize=spread, reference=0.0,
+                     safety_limit=limit, parallel=False)  # fmt: skip
+    rng, fresh = np.random.default_rng(7), np.ones(1, dtype=bool)
+    obs = np.zeros((1, sim.observation_size), dtype=np.float32)
+    out, flags = np.zeros((ek.OUT_SIZE, 1)), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+    sim.prepare_reset(fresh, lambda _: rng, {"position": start})
+
+    def env_reading(command: float) -> int:
+        sim.run(np.array([command]), fresh, obs, out, flags)
+        if kind == "rotary":
+            return round(float(ek.task_state(sim.state, "estimate")[0]) / STEP)
+        return int(obs[0, 0])
+
+    assert fw.sensor == env_reading(0.0)
+    fresh[0] = False
+    counts = [fw.hello.command_limit // 4] * 15 + [-fw.hello.command_limit // 4] * 30
+    readings = []
+    for count in counts:
+        fw.hold(count)
+        readings.append(fw.sensor)
+        assert fw.sensor == env_reading(count / fw.scale)
+        np.testing.assert_array_equal(fw.plant.state[0], sim.state[0, : pk.STATE_SIZE])
+    assert len(set(readings)) > 10  # the plant moved and the noise showed
+
+
+def test_the_firmware_and_emulator_do_not_import_the_envs():
+    """The emulator's plant is the plant core's: importing it loads no env module."""
+    code = (
+        "import sys, frictiongym.hardware.emulator, frictiongym.hardware.firmware; "
+        "print(sorted(m for m in sys.modules if m.startswith('frictiongym.envs.')))"
+    )
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            check=True).stdout.strip()  # fmt: skip
+    assert loaded == "[]"
 
 
 _COMMANDS = st.builds(

@@ -171,6 +171,25 @@ def test_reset_clears_the_dead_time_buffer() -> None:
     assert plant.velocity[0] == 0.0
 
 
+def test_place_moves_plants_and_keeps_the_rest_of_their_state() -> None:
+    plant = Plant(PlantParams(1.0, 0.1, 5.0, lag=0.01, dead_time=2 * DT), asym("step"), DT, 2)
+    for _ in range(40):
+        plant.step([2.0, -2.0])
+    moving = plant.state.copy()
+    buffer = plant.delay_buffer.copy()
+    plant.place(0.25, mask=[True, False])  # an encoder reset: only the position changes
+    assert plant.position.tolist() == [0.25, moving[1, k.S_X]]
+    others = [c for c in range(k.STATE_SIZE) if c != k.S_X]
+    np.testing.assert_array_equal(plant.state[:, others], moving[:, others])
+    np.testing.assert_array_equal(plant.delay_buffer, buffer)
+    plant.place(-1.0, stop=True)  # an inelastic stop: at rest and stuck there
+    assert plant.position.tolist() == [-1.0, -1.0]
+    assert plant.velocity.tolist() == [0.0, 0.0]
+    assert plant.stuck.all()
+    kept = [k.S_Z, k.S_LAG, k.S_FRICTION, k.S_COMMAND]
+    np.testing.assert_array_equal(plant.state[:, kept], moving[:, kept])
+
+
 @pytest.mark.parametrize("lag", [0.005, 0.02])
 def test_actuator_lag_first_order_response(lag: float) -> None:
     # No friction, B = 0: the lag output y(t) = u (1 - exp(-t/lag)), and the velocity is its

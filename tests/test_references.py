@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from frictiongym.devices import ROTARY
-from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import (
     MAX_LEVELS,
     Ramp,
@@ -21,6 +20,7 @@ from frictiongym.envs.references import (
 from frictiongym.friction import ROTARY_PAPER
 from frictiongym.plants.plant import plant_row
 from frictiongym.plants.presets import ROTARY_PLANT
+from frictiongym.plants.randomization import DomainRandomization, apply_factors
 
 DT = 0.002
 T = np.arange(2000) * DT  # the env's sample times k * dt, rounding included

@@ -102,9 +102,9 @@ def test_plant_and_envs_take_their_kernel_from_the_policy() -> None:
     vec = gym.make_vec(
         IDS[0], num_envs=PARALLEL_MIN_PLANTS, vectorization_mode="vector_entry_point"
     )
-    assert isinstance(vec.unwrapped.sim._kernel, AdaptiveKernel) == THREADS
+    assert isinstance(vec.unwrapped.sim.plants._step_kernel, AdaptiveKernel) == THREADS
     serial = gym.make_vec(IDS[0], 8, vectorization_mode="vector_entry_point", parallel=True)
-    assert serial.unwrapped.sim._kernel is ek.step_envs_parallel
+    assert serial.unwrapped.sim.plants._step_kernel is ek.step_envs_parallel
 
 
 def test_the_faster_twin_runs_once_both_are_measured(clock: FakeClock) -> None:
@@ -170,8 +170,10 @@ def test_switching_twins_mid_run_changes_no_trajectory(
     switching = make(env_id, n, vectorization_mode="vector_entry_point", **kwargs)
     sim = switching.unwrapped.sim
     cost = [100.0 * US, 200.0 * US]
-    sim._kernel = AdaptiveKernel(*(flipping(twin, i, cost, clock) for i, twin in enumerate(
-        (ek.step_envs, ek.step_envs_parallel))))  # fmt: skip
+    twins = (ek.step_envs, ek.step_envs_parallel)
+    sim.plants._step_kernel = AdaptiveKernel(
+        *(flipping(twin, i, cost, clock) for i, twin in enumerate(twins))
+    )
     actions = commands(env_id, steps, shape=(n,), seed=3)
     obs_ref, _ = reference.reset(seed=4)
     obs, _ = switching.reset(seed=4)
@@ -183,8 +185,8 @@ def test_switching_twins_mid_run_changes_no_trajectory(
         got = switching.step(a)
         for e, g in zip(expected[:4], got[:4], strict=True):
             np.testing.assert_array_equal(g, e)
-    assert sim._kernel.switches >= 3
-    assert min(sim._kernel.calls) >= 20
+    assert sim.plants._step_kernel.switches >= 3
+    assert min(sim.plants._step_kernel.calls) >= 20
 
 
 def flipping(twin, which: int, cost: list[float], clock: FakeClock):

@@ -21,8 +21,6 @@ Layouts (all float64 unless noted):
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
@@ -30,12 +28,11 @@ from numba import njit, prange
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import (
-    IR_MAX_READOUT,
     SENSOR_ENCODER,
     derivative_update,
-    encoder_angle,
-    ir_count,
     ir_estimate,
+    measure,
+    normal_draw,
 )
 from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read ek.SENSOR_IR
 
@@ -65,6 +62,44 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 CONFIG_SIZE = 11
+TASK_COLUMNS = ENV_STATE_SIZE - pk.STATE_SIZE  #: the env's state columns after the plant's
+
+
+def _named(prefix: str) -> dict[str, int]:
+    """Return this module's layout constants ``<prefix>NAME`` by lower-case name."""
+    return {key[len(prefix) :].lower(): n for key, n in globals().items() if key.startswith(prefix)}
+
+
+#: Config entries (``C_NOISE``: ``"noise"``) and the env's state columns (``E_STEPS``:
+#: ``"steps"``) by name, for :func:`pack_config`, :func:`setting` and :func:`task_state`.
+CONFIG, STATE_COLUMNS = _named("C_"), _named("E_")
+
+
+def pack_config(**settings: float) -> npt.NDArray[np.float64]:
+    """Return the config array of these settings (names of :data:`CONFIG`; the rest 0.0)."""
+    config = np.zeros(CONFIG_SIZE)
+    for name, value in settings.items():
+        config[CONFIG[name]] = value
+    return config
+
+
+def setting(config: npt.NDArray[np.float64], name: str) -> float:
+    """One setting of a config array, by its name in :data:`CONFIG`."""
+    return float(config[CONFIG[name]])
+
+
+def task_state(state: npt.NDArray[np.float64], name: str) -> npt.NDArray[np.float64]:
+    """One of the env's own state columns (a view), by its name in :data:`STATE_COLUMNS`."""
+    return state[:, STATE_COLUMNS[name]]
+
+
+def set_episode(
+    rows: npt.NDArray[np.float64], i: int, gain: float, reference: npt.NDArray[np.float64]
+) -> None:
+    """Write env ``i``'s drawn sensor gain and packed reference into its task row."""
+    rows[i, T_GAIN] = gain
+    rows[i, T_REF:] = reference
+
 
 # Outputs.
 O_REWARD = 0
@@ -78,32 +113,6 @@ F_TERMINATED = 0
 F_TRUNCATED = 1
 F_STUCK = 2
 FLAG_SIZE = 3
-
-# splitmix64 (Steele, Lea & Flood 2014): one uint64 of state per env, so the noise of env i
-# depends only on its own seed, however the batch is split over threads.
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
-_MIX2 = np.uint64(0x94D049BB133111EB)
-_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
-
-
-@njit(cache=True, inline="always")
-def _uniform(rng: npt.NDArray[np.uint64], i: int) -> float:
-    """Draw the next uniform in (0, 1] from env ``i``'s generator."""
-    z = rng[i] + _GOLDEN
-    rng[i] = z
-    z = (z ^ (z >> _S30)) * _MIX1
-    z = (z ^ (z >> _S27)) * _MIX2
-    z = z ^ (z >> _S31)
-    return (float(z >> _S11) + 1.0) * (1.0 / 9007199254740992.0)
-
-
-@njit(cache=True, inline="always")
-def _normal(rng: npt.NDArray[np.uint64], i: int) -> float:
-    """Draw a standard normal for env ``i`` (Box-Muller, one of the pair)."""
-    u1 = _uniform(rng, i)
-    u2 = _uniform(rng, i)
-    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
 @njit(cache=True, inline="always")
@@ -131,23 +140,16 @@ def _env_element(
         pk.step_plant(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row,
                       False, delayed)  # fmt: skip
         state[i, E_STEPS] += 1.0
-    x = state[i, pk.S_X]
+    x, encoder = state[i, pk.S_X], config[C_SENSOR] == SENSOR_ENCODER
     noise = 0.0
     if config[C_NOISE] > 0.0:
-        noise = config[C_NOISE] * _normal(rng, i)
-    if config[C_SENSOR] == SENSOR_ENCODER:
+        noise = config[C_NOISE] * normal_draw(rng, i)
+    quantize, gain, offset = config[C_QUANTIZE] != 0.0, rows[i, T_GAIN], rows[i, T_OFFSET]
+    measured = measure(x, encoder, gain, offset, noise, quantize, config[C_ENCODER_STEP])
+    if encoder:
         position, velocity = x, state[i, pk.S_V]
-        measured = rows[i, T_GAIN] * x + noise
-        if config[C_QUANTIZE] != 0.0:
-            measured = encoder_angle(measured, config[C_ENCODER_STEP])
     else:  # IR: the plant moves toward the wall, so the distance is -x
         position, velocity = 0.0 - x, 0.0 - state[i, pk.S_V]  # not -0.0 at the wall
-        if position <= 0.0:  # touching the wall: the nearest reading
-            measured = float(IR_MAX_READOUT)
-        else:
-            measured = ir_count(
-                position, rows[i, T_GAIN], rows[i, T_OFFSET], noise, config[C_QUANTIZE] != 0.0
-            )
     umax = plant_rows[0 if one_row else i, pk.I_UMAX]
     _observe(i, measured, position, velocity, state[i, pk.S_COMMAND], umax, dt, state, rows,
              config, fresh, obs, out, flags, False)  # fmt: skip
@@ -291,20 +293,13 @@ def reset_envs(
     With ``set_rows`` their task rows also get unit sensor gain and the ``reference`` row;
     otherwise the caller has set the rows. The sensor offset is always zeroed.
     """
-    k = 0
+    pk.reset_plants(mask, state, delay_buffer, position, velocity)
     for i in range(mask.shape[0]):
-        if not mask[i]:
-            continue
-        state[i, :] = 0.0
-        state[i, pk.S_X] = position[k]
-        state[i, pk.S_V] = velocity[k]
-        state[i, pk.S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
-        delay_buffer[i, :] = 0.0
-        if set_rows:
-            rows[i, T_GAIN] = 1.0
-            rows[i, T_REF:] = reference
-        rows[i, T_OFFSET] = 0.0
-        k += 1
+        if mask[i]:
+            if set_rows:
+                rows[i, T_GAIN] = 1.0
+                rows[i, T_REF:] = reference
+            rows[i, T_OFFSET] = 0.0
 
 
 @pk.serial_njit

@@ -1,7 +1,9 @@
 """Gymnasium env classes shared by the devices: a single env and a native vector env.
 
-Both hold a :class:`~frictiongym.envs.core.Simulation` (of 1 or of N envs) and differ only
-in how they seed, return and reset: the single env draws from ``self.np_random``, env ``i`` of
+Both drive an :class:`~frictiongym.envs.core.EnvCore`: a
+:class:`~frictiongym.envs.core.Simulation` of 1 or of N envs, or a single env's
+:class:`~frictiongym.envs.device.DeviceSession`. They differ only in how they seed, return and
+reset: the single env draws from ``self.np_random``, env ``i`` of
 the vector env from a generator seeded ``seed + i`` (as ``SyncVectorEnv`` seeds its copies),
 so ``vector_env.reset(seed=s)`` and ``single_env.reset(seed=s + i)`` give identical
 trajectories for the same actions.
@@ -24,9 +26,8 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.core import Device, Simulation
+from frictiongym.envs.core import Device, EnvCore, Simulation
 from frictiongym.hardware import SIM
-from frictiongym.plants import _kernel as pk
 from frictiongym.plants.sensors import IR_MAX_READOUT, ir_estimate
 
 ObsArray = npt.NDArray[np.float32]
@@ -67,7 +68,7 @@ def _check_arguments(env: object, given: Any, valid: tuple[str, ...]) -> None:
     )
 
 
-def _spaces(device: Device, sim: Simulation) -> tuple[spaces.Space[Any], spaces.Space[Any]]:
+def _spaces(device: Device, sim: EnvCore) -> tuple[spaces.Space[Any], spaces.Space[Any]]:
     limit = sim.plant.command_limit
     action = spaces.Box(-limit, limit, shape=(1,), dtype=np.float32)
     low = np.full(sim.observation_size, -np.inf, dtype=np.float32)
@@ -98,7 +99,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         _check_arguments(self, kwargs, _SINGLE_ARGUMENTS)
         self.render_mode = render_mode
         self._spec: EnvSpec | None = None
-        self.sim: Simulation
+        self.sim: EnvCore
         if backend is None or backend in SIM:
             device_only = sorted(set(_DEVICE_ARGUMENTS) & set(kwargs))
             if device_only:
@@ -113,7 +114,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
 
             self.sim = DeviceSession(self.device, backend, **kwargs)
         #: Whether a device backend runs the env (then it is nondeterministic).
-        self.on_device = type(self.sim) is not Simulation
+        self.on_device = self.sim.on_device
         self.dt = self.sim.dt
         self.action_space, self.observation_space = _spaces(self.device, self.sim)
         self._command = np.zeros(1)
@@ -171,10 +172,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
             else:
                 self._command[0] = _one_number(action)
             self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
-            if (
-                self.render_mode == "human"
-                and self.sim.state[0, ek.E_STEPS] % self._render_every == 0
-            ):
+            if self.render_mode == "human" and self.sim.frame(0).steps % self._render_every == 0:
                 self.render()
         except BaseException:
             self.sim.stop()
@@ -251,17 +249,11 @@ def _one_number(action: object) -> float:
     return float(array[0])
 
 
-def _frame(sim: Simulation, i: int) -> npt.NDArray[np.uint8]:
+def _frame(sim: EnvCore, i: int) -> npt.NDArray[np.uint8]:
     from frictiongym.envs import rendering
 
-    x = float(sim.state[i, pk.S_X])
-    if type(sim) is not Simulation:  # a device: draw what it measured
-        estimate = float(sim.state[i, ek.E_ESTIMATE])
-        x = estimate if sim.device.sensor == ek.SENSOR_ENCODER else -estimate
-    reference = float(sim.state[i, ek.E_REFERENCE])
-    stuck = bool(sim.state[i, pk.S_STUCK] != 0.0)
-    time = float(sim.state[i, ek.E_STEPS]) * sim.dt
-    command = float(sim.state[i, pk.S_COMMAND])
+    x, reference, stuck, steps, command = sim.frame(i)
+    time = steps * sim.dt
     if sim.device.sensor == ek.SENSOR_ENCODER:
         return rendering.draw_servo(x, reference, stuck=stuck, time=time, command=command)
     return rendering.draw_altino(0.0 - x, reference, stuck=stuck, time=time, command=command)

@@ -12,21 +12,20 @@ import math
 import numbers
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import replace
-from typing import Any
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import real_number
 from frictiongym.devices import Device
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.randomization import DomainRandomization, apply_factors
 from frictiongym.envs.references import Reference, resolve_reference
-from frictiongym.friction import FrictionModel, friction_from_name
-from frictiongym.params import DeviceParams, ParamsFileError, resolve_params
-from frictiongym.plants.plant import PlantParams, default_substeps, plant_row
-from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, velocity_floor
-from frictiongym.plants.threads import select_kernel
+from frictiongym.friction import FrictionModel
+from frictiongym.params import DeviceParams, device_physics
+from frictiongym.plants.plant import Plant, PlantParams, default_substeps
+from frictiongym.plants.randomization import DomainRandomization, apply_factors
+from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, noise_std, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -35,45 +34,70 @@ BoolArray = npt.NDArray[np.bool_]
 RESET_OPTIONS = ("position", "velocity", "reference")
 
 
-def _number(name: str, value: object, rule: str = "finite") -> float:
-    """``value`` as a float, checked to be finite and, by ``rule``, ``">= 0"`` or ``"> 0"``."""
-    if not (isinstance(value, numbers.Real) and not isinstance(value, bool)):
-        raise TypeError(f"{name} must be a number, got {value!r}")
-    v = float(value)
-    if not math.isfinite(v) or (rule == ">= 0" and v < 0.0) or (rule == "> 0" and v <= 0.0):
-        raise ValueError(f"{name} must be {rule}, got {value!r}")
-    return v
+class Frame(NamedTuple):
+    """What a frame of env ``i`` draws: its position (plant coordinates) and task."""
+
+    position: float
+    reference: float
+    stuck: bool
+    steps: float  #: steps of the episode so far
+    command: float
 
 
-def _device_params(
-    device: Device,
-    params: str | os.PathLike[str] | DeviceParams,
-    friction: object,
-    plant: object,
-) -> DeviceParams:
-    """Load ``params`` and check it fits this device and is the only source of the physics.
+class EnvCore(Protocol):
+    """What the env classes drive: a :class:`Simulation` of N envs, or a device session of one.
 
-    ``friction="paper"``, the default law, is accepted: the file's law replaces it.
+    ``run`` after ``prepare_reset`` observes the envs of its mask; then each ``run`` steps them
+    (:class:`~frictiongym.envs.device.DeviceSession` on a device).
     """
-    pairs = (("friction", None if friction == "paper" else friction), ("plant", plant))
-    given = [name for name, value in pairs if value is not None]
-    if given:
-        raise ValueError(
-            f"params and {' and '.join(given)} both set the simulated physics; pick one: "
-            "params=PATH (the identified file) or friction=/plant= (presets or objects)"
-        )
-    loaded = resolve_params(params)
-    if loaded.device is not None and loaded.device != device.name:
-        raise ParamsFileError(
-            f"{loaded.source or 'params'}: identified on device {loaded.device!r}, but this env "
-            f"simulates {device.name!r}; their units differ (identify this device, or make the "
-            f"env of {loaded.device!r})"
-        )
-    return loaded
+
+    device: Device
+    num_envs: int
+    dt: float
+    plant: PlantParams
+    params: DeviceParams | None
+    model_friction: FrictionModel
+    limit: float
+    #: Whether a device runs the env (then it is nondeterministic).
+    on_device: bool
+
+    @property
+    def observation_size(self) -> int:
+        """Length of one env's observation."""
+
+    def prepare_reset(
+        self,
+        mask: BoolArray,
+        rng_of: Callable[[int], np.random.Generator],
+        options: Mapping[str, Any] | None = None,
+    ) -> None:
+        """Reset the envs of ``mask``; the next :meth:`run` with ``fresh=mask`` observes them."""
+
+    def run(
+        self,
+        command: npt.NDArray[np.floating[Any]],
+        fresh: BoolArray,
+        obs: npt.NDArray[np.float32],
+        out: FloatArray,
+        flags: BoolArray,
+    ) -> None:
+        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
+
+    def frame(self, i: int) -> Frame:
+        """Return what a frame of env ``i`` draws."""
+
+    def stop(self) -> None:
+        """Zero a device's motor after an error."""
+
+    def close(self) -> None:
+        """Release what the core holds (a device's link)."""
 
 
 class Simulation:
-    """N simulated envs of one device.
+    """N simulated envs of one device: the task (sensor, reference, reward, resets) on a plant.
+
+    The plant is a :class:`~frictiongym.plants.Plant` of N (:attr:`plants`) whose kernel is the
+    env kernel: it steps the plant, reads the sensor and scores the step in one compiled loop.
 
     Parameters
     ----------
@@ -81,40 +105,12 @@ class Simulation:
         What to simulate.
     num_envs : int
         Batch size.
-    friction : str or FrictionModel, optional
-        A law's name (``paper``, ``none``, ``coulomb``, ``stribeck``, ``lugre``) built from the
-        device's presets, or a model (default ``"paper"``; with ``params``, the file's law).
-    dt : float, optional
-        Control period, s (default: the device's).
-    reference : str, float or Reference, default "step"
-        Default reference of every episode (see :func:`resolve_reference`).
-    sensor_noise : bool or float, default False
-        Additive sensor noise: False (none), True (the device's default level) or a standard
-        deviation in sensor units (rad for the encoder, readout units for the IR sensor).
-    quantize : bool, default True
-        Quantise as the sensor does (encoder counts, integer IR readout).
-    delay : float, optional
-        Actuator dead time, s, a whole number of periods (default: the device's, rounded to
-        whole periods).
-    randomize : dict or DomainRandomization, optional
-        Factors drawn at each reset.
-    plant : PlantParams, optional
-        Nominal plant (default: the device's).
-    params : str, PathLike or DeviceParams, optional
-        Identified parameters (a ``friction.json``, its directory, or loaded): the plant gets
-        the file's ``J`` and total damping ``B``, the friction its law without the viscous
-        slope (``B`` includes it; :mod:`frictiongym.params`). Excludes ``plant`` and
-        a ``friction`` other than ``"paper"``. Also the compensators' default model
-        (:attr:`model_friction`).
-    effort_weight, safety_limit, limit_penalty : float, optional
-        Reward and safety settings (defaults: the device's).
-    max_episode_steps : int, optional
-        Truncate episodes after this many steps (the vector env; the single env leaves it to
-        the registered ``TimeLimit``).
-    parallel : bool, optional
-        ``True``: numba's threads; ``False``: one thread. Default: from
-        ``PARALLEL_MIN_PLANTS`` envs on, whichever is faster at the moment
-        (:class:`~frictiongym.plants.threads.AdaptiveKernel`; results are bit-identical).
+    **settings
+        The env's arguments, as the env classes document them (``friction``, ``dt``,
+        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``randomize``, ``plant``,
+        ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
+        :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
+        (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
     """
 
     device: Device
@@ -126,15 +122,13 @@ class Simulation:
     model_friction: FrictionModel
     params: DeviceParams | None
     plant: PlantParams
-    delay_steps: int
     reference: Reference
     randomize: DomainRandomization | None
     limit: float
     config: FloatArray
-    substeps: int
-    head: int
-    parallel: bool
-    _kernel: Callable[..., int]
+    #: The N plants, stepped by the env kernel (their state has the env's columns after theirs).
+    plants: Plant
+    on_device = False
     _nominal_row: FloatArray
     _default_x0: float
     _default_reference_row: FloatArray
@@ -163,38 +157,38 @@ class Simulation:
             raise ValueError(f"num_envs must be a positive integer, got {num_envs!r}")
         self.device = device
         self.num_envs = int(num_envs)
-        self.dt = device.dt if dt is None else _number("dt", dt, "> 0")
-        self.params = None if params is None else _device_params(device, params, friction, plant)
-        if self.params is not None:
-            friction = self.params.plant_friction()
-            plant = self.params.plant(device.plant)
-        elif friction is None:
-            friction = "paper"
-        if isinstance(friction, str):
-            friction = friction_from_name(friction, device.paper_friction, device.lugre_friction)
-        if not isinstance(friction, FrictionModel):
-            raise TypeError(f"friction must be a law's name or a FrictionModel, got {friction!r}")
-        self.friction = friction
-        self.model_friction = device.paper_friction if self.params is None else self.params.friction
-        nominal = device.plant if plant is None else plant
-        if not isinstance(nominal, PlantParams):
-            raise TypeError(f"plant must be a PlantParams, got {nominal!r}")
-        if delay is None:  # the device's dead time, in whole periods of this dt
-            delay = round(nominal.dead_time / self.dt) * self.dt
-        self.plant = replace(
-            nominal,
-            dead_time=_number("delay", delay, ">= 0"),
-            end_stop=min(nominal.end_stop, device.end_stop),
-        )
-        self.delay_steps = self.plant.delay_steps(self.dt)
+        self.dt = device.dt if dt is None else real_number("dt", dt, "> 0")
+        physics = device_physics(device, self.dt, friction, plant, params, delay)
+        self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)
-        if sensor_noise is True:
-            noise = device.noise_std
-        elif sensor_noise is False:
-            noise = 0.0
-        else:
-            noise = _number("sensor_noise", sensor_noise, ">= 0")
+        self.limit = (
+            device.limit
+            if safety_limit is None
+            else real_number("safety_limit", safety_limit, ">= 0")
+        )
+        self.config = self._task_config(
+            sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
+        )
+        self.plants = self._new_plants(parallel)
+        self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
+        # A random reference is sampled per env at reset; the zero row only fills the argument.
+        self._default_reference_row = (
+            self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
+        )
+        self.rows: FloatArray = np.zeros((self.num_envs, ek.TASK_ROW_SIZE))
+        self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
+
+    def _task_config(
+        self,
+        sensor_noise: bool | float,
+        quantize: bool,
+        effort_weight: float | None,
+        limit_penalty: float | None,
+        max_episode_steps: int | None,
+    ) -> FloatArray:
+        """Return the env kernel's settings: sensor, velocity filter, reward and episode end."""
+        device = self.device
         if not isinstance(quantize, bool | np.bool_):
             raise TypeError(f"quantize must be True or False, got {quantize!r}")
         if max_episode_steps is not None and (
@@ -203,57 +197,52 @@ class Simulation:
             raise ValueError(
                 f"max_episode_steps must be a positive integer, got {max_episode_steps!r}"
             )
-        self.limit = (
-            device.limit if safety_limit is None else _number("safety_limit", safety_limit, ">= 0")
-        )
-        self.config = np.zeros(ek.CONFIG_SIZE)
-        self.config[ek.C_SENSOR] = device.sensor
-        self.config[ek.C_QUANTIZE] = float(quantize)
-        self.config[ek.C_NOISE] = noise
-        self.config[ek.C_ENCODER_STEP] = QUBE_ENCODER_STEP
         cutoff = device.velocity_cutoff
         pole = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
-        self.config[ek.C_POLE] = pole
         quantum = QUBE_ENCODER_STEP if device.sensor == ek.SENSOR_ENCODER else ir_quantum()
-        self.config[ek.C_VELOCITY_FLOOR] = velocity_floor(quantum, pole, self.dt)
-        self.config[ek.C_ERROR_SCALE] = device.error_scale
-        self.config[ek.C_EFFORT_WEIGHT] = (
-            device.effort_weight
+        return ek.pack_config(
+            sensor=device.sensor,
+            quantize=float(quantize),
+            noise=noise_std(sensor_noise, device.noise_std),
+            encoder_step=QUBE_ENCODER_STEP,
+            pole=pole,
+            velocity_floor=velocity_floor(quantum, pole, self.dt),
+            error_scale=device.error_scale,
+            effort_weight=device.effort_weight
             if effort_weight is None
-            else _number("effort_weight", effort_weight, ">= 0")
-        )
-        self.config[ek.C_PENALTY] = (
-            device.limit_penalty
+            else real_number("effort_weight", effort_weight, ">= 0"),
+            penalty=device.limit_penalty
             if limit_penalty is None
-            else _number("limit_penalty", limit_penalty, ">= 0")
+            else real_number("limit_penalty", limit_penalty, ">= 0"),
+            limit=self.limit,
+            max_steps=max_episode_steps or 0,
         )
-        self.config[ek.C_LIMIT] = self.limit
-        self.config[ek.C_MAX_STEPS] = max_episode_steps or 0
 
-        worst = self.plant  # the smallest inertia a reset can draw sets the substeps
-        if self.randomize is not None and self.randomize.inertia is not None:
-            worst = replace(self.plant, inertia=self.plant.inertia * self.randomize.inertia[0])
-        self.substeps = default_substeps([worst], [friction], self.dt)
-        self._nominal_row = plant_row(self.plant, friction)
-        self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
-        # A random reference is sampled per env at reset; the zero row only fills the argument.
-        self._default_reference_row = (
-            self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
+    def _new_plants(self, parallel: bool | None) -> Plant:
+        """Build the N plants on the env kernel; randomised envs get a parameter row each."""
+        worst = self.plant if self.randomize is None else self.randomize.lightest(self.plant)
+        plants = Plant(
+            self.plant,
+            self.friction,
+            self.dt,
+            self.num_envs,
+            substeps=default_substeps([worst], [self.friction], self.dt),
+            parallel=parallel,
+            task_columns=ek.TASK_COLUMNS,
+            kernels=(ek.step_envs, ek.step_envs_parallel),
         )
-        n = self.num_envs
-        self.plant_rows: FloatArray = self._nominal_row[None].copy()
+        self._nominal_row = plants.rows[0].copy()
         if self.randomize is not None:
-            self.plant_rows = np.repeat(self.plant_rows, n, axis=0)
-        self.rows: FloatArray = np.zeros((n, ek.TASK_ROW_SIZE))
-        self.state: FloatArray = np.zeros((n, ek.ENV_STATE_SIZE))
-        self.delay_buffer: FloatArray = np.zeros((n, self.delay_steps))
-        self.noise_state: npt.NDArray[np.uint64] = np.zeros(n, dtype=np.uint64)
-        self.head = 0
-        self._kernel = select_kernel(ek.step_envs, ek.step_envs_parallel, n, parallel)
-        self.parallel = self._kernel is not ek.step_envs  # threads may run
+            plants.own_rows()
+        return plants
+
+    @property
+    def state(self) -> FloatArray:
+        """The envs' state: the plant's columns, then the env kernel's own."""
+        return self.plants.state
 
     def close(self) -> None:
-        """Release what the simulation holds (nothing; a device session closes its link)."""
+        """Release what the simulation holds (nothing)."""
 
     def stop(self) -> None:
         """Zero a device's motor after an error (a simulation has none to stop)."""
@@ -263,7 +252,18 @@ class Simulation:
         """Length of one env's observation."""
         return len(self.device.observation_names)
 
-    def _start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
+    def frame(self, i: int) -> Frame:
+        """Return what a frame of env ``i`` draws: its true position and the task's state."""
+        plants = self.plants
+        return Frame(
+            float(plants.position[i]),
+            float(ek.task_state(self.state, "reference")[i]),
+            bool(plants.stuck[i]),
+            float(ek.task_state(self.state, "steps")[i]),
+            float(plants.command[i]),
+        )
+
+    def start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
         """Plant position and velocity at reset, from the options (in env units) or defaults."""
         if "position" not in options and "velocity" not in options:
             return np.full(count, self._default_x0), np.zeros(count)
@@ -310,8 +310,8 @@ class Simulation:
                 reference = resolve_reference(options["reference"], self.device.references)
         else:
             options = {}
-        x0, v0 = self._start_state(options, int(np.count_nonzero(mask)))
-        noisy = self.config[ek.C_NOISE] > 0.0
+        x0, v0 = self.start_state(options, int(np.count_nonzero(mask)))
+        noisy = ek.setting(self.config, "noise") > 0.0
         draws = self.randomize is not None or reference.random or noisy
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
         if not draws and reference is not self.reference:
@@ -322,12 +322,14 @@ class Simulation:
                 gain = 1.0
                 if self.randomize is not None:
                     factors = self.randomize.draw(rng)
-                    self.plant_rows[j], gain = apply_factors(self._nominal_row, factors)
-                self.rows[j, ek.T_GAIN] = gain
-                self.rows[j, ek.T_REF :] = reference.sample(rng)
+                    self.plants.rows[j], gain = apply_factors(self._nominal_row, factors)
+                ek.set_episode(self.rows, int(j), gain, reference.sample(rng))
                 if noisy:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
-        ek.reset_envs(mask, self.state, self.delay_buffer, self.rows, x0, v0, ref_row, not draws)
+        plants = self.plants
+        ek.reset_envs(
+            mask, plants.state, plants.delay_buffer, self.rows, x0, v0, ref_row, not draws
+        )
 
     def run(
         self,
@@ -338,14 +340,10 @@ class Simulation:
         flags: BoolArray,
     ) -> None:
         """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
-        bad = self._kernel(
-            self.state, self.delay_buffer, self.head, command, self.dt, self.substeps,
-            self.plant_rows, self.rows, self.noise_state, self.config, fresh, obs, out, flags,
-        )  # fmt: skip
+        task = (self.rows, self.noise_state, self.config, fresh, obs, out, flags)
+        bad = self.plants.run(command, *task)
         if bad >= 0:
             raise ValueError(
                 f"action {command[bad]!r} (env {bad}) is not a finite number; actions must be "
                 "finite commands in physical units"
             )
-        if self.delay_steps:
-            self.head = (self.head + 1) % self.delay_steps

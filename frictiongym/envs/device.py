@@ -1,9 +1,10 @@
 """One env on a device: the simulated env's task around a hardware backend's samples.
 
-:class:`DeviceSession` is a :class:`~frictiongym.envs.core.Simulation` of one whose plant step
-is replaced by the device's: the reference, the observation, the reward and the limits come
-from the same compiled code (:func:`frictiongym.envs._kernel.observe_device`), so a device
-whose readings equal the simulator's gives the same observations bit for bit. The device
+:class:`DeviceSession` is an :class:`~frictiongym.envs.core.EnvCore` whose plant is the device:
+its task (reference, sensor settings, reward, limits, resets) is a
+:class:`~frictiongym.envs.core.Simulation` of one that is never stepped, and the observation
+comes from the same compiled code (:func:`frictiongym.envs._kernel.observe_device`), so a
+device whose readings equal the simulator's gives the same observations bit for bit. The device
 knows no true state: ``info["position"]`` and ``info["velocity"]`` are the estimates.
 
 Every run is logged as it goes (:mod:`frictiongym.hardware.runlog`), and the motor is zeroed
@@ -30,7 +31,7 @@ import numpy.typing as npt
 
 from frictiongym import devices
 from frictiongym.envs import _kernel as ek
-from frictiongym.envs.core import BoolArray, FloatArray, Simulation
+from frictiongym.envs.core import BoolArray, FloatArray, Frame, Simulation
 from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import HardwareError, ProtocolError
@@ -49,7 +50,7 @@ SIM_ONLY = {
 }
 
 
-class DeviceSession(Simulation):
+class DeviceSession:
     """The env core of one env on a device (see the module docstring).
 
     Parameters
@@ -69,6 +70,10 @@ class DeviceSession(Simulation):
         device's period, ``quantize=True``).
     """
 
+    #: The task: reference, sensor settings, reward, limits and resets (its plant never runs).
+    task: Simulation
+    num_envs = 1
+    on_device = True
     backend: Backend
     info: DeviceInfo
     log: RunLog | None
@@ -114,7 +119,10 @@ class DeviceSession(Simulation):
                     "the loop; omit dt (or change the firmware's rate)"
                 )
             kwargs = {k: v for k, v in kwargs.items() if k not in SIM_ONLY}
-            super().__init__(device, 1, dt=dt, **kwargs)
+            self.task = Simulation(device, 1, dt=dt, **kwargs)
+            self.device, self.dt, self.plant = device, dt, self.task.plant
+            self.params, self.model_friction = self.task.params, self.task.model_friction
+            self.limit, self.reference = self.task.limit, self.task.reference
             self.log = None
             if log is not False:
                 directory = default_directory(device.name) if log is True else Path(log)
@@ -135,11 +143,24 @@ class DeviceSession(Simulation):
 
     def _compile(self) -> None:
         """Compile the observation code now: a first step must not stall while the motor runs."""
-        state, flags = self.state.copy(), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        state, flags = self.task.state.copy(), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
         obs = np.zeros((1, self.observation_size), dtype=np.float32)
         out, fresh = np.zeros((ek.OUT_SIZE, 1)), np.ones(1, dtype=bool)
-        ek.observe_device(state, self.rows, self.config, 0.0, 0.0, 1.0, self.dt, fresh, obs, out,
-                          flags)  # fmt: skip
+        task = (self.task.rows, self.task.config, 0.0, 0.0, 1.0, self.dt, fresh, obs, out, flags)
+        ek.observe_device(state, *task)
+
+    @property
+    def observation_size(self) -> int:
+        """Length of the observation."""
+        return self.task.observation_size
+
+    def frame(self, i: int) -> Frame:
+        """Return what a frame draws: the measured position (the device knows no other)."""
+        frame = self.task.frame(i)
+        estimate = float(ek.task_state(self.task.state, "estimate")[i])
+        return frame._replace(
+            position=estimate if self.device.sensor == ek.SENSOR_ENCODER else -estimate
+        )
 
     def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
         return {
@@ -167,14 +188,14 @@ class DeviceSession(Simulation):
             raise ValueError("a device starts at rest: reset option 'velocity' must be 0")
         if self.info.can_place:
             start = self.device.start if position is None else position
-            self._start_state({"position": start}, 1)  # the simulator's checks of the option
+            self.task.start_state({"position": start}, 1)  # the simulator's checks of the option
             self.backend.place(float(start))
         elif position is not None:
             raise ValueError(
                 "this device cannot be moved to a position; omit reset option 'position' (the "
                 "servo's encoder is zeroed where the disk is; put the Altino at its start by hand)"
             )
-        super().prepare_reset(mask, rng_of, options)
+        self.task.prepare_reset(mask, rng_of, options)
         freeze_heap(self)
         self._first = self.backend.start(zero_position=True)
         self.episode += 1
@@ -201,12 +222,12 @@ class DeviceSession(Simulation):
                 self._first = None
             else:
                 sample = self.backend.step(requested)
-            ek.observe_device(self.state, self.rows, self.config, sample.measured,
-                              sample.applied, self.plant.command_limit, self.dt, fresh, obs, out,
-                              flags)  # fmt: skip
+            task, umax = self.task, self.plant.command_limit
+            reading = (sample.measured, sample.applied, umax, self.dt, fresh, obs, out, flags)
+            ek.observe_device(task.state, task.rows, task.config, *reading)
             if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
                 if not flags[ek.F_TERMINATED, 0]:
-                    out[ek.O_REWARD, 0] -= self.config[ek.C_PENALTY]
+                    out[ek.O_REWARD, 0] -= ek.setting(task.config, "penalty")
                 flags[ek.F_TERMINATED, 0] = True
             self.last_sample = sample
             self._account(sample, not fresh[0], 0.0 if fresh[0] else requested, obs, out, flags)
@@ -241,16 +262,19 @@ class DeviceSession(Simulation):
         if self.log is None:
             return
         self.log.record((
-            self.episode, int(self.state[0, ek.E_STEPS]), out[ek.O_TIME, 0], sample.host_ns,
+            self.episode, self._steps(), out[ek.O_TIME, 0], sample.host_ns,
             sample.tick_us, sample.seq, sample.seq_applied, int(sample.late), sample.skipped,
             sample.status, requested, sample.applied, sample.measured, *obs[0].tolist(),
             out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
         ))  # fmt: skip
 
+    def _steps(self) -> int:
+        return int(ek.task_state(self.task.state, "steps")[0])
+
     def _record_fault(self, error: BaseException) -> None:
         fault = {
             "episode": self.episode,
-            "step": int(self.state[0, ek.E_STEPS]) + 1,
+            "step": self._steps() + 1,
             "error": type(error).__name__,
             "message": str(error),
         }

@@ -6,12 +6,13 @@ the device clock applies them (the newest command wins), runs the watchdog, hold
 command over the period (the Altino's distance guard checks a forward command against the
 latest sample first), samples the sensor, feeds the sample to the guard
 (:class:`~frictiongym.hardware.guard.DistanceGuard`, whose output the motor holds over the
-next period) and builds one ``State``. The plant is the env's own
-:class:`~frictiongym.envs.core.Simulation` of one env, so the physics exists once and the
-sensor numbers are the env's own measurements (bit-identical to the simulated env fed the same
-applied commands). The emulator (:class:`frictiongym.hardware.emulator.Emulator`) drives it
-from a real-time or lock-step clock behind a pty or a TCP socket; ``tests/test_firmware.py``
-checks it against the C firmware's scenario table.
+next period) and builds one ``State``. The plant is a :class:`~frictiongym.plants.Plant` of one
+read through :func:`~frictiongym.plants.sensors.measure`, with the env's settings, draws and
+noise, so the physics exists once and the sensor numbers are the env's own measurements
+(bit-identical to the simulated env fed the same applied commands). The emulator
+(:class:`frictiongym.hardware.emulator.Emulator`) drives it from a real-time or lock-step clock
+behind a pty or a TCP socket; ``tests/test_firmware.py`` checks it against the C firmware's
+scenario table.
 
 Timing idealisation: a command is held over the *whole* period in which it arrived, and the
 ``State`` that ends that period echoes it; the emulator has no transport or computation delay
@@ -30,15 +31,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from frictiongym import devices
-from frictiongym.envs import _kernel as ek
-from frictiongym.envs.core import Simulation
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol as p
 from frictiongym.hardware.base import KINDS
 from frictiongym.hardware.guard import CarBounds, DistanceGuard
-from frictiongym.params import DeviceParams
-from frictiongym.plants import _kernel as pk
-from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
+from frictiongym.params import DeviceParams, device_physics
+from frictiongym.plants.plant import Plant, default_substeps
+from frictiongym.plants.randomization import DomainRandomization, apply_factors
+from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV, measure, noise_std, normal_draw
 
 #: Build number the firmware reports in its ``Hello``, the same as ``FG_FIRMWARE_BUILD`` in
 #: firmware/common/fg_device.h: 3 = the guard bounds the speed and the car (2: the predictive
@@ -49,8 +49,8 @@ FIRMWARE_BUILD = 3
 #: (docs/hardware.md, "Timing and the watchdog"), and a stall is not a dead host.
 WATCHDOG_PERIODS = 3
 WATCHDOG_MIN_MS = 100
-#: Safety limit of the emulated servo, rad: large enough never to end anything (the firmware
-#: does not stop on the env's termination; the disk has no end stops).
+#: Farthest start of the emulated servo, rad (the disk has no end stops; a ``Place`` beyond is
+#: refused).
 ROTARY_NO_LIMIT = 1e9
 #: Per-tick records kept in :attr:`Firmware.history` (200 s at 500 Hz; older ones are dropped).
 HISTORY_TICKS = 100_000
@@ -132,12 +132,20 @@ class Firmware:
         self.dt = self.device.dt
         self.scale = self.device.command_scale  #: command counts per unit
         altino = kind == "altino"
+        _, self.friction, _, self.plant_params = device_physics(
+            self.device, self.dt, friction, params=params
+        )
+        spread = self.randomize = DomainRandomization.from_spec(randomize)
+        lightest = self.plant_params if spread is None else spread.lightest(self.plant_params)
+        substeps = default_substeps([lightest], [self.friction], self.dt)
         # One plant: the single-threaded kernel, whatever the envs' policy for batches.
-        self.sim = Simulation(
-            self.device, 1, params=params, friction=friction, sensor_noise=sensor_noise,
-            quantize=True, reference=0.0, randomize=randomize,
-            safety_limit=0.0 if altino else ROTARY_NO_LIMIT, parallel=False,
-        )  # fmt: skip
+        self.plant = Plant(
+            self.plant_params, self.friction, self.dt, substeps=substeps, parallel=False
+        )
+        self._nominal_row = self.plant.rows[0].copy()
+        self.noise_std = noise_std(sensor_noise, self.device.noise_std)
+        self._noise = np.zeros(1, dtype=np.uint64)  # the sensor noise's generator state
+        self._gain = 1.0  # the sensor's drawn gain
         if watchdog_ms is None:
             watchdog_ms = default_watchdog_ms(self.dt)
         if not (isinstance(watchdog_ms, int) and 0 <= watchdog_ms <= 0xFFFF):
@@ -156,17 +164,12 @@ class Firmware:
             rate_hz=round(1.0 / self.dt),
             counts_per_rev=0 if altino else QUBE_COUNTS_PER_REV,
             command_scale=self.scale,
-            command_limit=round(self.sim.plant.command_limit * self.scale),
+            command_limit=round(self.plant_params.command_limit * self.scale),
             watchdog_ms=watchdog_ms,
             firmware=FIRMWARE_BUILD,
         )
         self._period_us = round(self.dt * 1e6)
         self._rng = np.random.default_rng(seed)
-        self._command = np.zeros(1)
-        self._fresh = np.zeros(1, dtype=bool)
-        self._obs = np.zeros((1, self.sim.observation_size), dtype=np.float32)
-        self._out = np.zeros((ek.OUT_SIZE, 1))
-        self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
         self.decoder = p.FrameDecoder()
         self._pending: list[p.Command | p.Place] = []
         self.ticks = 0  #: device ticks so far
@@ -193,6 +196,7 @@ class Firmware:
         #: The Altino's distance guard (None on the servo): brakes before the wall.
         self.guard = self._new_guard() if altino else None
         self.sensor = 0
+        self.plant.step(0.0)  # compiled now: a first tick must not stall past the watchdog
         self._place(self.device.start if start is None else float(start))
 
     # -- plant ------------------------------------------------------------------------------
@@ -200,13 +204,13 @@ class Firmware:
     @property
     def position(self) -> float:
         """True plant position: rad, or cm from the wall."""
-        x = float(self.sim.state[0, pk.S_X])
+        x = float(self.plant.position[0])
         return -x if self.kind == "altino" else x
 
     @property
     def velocity(self) -> float:
         """True plant velocity: rad/s, or cm/s away from the wall."""
-        v = float(self.sim.state[0, pk.S_V])
+        v = float(self.plant.velocity[0])
         return -v if self.kind == "altino" else v
 
     @property
@@ -218,16 +222,24 @@ class Firmware:
         return self.motor_counts / self.scale
 
     def _place(self, position: float) -> None:
-        """Reset the plant at rest at ``position`` and sample it (the env's own reset).
+        """Reset the plant at rest at ``position`` and sample it (the env's reset and draws).
 
+        Raises ValueError if ``position`` is not finite or, on the Altino, not ahead of the wall.
         The distance guard starts afresh there (the car did not drive there: no speed), keeping
         its trip, and judges the new sample at once.
         """
-        self._fresh[0] = True
-        self.sim.prepare_reset(self._fresh, lambda _: self._rng, {"position": position})
-        self._command[0] = 0.0
-        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
-        self._fresh[0] = False
+        if self.kind == "altino" and not position > 0.0:
+            raise ValueError(f"the car must start ahead of the wall (> 0 cm), got {position!r}")
+        if self.kind == "rotary" and not abs(position) <= ROTARY_NO_LIMIT:
+            raise ValueError(
+                f"the disk must start within ±{ROTARY_NO_LIMIT:g} rad, got {position!r}"
+            )
+        if self.randomize is not None:
+            factors = self.randomize.draw(self._rng)
+            self.plant.rows[0], self._gain = apply_factors(self._nominal_row, factors)
+        if self.noise_std > 0.0:
+            self._noise[0] = self._rng.integers(2**64, dtype=np.uint64)
+        self.plant.reset(-position if self.kind == "altino" else position)
         self.sensor = self._sensor()
         if self.guard is not None:
             tripped = self.guard.tripped
@@ -238,9 +250,9 @@ class Firmware:
 
     def _car_bounds(self) -> CarBounds:
         """Return the guard's bounds from the plant's own law, mass and randomisation ranges."""
-        plant, spread = self.sim.plant, self.sim.randomize
+        plant, spread = self.plant_params, self.randomize
         bounds = CarBounds.from_law(
-            self.sim.friction, plant.damping, plant.inertia, self.hello.command_limit
+            self.friction, plant.damping, plant.inertia, self.hello.command_limit
         )
         if spread is None:
             return bounds
@@ -272,14 +284,14 @@ class Firmware:
         The disk's dynamics do not depend on its angle, so this is the encoder reset; at rest
         the state equals that of a freshly reset simulation (apart from its step count).
         """
-        self.sim.state[0, pk.S_X] = 0.0
-        self.sim.state[0, ek.E_ESTIMATE] = 0.0
+        self.plant.place(0.0)
 
     def _sensor(self) -> int:
-        """Return what the sensor reports: encoder counts or IR readout, from the env's own."""
-        if self.kind == "rotary":
-            return _wrap_i32(round(float(self.sim.state[0, ek.E_ESTIMATE]) / _ENCODER_STEP))
-        return int(self._obs[0, 0])
+        """Sample the sensor, as the env does: encoder counts or IR readout."""
+        noise = self.noise_std * normal_draw(self._noise, 0) if self.noise_std > 0.0 else 0.0
+        x, rotary = float(self.plant.position[0]), self.kind == "rotary"
+        measured = measure(x, rotary, self._gain, 0.0, noise, True, _ENCODER_STEP)
+        return _wrap_i32(round(measured / _ENCODER_STEP)) if rotary else int(measured)
 
     # -- messages ---------------------------------------------------------------------------
 
@@ -382,14 +394,10 @@ class Firmware:
         The plant's part of :meth:`tick` alone, for another implementation of the firmware to
         drive the same plant (``scripts/guard_scan.py`` runs the C one around it).
         """
-        self._command[0] = counts / self.scale
-        self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
-        if self.kind == "altino" and self.sim.state[0, pk.S_X] >= 0.0:
-            # An inelastic wall at 0 cm (the env has none: it ends the episode there).
-            self.sim.state[0, pk.S_X] = 0.0
-            self.sim.state[0, pk.S_V] = 0.0
-            self.sim.state[0, pk.S_STUCK] = 1.0
+        self.plant.step(counts / self.scale)
         self.sensor = self._sensor()
+        if self.kind == "altino" and self.plant.position[0] >= 0.0:
+            self.plant.place(0.0, stop=True)  # an inelastic wall (the env ends its episode there)
 
     def tick(self, now: float) -> p.State:
         """Run one device period ending at ``now`` (s); return its ``State``.

@@ -74,6 +74,58 @@ S_FRICTION = 4  #: friction force averaged over the last step (nonlinear + visco
 S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
 STATE_SIZE = 7
+#: The state columns by what they hold, for the plant's named accessors.
+COLUMNS = {"position": S_X, "velocity": S_V, "bristle": S_Z, "lag": S_LAG,
+           "friction_force": S_FRICTION, "command": S_COMMAND, "stuck": S_STUCK}  # fmt: skip
+
+
+def pack_row(
+    plant: tuple[float, ...], friction: npt.NDArray[np.float64]
+) -> npt.NDArray[np.float64]:
+    """Return one plant row: ``(J, B, u_max, lag, end stop)``, then the packed friction row."""
+    return np.concatenate((plant, friction))
+
+
+def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    """Return the end stop of each plant row (a view)."""
+    return rows[:, I_STOP]
+
+
+def scale_row(
+    row: npt.NDArray[np.float64], friction: float, inertia: float, damping: float
+) -> npt.NDArray[np.float64]:
+    """Return a plant row with its friction levels, inertia and damping (B, viscous) scaled."""
+    scaled = row.copy()
+    levels = [F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG)]
+    scaled[levels] *= friction
+    scaled[I_J] *= inertia
+    scaled[[I_B, F0 + fc.I_VISCOUS]] *= damping
+    return scaled
+
+
+@njit(cache=True)
+def reset_plants(
+    mask: npt.NDArray[np.bool_],
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    position: npt.NDArray[np.float64],
+    velocity: npt.NDArray[np.float64],
+) -> None:
+    """Put the plants of ``mask`` at rest-or-moving starts (k-th masked one: ``position[k]``).
+
+    The rest of their state (a task's columns too) and their commands in flight are zeroed; a
+    velocity of exactly 0.0 starts a plant stuck.
+    """
+    k = 0
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            state[i, :] = 0.0
+            state[i, S_X] = position[k]
+            state[i, S_V] = velocity[k]
+            state[i, S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
+            delay_buffer[i, :] = 0.0
+            k += 1
+
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.
 #: Array views cost a reference-count round trip each; per plant that was most of the step.

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 import numbers
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,10 +17,9 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym._validation import check_finite, check_nonnegative, check_positive
-from frictiongym.friction import _core as fc
-from frictiongym.friction.laws import FrictionModel
+from frictiongym.friction.laws import FrictionModel, LuGre
 from frictiongym.plants import _kernel as k
-from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, select_kernel
+from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, Kernel, select_kernel
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -80,14 +79,8 @@ class PlantParams:
 
 def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     """Pack plant and friction parameters into one kernel row."""
-    row = np.empty(k.ROW_SIZE)
-    row[k.I_J] = params.inertia
-    row[k.I_B] = params.damping
-    row[k.I_UMAX] = params.command_limit
-    row[k.I_LAG] = params.lag
-    row[k.I_STOP] = params.end_stop
-    row[k.F0 :] = friction.row()
-    return row
+    plant = (params.inertia, params.damping, params.command_limit, params.lag, params.end_stop)
+    return k.pack_row(plant, friction.row())
 
 
 def default_substeps(
@@ -106,16 +99,15 @@ def default_substeps(
     for fr in frictions:
         if not fr.exact and not fr.is_dynamic:
             n = max(n, 10)
-        if fr.is_dynamic:
-            row = fr.row()
+        if isinstance(fr, LuGre):
             j_min = min(pp.inertia for pp in params)
-            omega = math.sqrt(row[fc.I_SIGMA0] / j_min)
-            n = max(n, math.ceil(dt * omega / 0.2), math.ceil(dt * row[fc.I_SIGMA1] / j_min / 0.2))
+            omega = math.sqrt(float(fr.sigma0) / j_min)
+            n = max(n, math.ceil(dt * omega / 0.2), math.ceil(dt * float(fr.sigma1) / j_min / 0.2))
     return n
 
 
 class Plant:
-    """N plants stepped together by the compiled stick/slip kernel.
+    """N plants stepped together by a compiled batch kernel: the package's one plant core.
 
     Parameters
     ----------
@@ -135,10 +127,18 @@ class Plant:
         their calls and use whichever is faster at the moment
         (:class:`~frictiongym.plants.threads.AdaptiveKernel`), so threads help on an idle
         machine and step aside beside a learner; smaller batches run on one thread.
+    task_columns : int, default 0
+        Further state columns per plant for a task kernel (the env kernel keeps its step count,
+        estimates and reference there).
+    kernels : (Kernel, Kernel), optional
+        The serial and threaded batch kernels: by default the plant kernel's
+        (:func:`~frictiongym.plants._kernel.step_batch`); a task kernel such as
+        :func:`~frictiongym.envs._kernel.step_envs` takes the same first seven arguments and
+        steps the plant inside its own loop.
 
     Notes
     -----
-    The state lives in one ``(N, 7)`` float64 array (:attr:`state`, columns in
+    The state lives in one ``(N, 7 + task_columns)`` float64 array (:attr:`state`, columns in
     :mod:`frictiongym.plants._kernel`); the properties below are views into it.
     """
 
@@ -147,8 +147,10 @@ class Plant:
     substeps: int
     delay_steps: int
     parallel: bool
-    _head: int
-    _step_kernel: Callable[..., int]
+    #: Slot of :attr:`delay_buffer` holding the command due now.
+    head: int
+    _step_kernel: Kernel
+    _serial: Kernel
 
     def __init__(
         self,
@@ -158,6 +160,9 @@ class Plant:
         num_plants: int = 1,
         substeps: int | None = None,
         parallel: bool | None = None,
+        *,
+        task_columns: int = 0,
+        kernels: tuple[Kernel, Kernel] = (k.step_batch, k.step_batch_parallel),
     ) -> None:
         if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
@@ -183,14 +188,14 @@ class Plant:
             strict=True,
         )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
-        self._step_kernel = select_kernel(
-            k.step_batch, k.step_batch_parallel, self.num_plants, parallel
-        )
+        self._serial = kernels[0]
+        self._step_kernel = select_kernel(*kernels, self.num_plants, parallel)
         #: whether the threaded kernel may run (always, or when the adaptive choice picks it)
-        self.parallel = self._step_kernel is not k.step_batch
-        self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE))
-        self._delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
-        self._head = 0
+        self.parallel = self._step_kernel is not self._serial
+        self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE + task_columns))
+        #: Commands in flight over the dead time, ``(N, delay_steps)``.
+        self.delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
+        self.head = 0
         self.reset()
 
     def _per_plant(self, value: Any, name: str, kind: type) -> list[Any]:
@@ -223,6 +228,11 @@ class Plant:
         """Friction laws (one entry when shared by the whole batch)."""
         return list(self._frictions)
 
+    def own_rows(self) -> None:
+        """Give every plant its own parameter row (to change them one by one), if they share one."""
+        if self.rows.shape[0] == 1 < self.num_plants:
+            self.rows = np.repeat(self.rows, self.num_plants, axis=0)
+
     def keep(self, mask: npt.ArrayLike) -> None:
         """Drop the plants where ``mask`` is false; the others go on exactly as before.
 
@@ -243,13 +253,21 @@ class Plant:
         if self.rows.shape[0] > 1:
             self.rows = np.ascontiguousarray(self.rows[idx])
         self.state = np.ascontiguousarray(self.state[idx])
-        self._delay_buffer = np.ascontiguousarray(self._delay_buffer[idx])
+        self.delay_buffer = np.ascontiguousarray(self.delay_buffer[idx])
         size, self.num_plants = self.num_plants, int(idx.size)
         kernel = self._step_kernel
         if isinstance(kernel, AdaptiveKernel) and self.num_plants < PARALLEL_MIN_PLANTS:
-            self._step_kernel, self.parallel = k.step_batch, False
+            self._step_kernel, self.parallel = self._serial, False
         elif isinstance(kernel, AdaptiveKernel):
             kernel.rescale(self.num_plants / size)
+
+    def _selection(self, mask: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
+        if mask is None:
+            return np.ones(self.num_plants, dtype=bool)
+        selection = np.asarray(mask, dtype=bool)
+        if selection.shape != (self.num_plants,):
+            raise ValueError(f"mask must have shape ({self.num_plants},), got {selection.shape}")
+        return selection
 
     def reset(
         self,
@@ -262,29 +280,34 @@ class Plant:
         A velocity of exactly 0.0 starts the plant stuck; the actuator lag, dead-time buffer
         and LuGre bristles start relaxed (zero).
         """
-        idx: slice | npt.NDArray[np.bool_] = slice(None)
-        if mask is not None:
-            idx = np.asarray(mask, dtype=bool)
-            if idx.shape != (self.num_plants,):
-                raise ValueError(f"mask must have shape ({self.num_plants},), got {idx.shape}")
-        selected = self.state[idx]
-        pos = np.broadcast_to(np.asarray(position, dtype=np.float64), selected.shape[:1])
-        vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), selected.shape[:1])
+        selected = self._selection(mask)
+        count = int(np.count_nonzero(selected))
+        pos = np.broadcast_to(np.asarray(position, dtype=np.float64), count)
+        vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), count)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset position and velocity must be finite")
-        stops = self.rows[:, k.I_STOP] if self.rows.shape[0] > 1 else self.rows[0, k.I_STOP]
-        beyond = pos > np.broadcast_to(stops, self.state.shape[:1])[idx]
+        beyond = pos > np.broadcast_to(k.end_stops(self.rows), self.num_plants)[selected]
         if np.any(beyond):
             raise ValueError(
                 f"reset position {pos[beyond][0]!r} lies beyond the plant's end stop; "
                 "start at or before it"
             )
-        selected[:] = 0.0
-        selected[:, k.S_X] = pos
-        selected[:, k.S_V] = vel
-        selected[:, k.S_STUCK] = vel == 0.0
-        self.state[idx] = selected
-        self._delay_buffer[idx] = 0.0
+        start = (np.ascontiguousarray(pos), np.ascontiguousarray(vel))
+        k.reset_plants(selected, self.state, self.delay_buffer, *start)
+
+    def place(
+        self, position: float, *, stop: bool = False, mask: npt.ArrayLike | None = None
+    ) -> None:
+        """Move plants to ``position``, the rest of their state kept; ``stop`` also halts them.
+
+        An encoder reset moves the origin (the disk's dynamics do not depend on its angle); an
+        inelastic stop (``stop=True``) leaves the body stuck there at rest.
+        """
+        selected = self._selection(mask)
+        self._column("position")[selected] = position
+        if stop:
+            self._column("velocity")[selected] = 0.0
+            self._column("stuck")[selected] = 1.0
 
     def step(self, command: float | npt.ArrayLike) -> None:
         """Hold ``command`` over one control period for every plant.
@@ -302,38 +325,49 @@ class Plant:
         u = np.asarray(command, dtype=np.float64).reshape(-1)
         if u.shape[0] not in (1, self.num_plants):
             raise ValueError(f"expected 1 or {self.num_plants} commands, got {u.shape[0]}")
-        bad = self._step_kernel(
-            self.state, self._delay_buffer, self._head, u, self.dt, self.substeps, self.rows
-        )
+        bad = self.run(u)
         if bad >= 0:
             raise ValueError(
                 f"command {bad} is {float(u[bad])!r}: commands must be finite numbers "
                 "(command units)"
             )
-        if self.delay_steps:
-            self._head = (self._head + 1) % self.delay_steps
+
+    def run(self, command: npt.NDArray[np.floating[Any]], *task: Any) -> int:
+        """Call the batch kernel once, then advance the dead time by one period.
+
+        ``task`` follows the plant's arguments for a task kernel (see ``kernels``). Returns -1,
+        or the index of the first non-finite command, in which case nothing changed.
+        """
+        plant = (self.state, self.delay_buffer, self.head, command, self.dt, self.substeps)
+        bad: int = self._step_kernel(*plant, self.rows, *task)
+        if bad < 0 and self.delay_steps:
+            self.head = (self.head + 1) % self.delay_steps
+        return bad
+
+    def _column(self, name: str) -> FloatArray:
+        return self.state[:, k.COLUMNS[name]]
 
     @property
     def position(self) -> FloatArray:
         """Positions, shape (N,)."""
-        return self.state[:, k.S_X]
+        return self._column("position")
 
     @property
     def velocity(self) -> FloatArray:
         """Velocities, shape (N,); exactly 0.0 while stuck."""
-        return self.state[:, k.S_V]
+        return self._column("velocity")
 
     @property
     def stuck(self) -> npt.NDArray[np.bool_]:
         """Whether each plant ended the last step stuck."""
-        return self.state[:, k.S_STUCK] != 0.0
+        return self._column("stuck") != 0.0
 
     @property
     def command(self) -> FloatArray:
         """Last commands after saturation."""
-        return self.state[:, k.S_COMMAND]
+        return self._column("command")
 
     @property
     def friction_force(self) -> FloatArray:
         """Friction force averaged over the last step (nonlinear + the law's viscous part)."""
-        return self.state[:, k.S_FRICTION]
+        return self._column("friction_force")

@@ -3,8 +3,8 @@
 Each sensor is one compiled scalar function (``encoder_angle``, ``ir_count``, ``ir_estimate``,
 ``derivative_update``) that the env kernel calls per plant; the public functions here are ufuncs
 of the same code, vectorised over any batch shape. Randomness (sensor noise) is never drawn
-here: callers pass noise samples drawn from their own generator (an env's ``np_random``), so
-every trajectory is reproducible from the env's seed.
+here: callers pass noise samples drawn from their own generator (an env's ``np_random``, or the
+compiled :func:`normal_draw` seeded from it), so every trajectory is reproducible from the seed.
 """
 
 from __future__ import annotations
@@ -14,6 +14,8 @@ import math
 import numpy as np
 import numpy.typing as npt
 from numba import float64, njit, vectorize
+
+from frictiongym._validation import real_number
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -63,6 +65,13 @@ def ir_estimate(readout: float) -> float:
     return IR_NUMERATOR / (readout + IR_OFFSET)
 
 
+def noise_std(setting: bool | float, default: float) -> float:
+    """Sensor noise of a ``sensor_noise`` setting: none (False), ``default`` (True) or a std."""
+    if setting is True or setting is False:
+        return default if setting else 0.0
+    return real_number("sensor_noise", setting, ">= 0")
+
+
 def ir_quantum() -> float:
     """Finest step of the IR distance estimate, cm: one readout count at the nearest reading."""
     return float(ir_estimate(IR_MAX_READOUT - 1) - ir_estimate(IR_MAX_READOUT))
@@ -93,6 +102,50 @@ def velocity_floor(quantum: float, pole: float, dt: float) -> float:
         The floor, velocity units.
     """
     return (1.0 - pole) * quantum / dt * FLOAT32_ROUNDOFF
+
+
+# Sensor noise: splitmix64 (Steele, Lea & Flood 2014), one uint64 of state per plant, so the
+# noise of plant i depends only on its own seed, however the batch is split over threads.
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+
+
+@njit(cache=True, inline="always")
+def _uniform(rng: npt.NDArray[np.uint64], i: int) -> float:
+    """Draw the next uniform in (0, 1] from generator ``i``."""
+    z = rng[i] + _GOLDEN
+    rng[i] = z
+    z = (z ^ (z >> _S30)) * _MIX1
+    z = (z ^ (z >> _S27)) * _MIX2
+    z = z ^ (z >> _S31)
+    return (float(z >> _S11) + 1.0) * (1.0 / 9007199254740992.0)
+
+
+@njit(cache=True, inline="always")
+def normal_draw(rng: npt.NDArray[np.uint64], i: int) -> float:
+    """Draw a standard normal from generator ``i`` (Box-Muller, one of the pair)."""
+    u1 = _uniform(rng, i)
+    u2 = _uniform(rng, i)
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@njit(cache=True, inline="always")
+def measure(
+    x: float, encoder: bool, gain: float, offset: float, noise: float, quantize: bool, step: float
+) -> float:
+    """Return the encoder angle (``step``: rad per count) or the IR readout of a plant at ``x``.
+
+    The IR sensor faces a wall at ``x = 0``, which the plant approaches from below.
+    """
+    if encoder:
+        angle = gain * x + noise
+        return encoder_angle(angle, step) if quantize else angle
+    distance = 0.0 - x
+    if distance <= 0.0:  # touching the wall: the nearest reading
+        return float(IR_MAX_READOUT)
+    return ir_count(distance, gain, offset, noise, quantize)
 
 
 @njit(cache=True)

@@ -4,20 +4,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym.friction import _core as fc
 from frictiongym.plants import _kernel as pk
+from frictiongym.plants.plant import PlantParams
 
 FloatArray = npt.NDArray[np.float64]
 Range = tuple[float, float]
-
-# Columns of a plant row each factor scales.
-_FRICTION_LEVELS = tuple(pk.F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG))
-_DAMPING = (pk.I_B, pk.F0 + fc.I_VISCOUS)
 
 
 @dataclass(frozen=True)
@@ -87,6 +83,12 @@ class DomainRandomization:
             "(e.g. randomize={'friction': (0.8, 1.2)})"
         )
 
+    def lightest(self, plant: PlantParams) -> PlantParams:
+        """Return ``plant`` at the least inertia a draw can give (it sets the substeps)."""
+        if self.inertia is None:
+            return plant
+        return replace(plant, inertia=plant.inertia * self.inertia[0])
+
     def draw(self, rng: np.random.Generator) -> dict[str, float]:
         """One factor per randomised field, in field order."""
         drawn = {}
@@ -99,11 +101,5 @@ class DomainRandomization:
 
 def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
     """Scaled copy of a plant row, and the sensor-gain factor."""
-    row = plant_row.copy()
-    if "friction" in factors:
-        row[list(_FRICTION_LEVELS)] *= factors["friction"]
-    if "inertia" in factors:
-        row[pk.I_J] *= factors["inertia"]
-    if "damping" in factors:
-        row[list(_DAMPING)] *= factors["damping"]
-    return row, factors.get("sensor_gain", 1.0)
+    scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping"))
+    return pk.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)
