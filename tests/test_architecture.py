@@ -46,14 +46,6 @@ LAYERS: dict[str, int] = {
 #: Imports within one layer that still point up: the envs drive the hardware's backends.
 SAME_LAYER_FORBIDDEN = {("frictiongym.hardware", "frictiongym.envs")}
 
-#: Edges the other parts of issue 18 remove (merged separately); deleted once they land.
-#: (importing part, imported part). The attribute probes of env internals
-#: (``getattr(env.unwrapped, "sim")``) that the devices part replaces are no imports.
-PENDING = {
-    # hardware/firmware.py builds its plant from envs.core (the plant-core part).
-    ("frictiongym.hardware", "frictiongym.envs"),
-}
-
 
 def module_name(path: Path) -> str:
     parts = list(path.relative_to(PACKAGE.parent).with_suffix("").parts)
@@ -166,21 +158,14 @@ def test_every_part_has_a_layer():
 
 
 def test_no_cycle_between_parts():
-    edges = {edge for edge in import_edges() if edge not in PENDING}
+    edges = set(import_edges())
     cycle = find_cycle(edges)
     assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
 
 
 def test_no_import_points_up_the_layers():
-    edges = {edge: where for edge, where in import_edges().items() if edge not in PENDING}
-    places = upward(edges)
+    places = upward(import_edges())
     assert not places, "imports up the layer table:\n" + "\n".join(places)
-
-
-def test_pending_edges_still_exist():
-    """A pending edge that is gone must leave PENDING, so it cannot come back unnoticed."""
-    gone = PENDING - import_edges().keys()
-    assert not gone, f"remove from PENDING, these imports are gone: {sorted(gone)}"
 
 
 def test_the_checks_find_a_cycle_and_an_upward_import():
