@@ -47,7 +47,7 @@ from frictiongym._io import write_text_atomic
 from frictiongym._validation import Rule, real_number
 from frictiongym.devices import DEVICES, Device
 from frictiongym.friction import CoulombViscous, FrictionModel, StictionCoulomb, friction_from_name
-from frictiongym.friction import _core as fc
+from frictiongym.friction import _core as friction_core
 from frictiongym.plants.plant import PlantParams
 
 __all__ = [
@@ -182,8 +182,8 @@ def _friction(source: str, data: Mapping[str, Any], law: str) -> FrictionModel:
         shape = "exponential"
     elif shape is None:
         shape = "linear"
-    elif not isinstance(shape, str) or shape not in fc.SHAPES:
-        raise _fail(source, f"'shape' must be one of {sorted(fc.SHAPES)}, got {shape!r}")
+    elif not isinstance(shape, str) or shape not in friction_core.SHAPES:
+        raise _fail(source, f"'shape' must be one of {sorted(friction_core.SHAPES)}, got {shape!r}")
     v = {k: _real(source, k, get[k], "> 0" if k.startswith("v0") else ">= 0") for k in get}
     for d, word in (("pos", "positive"), ("neg", "negative")):
         if v[f"uc_{d}"] > v[f"us_{d}"]:

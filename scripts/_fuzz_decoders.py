@@ -11,7 +11,7 @@ import struct
 from _fuzz_common import CHarness, Part, Progress, case_rng, progress
 
 from frictiongym.hardware import altino_frames as af
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.errors import ProtocolError
 
 #: Streams per harness process: one process per batch keeps a crash to one batch.
@@ -21,32 +21,45 @@ BATCH = 2000
 # --- frames -----------------------------------------------------------------------------------
 
 
-def random_message(rng: random.Random) -> p.Message:
+def random_message(rng: random.Random) -> protocol.Message:
     """A valid message of any type, with fields over their whole range."""
     u16, i16 = rng.randrange(1 << 16), rng.randrange(-(1 << 15), 1 << 15)
     kind = rng.randrange(5)
     if kind == 0:
-        return p.Command(u16, i16, p.Flag(rng.randrange(256)), rng.randrange(-(1 << 15), 1 << 15))
+        return protocol.Command(
+            u16, i16, protocol.Flag(rng.randrange(256)), rng.randrange(-(1 << 15), 1 << 15)
+        )
     if kind == 1:
-        return p.HelloRequest(rng.randrange(256))
+        return protocol.HelloRequest(rng.randrange(256))
     if kind == 2:
         bits = rng.randrange(1 << 32)
-        return p.Place(struct.unpack("<f", struct.pack("<I", bits))[0])
+        return protocol.Place(struct.unpack("<f", struct.pack("<I", bits))[0])
     if kind == 3:
-        return p.Hello(
-            rng.randrange(256), rng.choice(list(p.DeviceKind)), p.Capability(rng.randrange(256)),
-            rng.randrange(256), u16, rng.randrange(1 << 16), i16, rng.randrange(1 << 16),
+        return protocol.Hello(
+            rng.randrange(256),
+            rng.choice(list(protocol.DeviceKind)),
+            protocol.Capability(rng.randrange(256)),
+            rng.randrange(256),
+            u16,
+            rng.randrange(1 << 16),
+            i16,
+            rng.randrange(1 << 16),
             rng.randrange(1 << 32),
-        )  # fmt: skip
-    return p.State(
-        p.Status(rng.randrange(256)), u16, rng.randrange(1 << 32), rng.randrange(1 << 16), i16,
-        rng.randrange(-(1 << 31), 1 << 31), rng.randrange(-(1 << 15), 1 << 15),
-    )  # fmt: skip
+        )
+    return protocol.State(
+        protocol.Status(rng.randrange(256)),
+        u16,
+        rng.randrange(1 << 32),
+        rng.randrange(1 << 16),
+        i16,
+        rng.randrange(-(1 << 31), 1 << 31),
+        rng.randrange(-(1 << 15), 1 << 15),
+    )
 
 
 def _framed(payload: bytes, crc_xor: int = 0) -> bytes:
-    crc = p.crc16(payload) ^ crc_xor
-    return p.cobs_encode(payload + crc.to_bytes(2, "little"))
+    crc = protocol.crc16(payload) ^ crc_xor
+    return protocol.cobs_encode(payload + crc.to_bytes(2, "little"))
 
 
 def _garbage(rng: random.Random, low: int, high: int, zeros: bool) -> bytes:
@@ -59,7 +72,7 @@ def damaged_frame(rng: random.Random) -> tuple[str, bytes, bytes]:
 
     Returns the kind of damage, the frame, and the intact frame it was made from.
     """
-    frame = p.encode(random_message(rng))[:-1]
+    frame = protocol.encode(random_message(rng))[:-1]
     how = rng.choice(MUTATIONS)
     data = bytearray(frame)
     if how == "bit flips":
@@ -72,11 +85,11 @@ def damaged_frame(rng: random.Random) -> tuple[str, bytes, bytes]:
     elif how == "byte replaced":
         data[rng.randrange(len(data))] = rng.randrange(1, 256)
     elif how == "garbage":
-        data = bytearray(_garbage(rng, 0, 3 * p.MAX_FRAME, zeros=rng.random() < 0.5))
+        data = bytearray(_garbage(rng, 0, 3 * protocol.MAX_FRAME, zeros=rng.random() < 0.5))
     elif how == "bad CRC":
-        data = bytearray(_framed(p.pack(random_message(rng)), rng.randrange(1, 1 << 16)))
+        data = bytearray(_framed(protocol.pack(random_message(rng)), rng.randrange(1, 1 << 16)))
     elif how == "bad layout":  # a good CRC over a payload of the wrong type or length
-        payload = bytearray(p.pack(random_message(rng)))
+        payload = bytearray(protocol.pack(random_message(rng)))
         if rng.random() < 0.5:
             payload = payload[: rng.randrange(len(payload))] or bytearray([payload[0]])
         else:
@@ -91,15 +104,15 @@ def _cobs_edge(rng: random.Random) -> bytes:
     """Frames at the edges of COBS and of the decoders' buffers."""
     choice = rng.randrange(6)
     if choice == 0:  # a block code that runs past the end
-        frame = bytearray(p.encode(random_message(rng))[:-1])
+        frame = bytearray(protocol.encode(random_message(rng))[:-1])
         frame[0] = min(255, len(frame) + rng.randint(1, 20))
         return bytes(frame)
     if choice == 1:  # code 0xFF and 254-byte blocks: longer than any frame
         return bytes([0xFF]) + _garbage(rng, 254, 254, zeros=False)
     if choice == 2:  # exactly the longest frame, and one byte more
-        return _garbage(rng, p.MAX_FRAME, p.MAX_FRAME + 1, zeros=False)
+        return _garbage(rng, protocol.MAX_FRAME, protocol.MAX_FRAME + 1, zeros=False)
     if choice == 3:  # a good CRC over the longest payload a frame may carry, and one more
-        return _framed(_garbage(rng, p.MAX_PAYLOAD, p.MAX_PAYLOAD + 1, zeros=True))
+        return _framed(_garbage(rng, protocol.MAX_PAYLOAD, protocol.MAX_PAYLOAD + 1, zeros=True))
     if choice == 4:  # every block of length one (all zeros)
         return bytes([1] * rng.randint(1, 40))
     return b""  # an empty frame: back-to-back delimiters
@@ -125,19 +138,19 @@ def random_stream(rng: random.Random) -> tuple[bytes, list[tuple[str, bytes, byt
     return b"".join(parts), made
 
 
-def _c_values(message: p.Message) -> tuple[int, ...]:
+def _c_values(message: protocol.Message) -> tuple[int, ...]:
     """The numbers the C harness prints for ``message`` (a Place by its binary32 bits)."""
-    if isinstance(message, p.Place):
-        return (int(message.TYPE), int.from_bytes(p.pack(message)[1:5], "little"))
+    if isinstance(message, protocol.Place):
+        return (int(message.TYPE), int.from_bytes(protocol.pack(message)[1:5], "little"))
     return (int(message.TYPE), *(int(v) for v in message.fields()))
 
 
-class PiecewiseDecoder(p.FrameDecoder):
+class PiecewiseDecoder(protocol.FrameDecoder):
     """A FrameDecoder fed a stream in random pieces, keeping what it decoded."""
 
     def __init__(self, rng: random.Random, stream: bytes) -> None:
         super().__init__()
-        self.messages: list[p.Message] = []
+        self.messages: list[protocol.Message] = []
         for at in _cuts(rng, len(stream)):
             self.messages += self.feed(stream[at[0] : at[1]])
 
@@ -155,16 +168,20 @@ def _cuts(rng: random.Random, length: int) -> list[tuple[int, int]]:
 def check_python_stream(part: Part, case: str, stream: bytes, rng: random.Random) -> list[str]:
     """Decode ``stream`` whole and in random pieces; return the C harness's expected lines."""
     try:
-        whole = p.FrameDecoder()
+        whole = protocol.FrameDecoder()
         messages = whole.feed(stream)
         pieces = PiecewiseDecoder(rng, stream)
     except Exception as exc:
         part.fail(f"{case}: FrameDecoder raised {type(exc).__name__}: {exc}")
         return []
-    encoded = [p.encode(m) for m in messages]  # bytes: a NaN Place is not equal to itself
-    if [p.encode(m) for m in pieces.messages] != encoded or (pieces.frames, pieces.errors) != (
-        whole.frames, whole.errors,
-    ):  # fmt: skip
+    encoded = [protocol.encode(m) for m in messages]  # bytes: a NaN Place is not equal to itself
+    if [protocol.encode(m) for m in pieces.messages] != encoded or (
+        pieces.frames,
+        pieces.errors,
+    ) != (
+        whole.frames,
+        whole.errors,
+    ):
         part.fail(f"{case}: the decoder's result depends on how the stream is split")
     chunks = set(stream.split(b"\x00"))
     for message, frame in zip(messages, encoded, strict=True):
@@ -178,13 +195,13 @@ def check_python_stream(part: Part, case: str, stream: bytes, rng: random.Random
 
 def _check_python_frame(part: Part, case: str, frame: bytes) -> None:
     try:
-        message = p.decode(frame)
-    except p.FrameError:
+        message = protocol.decode(frame)
+    except protocol.FrameError:
         return
     except Exception as exc:
         part.fail(f"{case}: decode raised {type(exc).__name__}: {exc} on {frame.hex()}")
         return
-    if p.encode(message)[:-1] != frame:
+    if protocol.encode(message)[:-1] != frame:
         part.fail(f"{case}: decode accepted {frame.hex()}, which is not how {message!r} encodes")
 
 
@@ -223,8 +240,8 @@ def fuzz_frames(cases: range, seed: int, harness: CHarness | None, say: Progress
 def _decodes(frame: bytes) -> bool:
     """Whether ``frame`` is a valid frame (a damaged one: a CRC-16 collision, well-formed)."""
     try:
-        p.decode(frame)
-    except p.FrameError:
+        protocol.decode(frame)
+    except protocol.FrameError:
         return False
     return True
 

@@ -19,7 +19,7 @@ import numpy as np
 from _fuzz_common import ROOT, CHarness, Part, Progress, case_rng, progress
 
 import frictiongym  # noqa: F401  (registers the ids)
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.firmware import Firmware
 from frictiongym.hardware.runlog import read_steps
 
@@ -87,8 +87,8 @@ def fuzz_watchdog(cases: range, seed: int, harness: CHarness | None, say: Progre
         for kind, t in events:
             if kind == "cmd":
                 seq += 1
-                flags = p.Flag.ENABLE | (p.Flag.REARM if seq == 1 else 0)
-                frame = p.encode(p.Command(seq, command, flags))
+                flags = protocol.Flag.ENABLE | (protocol.Flag.REARM if seq == 1 else 0)
+                frame = protocol.encode(protocol.Command(seq, command, flags))
                 lines.append(f"dev_rx {t & 0xFFFFFFFF} {frame.hex()}")
             else:
                 lines.append(f"dev_tick {t & 0xFFFFFFFF} 0 0 0")
@@ -118,8 +118,8 @@ def _python_motor(
         now = (t - origin) / 1e6  # seconds from the first event: no float wrap
         if kind == "cmd":
             seq += 1
-            flags = p.Flag.ENABLE | (p.Flag.REARM if seq == 1 else 0)
-            firmware.receive(p.Command(seq, command, flags), now)
+            flags = protocol.Flag.ENABLE | (protocol.Flag.REARM if seq == 1 else 0)
+            firmware.receive(protocol.Command(seq, command, flags), now)
         else:
             firmware.tick(now)
             motors.append(firmware.motor_counts)
@@ -217,13 +217,13 @@ class CommandSpy:
     """Every ``Command`` the emulated device decoded, taken from its firmware's decoder."""
 
     def __init__(self, emulator: Any) -> None:
-        self.commands: list[p.Command] = []
+        self.commands: list[protocol.Command] = []
         firmware = emulator.firmware
         feed = firmware.feed
 
-        def spied(data: bytes) -> list[p.Message]:
+        def spied(data: bytes) -> list[protocol.Message]:
             messages = feed(data)
-            self.commands += [m for m in messages if isinstance(m, p.Command)]
+            self.commands += [m for m in messages if isinstance(m, protocol.Command)]
             return messages
 
         firmware.feed = spied

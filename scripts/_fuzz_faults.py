@@ -19,7 +19,7 @@ from _fuzz_common import Part, Progress, case_rng
 from _fuzz_device import SERVO, STOP_WAIT, motor_zero_within
 
 import frictiongym  # noqa: F401  (registers the ids)
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.emulated import EmulatedBackend
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
@@ -214,7 +214,7 @@ def _silence(
     time.sleep(watchdog_s + 0.2)
     ticks = [t for t in emulator.history if t.tick > last_tick]
     stopped = next((t for t in ticks if t.applied == 0), None)
-    if stopped is None or not stopped.status & p.Status.WATCHDOG:
+    if stopped is None or not stopped.status & protocol.Status.WATCHDOG:
         part.fail(f"{where}: the motor was not stopped by the watchdog in {watchdog_s + 0.2} s")
         return None
     took = (stopped.tick - last_tick) * dt

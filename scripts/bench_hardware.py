@@ -61,8 +61,7 @@ import numpy as np
 
 import frictiongym  # noqa: F401
 from frictiongym.controllers import PID, PIDGains
-from frictiongym.hardware import WatchdogTripError
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import WatchdogTripError, protocol
 from frictiongym.hardware.firmware import default_watchdog_ms
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.plants.presets import ROTARY_DT, ROTARY_PAPER_GAINS, ROTARY_PLANT
@@ -245,18 +244,18 @@ def dead_host(watchdog_s: float) -> tuple[float, float]:
 def decoder_throughput(frames: int) -> dict[str, float]:
     rng = np.random.default_rng(0)
     states = [
-        p.State(p.Status(0), k & 0xFFFF, (2000 * k) & 0xFFFFFFFF, k & 0xFFFF,
+        protocol.State(protocol.Status(0), k & 0xFFFF, (2000 * k) & 0xFFFFFFFF, k & 0xFFFF,
                 int(rng.integers(-10000, 10000)), int(rng.integers(-(2**23), 2**23)), 0)
         for k in range(frames)
     ]  # fmt: skip
-    stream = b"".join(p.encode(s) for s in states)
+    stream = b"".join(protocol.encode(s) for s in states)
     chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
-    payloads = [p.pack(s) for s in states]
-    fmt = p.State.FORMAT
+    payloads = [protocol.pack(s) for s in states]
+    fmt = protocol.State.FORMAT
 
     best_decode = best_unpack = float("inf")
     for _ in range(3):
-        decoder = p.FrameDecoder()
+        decoder = protocol.FrameDecoder()
         start = time.perf_counter()
         for chunk in chunks:
             decoder.feed(chunk)

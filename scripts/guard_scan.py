@@ -40,8 +40,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
-from frictiongym.hardware import altino_stock
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import altino_stock, protocol
 from frictiongym.hardware.altino_frames import StockSensors, parse_go_frame, sensor_reply
 from frictiongym.hardware.firmware import Firmware
 from frictiongym.hardware.guard import EDGE_CM, LIMIT_CM
@@ -129,15 +128,17 @@ class _Run:
         self.tripped = False
         self.limit = False  #: LIMIT on the latest state
 
-    def host_command(self, k: int, command: int) -> p.Command:
+    def host_command(self, k: int, command: int) -> protocol.Command:
         """The host's ``k``-th command: ``command`` (the first re-arms), ESTOP once tripped."""
         if self.rearm:
             again = k == 0 or self.limit
-            return p.Command(k + 1, command, p.Flag.ENABLE | (p.Flag.REARM if again else 0))
+            return protocol.Command(
+                k + 1, command, protocol.Flag.ENABLE | (protocol.Flag.REARM if again else 0)
+            )
         if self.tripped:
-            return p.Command(k + 1, 0, p.Flag.ESTOP)
-        flags = p.Flag.ENABLE | (p.Flag.REARM if k == 0 else p.Flag(0))
-        return p.Command(k + 1, command, flags)
+            return protocol.Command(k + 1, 0, protocol.Flag.ESTOP)
+        flags = protocol.Flag.ENABLE | (protocol.Flag.REARM if k == 0 else protocol.Flag(0))
+        return protocol.Command(k + 1, command, flags)
 
     def after_tick(self, limit: bool) -> bool:
         """Record the tick; return whether the run is over.
@@ -162,7 +163,7 @@ def run_python(case: Case) -> Outcome:
     for k in range(round((NOISE_SECONDS if run.rearm else MAX_SECONDS) / fw.dt)):
         fw.receive(run.host_command(k, case.command), k * fw.dt)
         state = fw.tick((k + 1) * fw.dt)
-        if run.after_tick(bool(state.status & p.Status.LIMIT)) and k > REST_TICKS:
+        if run.after_tick(bool(state.status & protocol.Status.LIMIT)) and k > REST_TICKS:
             break
     return Outcome(case, run.closest, run.tripped)
 
@@ -217,13 +218,13 @@ def run_c(case: Case, c: CFirmware) -> Outcome:
     c.ask(f"dev_tick 0 {fw.sensor} 0 0")  # the sample at boot
     run = _Run(fw, case.noise_seed is not None)
     for k in range(round((NOISE_SECONDS if run.rearm else MAX_SECONDS) / fw.dt)):
-        message = p.encode(run.host_command(k, case.command)).hex()
+        message = protocol.encode(run.host_command(k, case.command)).hex()
         (answer,) = c.ask(f"dev_rx {k * DT_US + 1000} {message}")
         fw.hold(int(answer.split()[3]))  # "act A motor M amp E": M held over the period
         lines = c.ask(f"dev_tick {(k + 1) * DT_US} {fw.sensor} 0 0")
-        state = p.decode(bytes.fromhex(lines[0].split()[1])[:-1])
-        assert isinstance(state, p.State)
-        if run.after_tick(bool(state.status & p.Status.LIMIT)) and k > REST_TICKS:
+        state = protocol.decode(bytes.fromhex(lines[0].split()[1])[:-1])
+        assert isinstance(state, protocol.State)
+        if run.after_tick(bool(state.status & protocol.Status.LIMIT)) and k > REST_TICKS:
             break
     return Outcome(case, run.closest, run.tripped)
 
@@ -298,7 +299,7 @@ def run_stock(case: Case) -> Outcome:
         backend.start()
         for _ in range(round(MAX_SECONDS / fw.dt)):
             sample = backend.step(float(case.command))
-            if run.after_tick(bool(sample.status & p.Status.LIMIT)) or run.tripped:
+            if run.after_tick(bool(sample.status & protocol.Status.LIMIT)) or run.tripped:
                 break  # the env's episode ends on LIMIT
         backend.close()  # as an env ends its episode: the backend brakes, then stops the car
         for _ in range(round(MAX_SECONDS / fw.dt)):  # it coasts on

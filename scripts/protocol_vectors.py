@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.firmware import FIRMWARE_BUILD
 from frictiongym.hardware.protocol import (
     Capability,
@@ -64,7 +64,7 @@ ALTINO_HELLO = Hello(
     FIRMWARE_BUILD,
 )
 # fmt: off
-MESSAGES: list[tuple[str, p.Message]] = [
+MESSAGES: list[tuple[str, protocol.Message]] = [
     ("command enable", Command(seq=1, command=1500)),
     ("command zero flags", Command(seq=0, command=0, flags=Flag(0))),
     ("command negative", Command(seq=2, command=-2500, flags=Flag.ENABLE)),
@@ -99,18 +99,18 @@ MESSAGES: list[tuple[str, p.Message]] = [
 # fmt: on
 
 
-def values(message: p.Message) -> list[int]:
+def values(message: protocol.Message) -> list[int]:
     """Fields in wire order as integers (Place: the binary32 bits of its position)."""
     if isinstance(message, Place):
         return [struct.unpack("<I", struct.pack("<f", message.position))[0]]
     return [int(v) for v in message.fields()]
 
 
-def message_vector(name: str, message: p.Message) -> dict[str, Any]:
+def message_vector(name: str, message: protocol.Message) -> dict[str, Any]:
     """A message with its fields, payload, CRC and wire bytes."""
-    payload = p.pack(message)
-    wire = p.encode(message)
-    if p.decode(wire[:-1]) != message:
+    payload = protocol.pack(message)
+    wire = protocol.encode(message)
+    if protocol.decode(wire[:-1]) != message:
         raise RuntimeError(f"{name}: protocol.py does not round-trip {message!r}")
     fields = {
         key: (val if isinstance(val, float) else int(val))
@@ -123,12 +123,12 @@ def message_vector(name: str, message: p.Message) -> dict[str, Any]:
         "fields": fields,
         "values": values(message),
         "payload": payload.hex(),
-        "crc": p.crc16(payload),
+        "crc": protocol.crc16(payload),
         "wire": wire.hex(),
     }
 
 
-def _field_names(message: p.Message) -> list[str]:
+def _field_names(message: protocol.Message) -> list[str]:
     names = {
         Command: ["flags", "seq", "command", "aux"],
         HelloRequest: ["version"],
@@ -166,8 +166,8 @@ COBS_INPUTS = [
 
 def cobs_vector(name: str, data: bytes) -> dict[str, Any]:
     """A COBS input and its encoding."""
-    encoded = p.cobs_encode(data)
-    if p.cobs_decode(encoded) != data:
+    encoded = protocol.cobs_encode(data)
+    if protocol.cobs_decode(encoded) != data:
         raise RuntimeError(f"{name}: protocol.py does not round-trip this COBS input")
     return {"name": name, "data": data.hex(), "encoded": encoded.hex()}
 
@@ -177,8 +177,8 @@ def cobs_vector(name: str, data: bytes) -> dict[str, Any]:
 
 def _frame(payload: bytes, crc: int | None = None) -> bytes:
     """COBS(payload + CRC) without delimiter; ``crc`` overrides the right one."""
-    value = p.crc16(payload) if crc is None else crc
-    return p.cobs_encode(payload + value.to_bytes(2, "little"))
+    value = protocol.crc16(payload) if crc is None else crc
+    return protocol.cobs_encode(payload + value.to_bytes(2, "little"))
 
 
 def _swapped(crc: int) -> int:
@@ -187,20 +187,20 @@ def _swapped(crc: int) -> int:
 
 def corrupt_vectors() -> list[dict[str, Any]]:
     """Frames both decoders must reject, each with its reason (the C error name)."""
-    good = p.encode(Command(seq=1, command=1500))[:-1]
+    good = protocol.encode(Command(seq=1, command=1500))[:-1]
     flipped = bytearray(good)
     flipped[3] ^= 0x10
-    state = p.pack(State(Status(0), 1, 2000, 1, 1500, 42))
-    command = p.pack(Command(seq=1, command=1500))
-    hello = p.pack(ROTARY_HELLO)
+    state = protocol.pack(State(Status(0), 1, 2000, 1, 1500, 42))
+    command = protocol.pack(Command(seq=1, command=1500))
+    hello = protocol.pack(ROTARY_HELLO)
     cases = [
         ("bit flip in the payload", bytes(flipped), "crc"),
-        ("CRC bytes swapped", _frame(command, crc=_swapped(p.crc16(command))), "crc"),
+        ("CRC bytes swapped", _frame(command, crc=_swapped(protocol.crc16(command))), "crc"),
         ("truncated by one byte", good[:-1], "cobs"),
         ("block code past the end", b"\x09\x01\x02", "cobs"),
         ("zero block code", b"\x02\x01\x00\x05", "cobs"),
         ("empty frame", b"", "short"),
-        ("payload and CRC of two bytes", p.cobs_encode(b"\x01\x02"), "short"),
+        ("payload and CRC of two bytes", protocol.cobs_encode(b"\x01\x02"), "short"),
         ("unknown type with a good CRC", _frame(b"\x42\x01\x02\x03"), "type"),
         ("command one byte short", _frame(command[:-1]), "length"),
         ("state one byte long", _frame(state + b"\x00"), "length"),
@@ -210,8 +210,8 @@ def corrupt_vectors() -> list[dict[str, Any]]:
     out = []
     for name, frame, reason in cases:
         try:
-            p.decode(frame)
-        except p.FrameError:
+            protocol.decode(frame)
+        except protocol.FrameError:
             pass
         else:
             raise RuntimeError(f"{name}: protocol.py accepted a frame it must reject")
@@ -224,9 +224,9 @@ def corrupt_vectors() -> list[dict[str, Any]]:
 
 def stream_vectors() -> list[dict[str, Any]]:
     """Byte streams and what protocol.FrameDecoder makes of them."""
-    a = p.encode(Command(seq=1, command=1500))
-    b = p.encode(State(Status(0), 1, 2000, 1, 1500, 42))
-    c = p.encode(ROTARY_HELLO)
+    a = protocol.encode(Command(seq=1, command=1500))
+    b = protocol.encode(State(Status(0), 1, 2000, 1, 1500, 42))
+    c = protocol.encode(ROTARY_HELLO)
     bad = bytearray(b)
     bad[5] ^= 0x01
     cases = [
@@ -237,13 +237,16 @@ def stream_vectors() -> list[dict[str, Any]]:
         ("delimiter padding", b"\x00\x00" + a + b"\x00" + b + b"\x00"),
         ("corrupted frame between good ones", a + bytes(bad) + c),
         ("overlong garbage then a frame", bytes(range(1, 100)) + b"\x00" + a),
-        ("frame glued to a full buffer of garbage", bytes(range(1, p.MAX_FRAME + 1)) + a + b),
+        (
+            "frame glued to a full buffer of garbage",
+            bytes(range(1, protocol.MAX_FRAME + 1)) + a + b,
+        ),
         ("partial frame at the end", a + b[:-3]),
         ("torn frame: missing delimiter", a[:-1] + b),
     ]
     out = []
     for name, stream in cases:
-        decoder = p.FrameDecoder()
+        decoder = protocol.FrameDecoder()
         messages = decoder.feed(stream)
         out.append({
             "name": name,
@@ -568,11 +571,11 @@ def altino_scenarios() -> list[dict[str, Any]]:
     # fmt: on
 
 
-def _flipped(message: p.Message) -> str:
+def _flipped(message: protocol.Message) -> str:
     """Wire bytes of ``message`` with one bit flipped (a frame the CRC rejects)."""
-    wire = bytearray(p.encode(message))
+    wire = bytearray(protocol.encode(message))
     wire[2] ^= 0x04
-    decoder = p.FrameDecoder()
+    decoder = protocol.FrameDecoder()
     if decoder.feed(bytes(wire)) or not decoder.errors:
         raise RuntimeError(f"flipping a bit of {message!r} gave a frame protocol.py accepts")
     return bytes(wire).hex()
@@ -582,9 +585,9 @@ def build() -> dict[str, Any]:
     """Everything the vector file holds."""
     return {
         "about": ABOUT,
-        "protocol_version": p.PROTOCOL_VERSION,
-        "max_frame": p.MAX_FRAME,
-        "crc": [{"name": n, "data": d.hex(), "crc": p.crc16(d)} for n, d in CRC_INPUTS],
+        "protocol_version": protocol.PROTOCOL_VERSION,
+        "max_frame": protocol.MAX_FRAME,
+        "crc": [{"name": n, "data": d.hex(), "crc": protocol.crc16(d)} for n, d in CRC_INPUTS],
         "cobs": [cobs_vector(n, d) for n, d in COBS_INPUTS],
         "messages": [message_vector(n, m) for n, m in MESSAGES],
         "corrupt": corrupt_vectors(),

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 
 from frictiongym.devices import ALTINO
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import Device, Simulation
 from frictiongym.hardware.altino_frames import (
     COMMAND_LENGTH,
@@ -43,8 +43,8 @@ class StepSim:
         self._command = np.zeros(1)
         self._fresh = np.ones(1, dtype=bool)
         self._obs = np.zeros((1, self.sim.observation_size), dtype=np.float32)
-        self._out = np.zeros((ek.OUT_SIZE, 1))
-        self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        self._out = np.zeros((env_kernel.OUT_SIZE, 1))
+        self._flags = np.zeros((env_kernel.FLAG_SIZE, 1), dtype=bool)
         rng = np.random.default_rng(0)
         self.sim.prepare_reset(self._fresh, lambda _: rng, {"position": start})
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
@@ -63,7 +63,7 @@ class StepSim:
     @property
     def position(self) -> float:
         """True position: distance to the wall (cm) or angle (rad)."""
-        return float(self._out[ek.O_POSITION, 0])
+        return float(self._out[env_kernel.O_POSITION, 0])
 
     def step(self, command: float) -> None:
         """Hold ``command`` (physical units) for one period."""

@@ -27,11 +27,11 @@ from frictiongym.hardware import (
     DeviceDisconnectedError,
     DeviceFaultError,
     DeviceNotFoundError,
+    protocol,
     resolve_backend,
     stop_devices_on_signals,
     stop_signals,
 )
-from frictiongym.hardware import protocol as p
 from frictiongym.hardware.altino_frames import STOP_REPEATS
 from frictiongym.hardware.altino_stock import AltinoStockBackend
 from frictiongym.hardware.emulated import EmulatedBackend
@@ -74,7 +74,7 @@ def rig(request: pytest.FixtureRequest, tmp_path: Any) -> Iterator[Rig]:
         emulator = env.unwrapped.sim.backend.emulator
 
         def stopped() -> bool:
-            return emulator.motor == 0.0 and bool(emulator.status & p.Status.DISABLED)
+            return emulator.motor == 0.0 and bool(emulator.status & protocol.Status.DISABLED)
 
         yield Rig(env, lambda: emulator.motor, stopped)
         env.close()
@@ -258,7 +258,7 @@ def test_a_terminated_process_stops_the_motor_first(kind: str, sig: int) -> None
             child.wait()
         if kind == "firmware":
             assert wait_until(lambda: device.motor == 0.0)
-            assert not device.status & p.Status.WATCHDOG  # a stop, not a watchdog
+            assert not device.status & protocol.Status.WATCHDOG  # a stop, not a watchdog
         else:
             assert wait_until(lambda: device.commands[-1].stop and device.commands[-1].left == 0)
 
@@ -414,11 +414,11 @@ def test_a_second_open_of_a_stock_altino_is_refused_too() -> None:
             assert wait_until(lambda: fake.commands[-1].left == -100)
 
 
-def _intruder(port: str, message: p.Message) -> None:
+def _intruder(port: str, message: protocol.Message) -> None:
     """Another program that opens the port without a lock and writes ``message``."""
     fd = os.open(port, os.O_RDWR | os.O_NOCTTY)
     try:
-        os.write(fd, p.encode(message))
+        os.write(fd, protocol.encode(message))
         time.sleep(0.05)
     finally:
         os.close(fd)
@@ -427,12 +427,15 @@ def _intruder(port: str, message: p.Message) -> None:
 @pytest.mark.parametrize(
     ("message", "sign"),
     [
-        (p.HelloRequest(), "answered a Hello request this host never sent"),
-        (p.Command(seq=40000, command=500, flags=p.Flag.ENABLE), "holds command 40000"),
+        (protocol.HelloRequest(), "answered a Hello request this host never sent"),
+        (
+            protocol.Command(seq=40000, command=500, flags=protocol.Flag.ENABLE),
+            "holds command 40000",
+        ),
     ],
 )
 def test_a_second_host_is_named_not_blamed_on_the_power_supply(
-    served: Any, message: p.Message, sign: str
+    served: Any, message: protocol.Message, sign: str
 ) -> None:
     emulator, backend = served
     _intruder(backend.port, message)
@@ -446,7 +449,7 @@ def test_a_late_answer_to_our_own_handshake_is_not_a_second_host(served: Any) ->
     """A booting board may answer two of the handshake's repeated requests."""
     emulator, backend = served
     backend._hellos_due, backend._late_hellos_until = 1, time.monotonic() + 0.5
-    _intruder(backend.port, p.HelloRequest())  # its answer stands for our second one
+    _intruder(backend.port, protocol.HelloRequest())  # its answer stands for our second one
     for _ in range(5):
         backend.step(1.0)
     assert backend._hellos_due == 0
@@ -456,14 +459,18 @@ def test_a_late_answer_to_our_own_handshake_is_not_a_second_host(served: Any) ->
 def test_a_restarted_device_is_still_called_restarted() -> None:
     backend = SerialBackend("/dev/null")
     backend._echoed = True
-    backend._last = p.State(p.Status(0), seq=5000, tick_us=10_000_000, seq_applied=7, applied=0,
-                            sensor=0)  # fmt: skip
-    rebooted = p.State(p.Status.DISABLED, seq=3, tick_us=6000, seq_applied=0, applied=0, sensor=0)
+    backend._last = protocol.State(
+        protocol.Status(0), seq=5000, tick_us=10_000_000, seq_applied=7, applied=0, sensor=0
+    )
+    rebooted = protocol.State(
+        protocol.Status.DISABLED, seq=3, tick_us=6000, seq_applied=0, applied=0, sensor=0
+    )
     error = backend._restarted_or_second_host(rebooted)
     assert error is not None
     assert "restarted mid-run" in str(error)
-    running = p.State(p.Status(0), seq=5001, tick_us=10_002_000, seq_applied=9, applied=0,
-                      sensor=0)  # fmt: skip
+    running = protocol.State(
+        protocol.Status(0), seq=5001, tick_us=10_002_000, seq_applied=9, applied=0, sensor=0
+    )
     assert "another program" in str(backend._restarted_or_second_host(running))
 
 

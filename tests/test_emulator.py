@@ -22,13 +22,13 @@ from hypothesis import strategies as st
 import frictiongym  # noqa: F401  (registers the envs)
 from frictiongym.controllers import PID, FrictionCompensator, PIDGains
 from frictiongym.devices import ROTARY
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import Simulation
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.emulator import Emulator, Faults
 from frictiongym.hardware.firmware import FIRMWARE_BUILD, Firmware
 from frictiongym.hardware.guard import LIMIT_CM
-from frictiongym.plants import _kernel as pk
+from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.presets import (
     ALTINO_PAPER_GAINS_COMPENSATED,
     ALTINO_PAPER_GAINS_KI10,
@@ -40,7 +40,7 @@ serial = pytest.importorskip("serial")
 
 STEP = 2.0 * math.pi / 2048
 SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "emulate.py"
-ARM = p.Flag.REARM | p.Flag.ENABLE
+ARM = protocol.Flag.REARM | protocol.Flag.ENABLE
 
 
 class Host:
@@ -48,21 +48,21 @@ class Host:
 
     def __init__(self, url: str) -> None:
         self.port = serial.serial_for_url(url, timeout=0.02)
-        self.decoder = p.FrameDecoder()
+        self.decoder = protocol.FrameDecoder()
         self.seq = 0
 
-    def send(self, message: p.Message) -> None:
-        self.port.write(p.encode(message))
+    def send(self, message: protocol.Message) -> None:
+        self.port.write(protocol.encode(message))
 
-    def command(self, counts: int, flags: p.Flag = p.Flag.ENABLE) -> int:
+    def command(self, counts: int, flags: protocol.Flag = protocol.Flag.ENABLE) -> int:
         self.seq = (self.seq + 1) & 0xFFFF
-        self.send(p.Command(self.seq, counts, flags))
+        self.send(protocol.Command(self.seq, counts, flags))
         return self.seq
 
-    def read(self) -> list[p.Message]:
+    def read(self) -> list[protocol.Message]:
         return self.decoder.feed(self.port.read(max(1, self.port.in_waiting)))
 
-    def collect(self, seconds: float) -> list[p.Message]:
+    def collect(self, seconds: float) -> list[protocol.Message]:
         end, out = time.monotonic() + seconds, []
         while time.monotonic() < end:
             out += self.read()
@@ -76,13 +76,13 @@ class Host:
                     return message
         raise AssertionError(f"no {kind.__name__} within {timeout} s")
 
-    def hello(self) -> p.Hello:
-        self.send(p.HelloRequest())
-        return self.wait(p.Hello)
+    def hello(self) -> protocol.Hello:
+        self.send(protocol.HelloRequest())
+        return self.wait(protocol.Hello)
 
-    def step(self, counts: int, flags: p.Flag = p.Flag.ENABLE) -> p.State:
+    def step(self, counts: int, flags: protocol.Flag = protocol.Flag.ENABLE) -> protocol.State:
         seq = self.command(counts, flags)
-        return self.wait(p.State, lambda s: s.seq_applied == seq)
+        return self.wait(protocol.State, lambda s: s.seq_applied == seq)
 
     def close(self) -> None:
         self.port.close()
@@ -106,26 +106,57 @@ def serve(request):
         thing.close()
 
 
-@pytest.mark.parametrize(("kind", "rate", "cpr", "scale", "limit", "wd", "caps"), [
-    ("rotary", 500, 2048, 1000, 10000, 100, p.Capability.WATCHDOG | p.Capability.PLACE),
-    ("altino", 20, 0, 1, 1000, 150,
-     p.Capability.WATCHDOG | p.Capability.PLACE | p.Capability.DISTANCE_LIMIT),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("kind", "rate", "cpr", "scale", "limit", "wd", "caps"),
+    [
+        (
+            "rotary",
+            500,
+            2048,
+            1000,
+            10000,
+            100,
+            protocol.Capability.WATCHDOG | protocol.Capability.PLACE,
+        ),
+        (
+            "altino",
+            20,
+            0,
+            1,
+            1000,
+            150,
+            protocol.Capability.WATCHDOG
+            | protocol.Capability.PLACE
+            | protocol.Capability.DISTANCE_LIMIT,
+        ),
+    ],
+)
 def test_hello_describes_the_device(serve, kind, rate, cpr, scale, limit, wd, caps):
     emu, host = serve(kind)
     hello = host.hello()
-    assert hello == p.Hello(p.PROTOCOL_VERSION, p.DeviceKind[kind.upper()], caps, rate, cpr,
-                            scale, limit, wd, FIRMWARE_BUILD)  # fmt: skip
-    host.send(p.HelloRequest(version=7))  # another version still gets a Hello: the host decides
-    assert host.wait(p.Hello) == hello
+    assert hello == protocol.Hello(
+        protocol.PROTOCOL_VERSION,
+        protocol.DeviceKind[kind.upper()],
+        caps,
+        rate,
+        cpr,
+        scale,
+        limit,
+        wd,
+        FIRMWARE_BUILD,
+    )
+    host.send(
+        protocol.HelloRequest(version=7)
+    )  # another version still gets a Hello: the host decides
+    assert host.wait(protocol.Hello) == hello
     assert emu.dt == pytest.approx(1.0 / rate)
 
 
 def test_boots_disabled_and_streams_states_at_its_rate(serve):
     emu, host = serve("rotary")
-    states = [m for m in host.collect(0.3) if isinstance(m, p.State)]
+    states = [m for m in host.collect(0.3) if isinstance(m, protocol.State)]
     assert len(states) > 30
-    assert all(s.status & p.Status.DISABLED and s.applied == 0 for s in states)
+    assert all(s.status & protocol.Status.DISABLED and s.applied == 0 for s in states)
     assert emu.motor == 0.0
     seqs, ticks = np.array([s.seq for s in states]), np.array([s.tick_us for s in states])
     assert np.all(np.diff(seqs) >= 1)
@@ -144,20 +175,22 @@ def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands
     obs, _ = env.reset(seed=0)  # first: compiling the env's kernel must not trip the watchdog
     emu, host = serve(kind, lockstep=True)
     hello = host.hello()
-    first = host.step(0, ARM | p.Flag.ZERO_POSITION)
-    assert first.status == p.Status(0)
+    first = host.step(0, ARM | protocol.Flag.ZERO_POSITION)
+    assert first.status == protocol.Status(0)
     assert first.sensor == (0 if kind == "rotary" else int(obs[0]))
     for counts in commands:
         state = host.step(counts)
-        assert state.status == p.Status(0)
+        assert state.status == protocol.Status(0)
         assert state.applied == counts
         obs, *_ = env.step(np.array([state.applied / hello.command_scale], np.float32))
         if kind == "rotary":  # the env's own float product: bit-identical
-            assert state.sensor * STEP == env.sim.state[0, ek.E_ESTIMATE]
+            assert state.sensor * STEP == env.sim.state[0, env_kernel.E_ESTIMATE]
             assert np.float32(state.sensor * STEP) == obs[0]
         else:
             assert state.sensor == obs[0]
-    assert emu.position == pytest.approx(env.sim.state[0, pk.S_X] * (1 if kind == "rotary" else -1))
+    assert emu.position == pytest.approx(
+        env.sim.state[0, plant_kernel.S_X] * (1 if kind == "rotary" else -1)
+    )
     assert [t.sensor for t in emu.history[-len(commands) :]] != [0] * len(commands)
     assert emu.stats().ticks == len(commands) + 1
 
@@ -165,13 +198,13 @@ def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands
 @pytest.mark.parametrize("law", ["paper", "coulomb", "stribeck", "lugre", "none"])
 def test_zero_position_at_rest_equals_a_fresh_reset(law):
     fw = Firmware("rotary", friction=law)
-    fw.receive(p.Command(1, 0, ARM), 0.0)
+    fw.receive(protocol.Command(1, 0, ARM), 0.0)
     for counts in [2500] * 100 + [0] * 2500:  # turn, then come to rest (or slide forever)
-        fw.receive(p.Command(2, counts, p.Flag.ENABLE), 0.0)
+        fw.receive(protocol.Command(2, counts, protocol.Flag.ENABLE), 0.0)
         fw.tick(0.0)
     assert fw.position > 1.0
     velocity = fw.velocity
-    fw.receive(p.Command(3, 0, p.Flag.ENABLE | p.Flag.ZERO_POSITION), 0.0)
+    fw.receive(protocol.Command(3, 0, protocol.Flag.ENABLE | protocol.Flag.ZERO_POSITION), 0.0)
     fw.apply_pending()
     assert fw.position == 0.0
     assert fw.velocity == velocity
@@ -179,8 +212,8 @@ def test_zero_position_at_rest_equals_a_fresh_reset(law):
     fresh.prepare_reset(np.ones(1, bool), lambda _: np.random.default_rng(0))
     if law in ("paper", "coulomb", "stribeck"):  # laws with stiction come to rest exactly
         assert velocity == 0.0
-        np.testing.assert_array_equal(fw.plant.state[0], fresh.state[0, : pk.STATE_SIZE])
-        assert fw.sensor == ek.task_state(fresh.state, "estimate")[0] == 0.0
+        np.testing.assert_array_equal(fw.plant.state[0], fresh.state[0, : plant_kernel.STATE_SIZE])
+        assert fw.sensor == env_kernel.task_state(fresh.state, "estimate")[0] == 0.0
 
 
 @pytest.mark.parametrize("kind", ["rotary", "altino"])
@@ -194,13 +227,13 @@ def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
                      safety_limit=limit, parallel=False)  # fmt: skip
     rng, fresh = np.random.default_rng(7), np.ones(1, dtype=bool)
     obs = np.zeros((1, sim.observation_size), dtype=np.float32)
-    out, flags = np.zeros((ek.OUT_SIZE, 1)), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+    out, flags = np.zeros((env_kernel.OUT_SIZE, 1)), np.zeros((env_kernel.FLAG_SIZE, 1), dtype=bool)
     sim.prepare_reset(fresh, lambda _: rng, {"position": start})
 
     def env_reading(command: float) -> int:
         sim.run(np.array([command]), fresh, obs, out, flags)
         if kind == "rotary":
-            return round(float(ek.task_state(sim.state, "estimate")[0]) / STEP)
+            return round(float(env_kernel.task_state(sim.state, "estimate")[0]) / STEP)
         return int(obs[0, 0])
 
     assert fw.sensor == env_reading(0.0)
@@ -211,7 +244,7 @@ def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
         fw.hold(count)
         readings.append(fw.sensor)
         assert fw.sensor == env_reading(count / fw.scale)
-        np.testing.assert_array_equal(fw.plant.state[0], sim.state[0, : pk.STATE_SIZE])
+        np.testing.assert_array_equal(fw.plant.state[0], sim.state[0, : plant_kernel.STATE_SIZE])
     assert len(set(readings)) > 10  # the plant moved and the noise showed
 
 
@@ -227,10 +260,10 @@ def test_the_firmware_and_emulator_do_not_import_the_envs():
 
 
 _COMMANDS = st.builds(
-    lambda flags, counts, seq: p.encode(p.Command(seq, counts, p.Flag(flags))),
+    lambda flags, counts, seq: protocol.encode(protocol.Command(seq, counts, protocol.Flag(flags))),
     st.integers(0, 15), st.integers(-32768, 32767), st.integers(0, 0xFFFF),
 )  # fmt: skip
-_PLACES = st.builds(lambda x: p.encode(p.Place(x)), st.floats(width=32))
+_PLACES = st.builds(lambda x: protocol.encode(protocol.Place(x)), st.floats(width=32))
 _CHUNKS = st.lists(st.one_of(st.binary(max_size=40), _COMMANDS, _PLACES), max_size=40)
 
 
@@ -243,9 +276,9 @@ def test_any_input_keeps_the_firmware_safe(chunks, kind):
             fw.receive(message, i * fw.dt)
         state = fw.tick(i * fw.dt)
         assert abs(state.applied) <= fw.hello.command_limit
-        braking = state.status & p.Status.LIMIT and state.applied == -fw.hello.command_limit
+        braking = state.status & protocol.Status.LIMIT and state.applied == -fw.hello.command_limit
         assert state.applied == 0 or (fw.armed and fw.enabled) or braking
-        assert bool(state.status & p.Status.DISABLED) != (fw.armed and fw.enabled)
+        assert bool(state.status & protocol.Status.DISABLED) != (fw.armed and fw.enabled)
         assert math.isfinite(fw.position)
 
 
@@ -255,20 +288,20 @@ def test_zero_position_while_moving_keeps_the_velocity(serve):
     for _ in range(100):
         host.step(3000)
     before = emu.velocity
-    state = host.step(3000, p.Flag.ENABLE | p.Flag.ZERO_POSITION)
+    state = host.step(3000, protocol.Flag.ENABLE | protocol.Flag.ZERO_POSITION)
     assert 0 < state.sensor < before * emu.dt / STEP + 2  # one period of travel from zero
     assert emu.position == pytest.approx(before * emu.dt, rel=0.05)
 
 
 def test_place_puts_the_plant_at_rest_there(serve):
     emu, host = serve("rotary", lockstep=True)
-    host.send(p.Place(1.0))
+    host.send(protocol.Place(1.0))
     state = host.step(0, ARM)
     assert state.sensor == round(1.0 / STEP)
     assert emu.velocity == 0.0
     emu2, host2 = serve("altino", lockstep=True)
-    host2.send(p.Place(-3.0))  # behind the wall: ignored
-    host2.send(p.Place(8.0))
+    host2.send(protocol.Place(-3.0))  # behind the wall: ignored
+    host2.send(protocol.Place(8.0))
     state = host2.step(0, ARM)
     assert emu2.position == 8.0
     assert state.sensor == ir_readout(8.0)
@@ -292,25 +325,25 @@ def test_watchdog_zeroes_the_motor_in_time_and_latches(serve):
     # Exact on the device clock: zeroed on the first tick at or after watchdog_ms.
     ticks = emu.history
     last = max(t.tick for t in ticks if t.seq_applied == host.seq and t.applied == 2000)
-    tripped = min(t.tick for t in ticks if t.status & p.Status.WATCHDOG)
+    tripped = min(t.tick for t in ticks if t.status & protocol.Status.WATCHDOG)
     assert tripped - last <= round(watchdog / dt) + 1
-    state = host.wait(p.State, lambda s: s.status & p.Status.WATCHDOG)
-    assert state.status & p.Status.DISABLED
+    state = host.wait(protocol.State, lambda s: s.status & protocol.Status.WATCHDOG)
+    assert state.status & protocol.Status.DISABLED
     assert state.applied == 0
     state = host.step(2000)  # latched: ENABLE alone does not restart it
     assert state.applied == 0
-    assert state.status & p.Status.WATCHDOG
+    assert state.status & protocol.Status.WATCHDOG
     state = host.step(2000, ARM)
     assert state.applied == 2000
-    assert not state.status & p.Status.WATCHDOG
-    host.step(0, p.Flag(0))
+    assert not state.status & protocol.Status.WATCHDOG
+    host.step(0, protocol.Flag(0))
 
 
 def test_lockstep_watchdog_sends_a_state_when_commands_stop(serve):
     emu, host = serve("altino", lockstep=True, watchdog_ms=60)
     host.step(300, ARM)
     sent = time.monotonic()
-    state = host.wait(p.State, lambda s: s.status & p.Status.WATCHDOG, timeout=2.0)
+    state = host.wait(protocol.State, lambda s: s.status & protocol.Status.WATCHDOG, timeout=2.0)
     assert 0.05 <= time.monotonic() - sent < 1.0
     assert state.applied == 0
     assert emu.motor == 0.0
@@ -345,11 +378,11 @@ def test_a_late_emulator_thread_does_not_blame_the_host(serve, monkeypatch):
         emu, monkeypatch, 2.5 * emu.firmware.watchdog_s,
         lambda ready: emu.firmware.commands > received,
     )  # fmt: skip
-    state = host.wait(p.State, lambda s: s.seq_applied == seq, timeout=2.0)
+    state = host.wait(protocol.State, lambda s: s.seq_applied == seq, timeout=2.0)
     states = [state] + [host.step(2000) for _ in range(20)]
     assert stalling.is_set()
     assert emu.stats().missed >= 2 * emu.firmware.watchdog_s / emu.dt  # it did stall
-    assert not any(s.status & p.Status.WATCHDOG for s in states)
+    assert not any(s.status & protocol.Status.WATCHDOG for s in states)
     assert emu.motor == 2.0
 
 
@@ -361,16 +394,16 @@ def test_lockstep_watchdog_reads_before_it_trips(serve, monkeypatch):
     stalling = _hold_up_once(emu, monkeypatch, 0.2, lambda ready: not ready)
     assert stalling.wait(1.0)
     state = host.step(1000)
-    assert not state.status & p.Status.WATCHDOG
+    assert not state.status & protocol.Status.WATCHDOG
     assert state.applied == 1000
 
 
 def test_estop_disarms_until_rearm(serve):
     emu, host = serve("rotary", lockstep=True)
     assert host.step(1000, ARM).applied == 1000
-    state = host.step(1000, p.Flag.ENABLE | p.Flag.ESTOP)
+    state = host.step(1000, protocol.Flag.ENABLE | protocol.Flag.ESTOP)
     assert state.applied == 0
-    assert state.status & p.Status.DISABLED
+    assert state.status & protocol.Status.DISABLED
     assert emu.motor == 0.0
     assert host.step(1000).applied == 0
     assert host.step(-1000, ARM).applied == -1000
@@ -383,7 +416,7 @@ def _drive_until_the_guard_trips(host: Host, counts: int) -> None:
     for _ in range(100):
         state = host.step(counts)
         assert state.applied == counts  # what was held over the period that ended
-        if state.status & p.Status.LIMIT:
+        if state.status & protocol.Status.LIMIT:
             return
     raise AssertionError("the car drove on without the distance guard tripping")
 
@@ -395,7 +428,7 @@ def test_altino_guard_brakes_then_refuses_forward(serve):
     applied = []
     while emu.velocity != 0.0 and len(applied) < 40:  # the host keeps asking for +600
         state = host.step(600)
-        assert state.status == p.Status.LIMIT
+        assert state.status == protocol.Status.LIMIT
         applied.append(state.applied)
     stopped = applied.index(0)
     assert stopped >= 1
@@ -404,10 +437,10 @@ def test_altino_guard_brakes_then_refuses_forward(serve):
     assert min(t.position for t in emu.history) > 1.0
     state = host.step(-300)  # backing away passes, the trip stays latched
     assert state.applied == -300
-    assert state.status == p.Status.LIMIT
+    assert state.status == protocol.Status.LIMIT
     assert host.step(300).applied == 0  # forward: refused
     state = host.step(300, ARM)  # REARM, at rest well clear of the limit: cleared
-    assert state.status == p.Status(0)
+    assert state.status == protocol.Status(0)
     assert state.applied == 300
 
 
@@ -421,11 +454,11 @@ def test_altino_guard_brakes_through_an_estop(serve, counts):
     """
     emu, host = serve("altino", lockstep=True, start=20.0)
     _drive_until_the_guard_trips(host, counts)
-    state = host.step(0, p.Flag.ESTOP)
-    assert state.status == p.Status.LIMIT | p.Status.DISABLED
+    state = host.step(0, protocol.Flag.ESTOP)
+    assert state.status == protocol.Status.LIMIT | protocol.Status.DISABLED
     assert state.applied == -1000
     for _ in range(40):
-        state = host.step(0, p.Flag.ESTOP)
+        state = host.step(0, protocol.Flag.ESTOP)
         assert state.applied in (-1000, 0)
     assert emu.velocity == 0.0
     assert emu.motor == 0.0
@@ -457,26 +490,26 @@ def test_the_paper_gains_never_trip_the_guard(gains, compensated):
     env.close()
     assert steps == 400
     ticks = emulator.history
-    assert not any(t.status & p.Status.LIMIT for t in ticks)
+    assert not any(t.status & protocol.Status.LIMIT for t in ticks)
     assert min(t.position for t in ticks) > LIMIT_CM
 
 
 def test_bad_frames_set_the_crc_error_bit_once(serve):
     emu, host = serve("rotary", lockstep=True)
     host.step(0, ARM)
-    frame = bytearray(p.encode(p.Command(5, 100, p.Flag.ENABLE)))
+    frame = bytearray(protocol.encode(protocol.Command(5, 100, protocol.Flag.ENABLE)))
     frame[3] ^= 0x10
     host.port.write(b"\x13\x37garbage\x00" + bytes(frame))
     state = host.step(0)
-    assert state.status & p.Status.CRC_ERROR
-    assert not host.step(0).status & p.Status.CRC_ERROR
+    assert state.status & protocol.Status.CRC_ERROR
+    assert not host.step(0).status & protocol.Status.CRC_ERROR
     assert emu.stats().crc_errors == 2
 
 
 @pytest.mark.parametrize("faults", [Faults(drop=0.02), Faults(corrupt=0.3)])
 def test_link_faults_show_as_decoder_errors(serve, faults):
     _, host = serve("rotary", faults=faults, seed=3)
-    states = [m for m in host.collect(0.4) if isinstance(m, p.State)]
+    states = [m for m in host.collect(0.4) if isinstance(m, protocol.State)]
     assert host.decoder.errors > 0
     assert len(states) > 20  # the decoder resynchronises; good frames still pass
 
@@ -485,8 +518,8 @@ def test_delay_holds_frames(serve):
     _, host = serve("altino", faults=Faults(delay=0.1, jitter=0.02))
     host.collect(0.15)
     sent = time.monotonic()
-    host.send(p.HelloRequest())
-    host.wait(p.Hello)
+    host.send(protocol.HelloRequest())
+    host.wait(protocol.Hello)
     assert time.monotonic() - sent >= 0.1
 
 
@@ -515,19 +548,19 @@ def test_unplug_fails_the_host_and_the_watchdog_stops_the_motor(serve, tcp):
     while emu.motor != 0.0 and time.monotonic() < end:
         time.sleep(0.005)
     assert emu.motor == 0.0
-    assert emu.status & p.Status.WATCHDOG
+    assert emu.status & protocol.Status.WATCHDOG
     assert emu.running  # the device itself keeps going
 
 
 def test_unplug_and_freeze_after_device_time(serve):
     _, host = serve("altino", faults=Faults(unplug_after=0.2))
-    host.wait(p.State)
+    host.wait(protocol.State)
     assert isinstance(_link_failure(host.port, 2.0), OSError)
     emu2, host2 = serve("rotary", faults=Faults(freeze_after=0.1))
-    host2.wait(p.State)
+    host2.wait(protocol.State)
     host2.collect(0.2)
     assert host2.collect(0.2) == []  # the host times out; the link is still open
-    host2.send(p.HelloRequest())
+    host2.send(protocol.HelloRequest())
     assert host2.collect(0.1) == []
     assert emu2.running
     assert host2.port.is_open
@@ -546,7 +579,7 @@ def test_freeze_keeps_the_link_open_and_silent(serve):
 def test_tcp_serves_one_client_after_another(serve):
     emu, host = serve("altino", tcp=True)
     assert emu.url.startswith("socket://127.0.0.1:")
-    assert host.hello().kind == p.DeviceKind.ALTINO
+    assert host.hello().kind == protocol.DeviceKind.ALTINO
     host.close()
     again = Host(emu.url)
     try:
@@ -562,7 +595,7 @@ def test_pty_survives_the_host_closing_the_port(serve):
     time.sleep(0.1)  # the emulator sees EIO on the master, waits and retries
     again = Host(emu.url)
     try:
-        assert again.hello().kind == p.DeviceKind.ROTARY
+        assert again.hello().kind == protocol.DeviceKind.ROTARY
     finally:
         again.close()
     assert emu.running
@@ -612,7 +645,7 @@ def test_cli_prints_a_connectable_port_and_stops_on_sigint():
         assert url.startswith("/dev/")
         host = Host(url)
         try:
-            assert host.hello().kind == p.DeviceKind.ROTARY
+            assert host.hello().kind == protocol.DeviceKind.ROTARY
         finally:
             host.close()
         proc.send_signal(signal.SIGINT)

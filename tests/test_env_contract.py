@@ -109,11 +109,11 @@ def test_device_settings_with_the_simulator_say_so() -> None:
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_a_diverged_plant_terminates_instead_of_running_on(env_id: str) -> None:
-    from frictiongym.plants import _kernel as pk
+    from frictiongym.plants import _kernel as plant_kernel
 
     env = gym.make(env_id).unwrapped
     env.reset(seed=0)
-    env.sim.state[0, pk.S_X] = np.nan  # what a diverging integration would leave
+    env.sim.state[0, plant_kernel.S_X] = np.nan  # what a diverging integration would leave
     assert env.step(np.array([0.0], np.float32))[2]
 
 

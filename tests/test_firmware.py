@@ -24,8 +24,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from frictiongym.hardware import guard
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import guard, protocol
 from frictiongym.hardware.firmware import FIRMWARE_BUILD
 from frictiongym.plants.sensors import IR_NUMERATOR, IR_OFFSET
 
@@ -119,9 +118,9 @@ def _parse_messages(lines: list[str]) -> list[tuple[int, list[int]]]:
     return out
 
 
-def _python_values(message: p.Message) -> tuple[int, list[int]]:
-    if isinstance(message, p.Place):
-        bits = int.from_bytes(p.pack(message)[1:5], "little")
+def _python_values(message: protocol.Message) -> tuple[int, list[int]]:
+    if isinstance(message, protocol.Place):
+        bits = int.from_bytes(protocol.pack(message)[1:5], "little")
         return int(message.TYPE), [bits]
     return int(message.TYPE), [int(v) for v in message.fields()]
 
@@ -170,18 +169,29 @@ def test_c_stream_decoder_matches_python(harness: Harness, vector: dict[str, Any
 # --- fuzzing: the C decoder agrees with protocol.FrameDecoder ----------------------------------
 
 _valid_message = st.one_of(
-    st.builds(p.Command, st.integers(0, 65535), st.integers(-(2**15), 2**15 - 1),
-              st.builds(p.Flag, st.integers(0, 255)), st.integers(-(2**15), 2**15 - 1)),
-    st.builds(p.HelloRequest, st.integers(0, 255)),
-    st.builds(p.Place, st.floats(width=32, allow_nan=False)),
-    st.builds(p.State, st.builds(p.Status, st.integers(0, 255)), st.integers(0, 65535),
-              st.integers(0, 2**32 - 1), st.integers(0, 65535),
-              st.integers(-(2**15), 2**15 - 1), st.integers(-(2**31), 2**31 - 1)),
-)  # fmt: skip
+    st.builds(
+        protocol.Command,
+        st.integers(0, 65535),
+        st.integers(-(2**15), 2**15 - 1),
+        st.builds(protocol.Flag, st.integers(0, 255)),
+        st.integers(-(2**15), 2**15 - 1),
+    ),
+    st.builds(protocol.HelloRequest, st.integers(0, 255)),
+    st.builds(protocol.Place, st.floats(width=32, allow_nan=False)),
+    st.builds(
+        protocol.State,
+        st.builds(protocol.Status, st.integers(0, 255)),
+        st.integers(0, 65535),
+        st.integers(0, 2**32 - 1),
+        st.integers(0, 65535),
+        st.integers(-(2**15), 2**15 - 1),
+        st.integers(-(2**31), 2**31 - 1),
+    ),
+)
 
 
 def _assert_agree(harness: Harness, stream: bytes) -> None:
-    decoder = p.FrameDecoder()
+    decoder = protocol.FrameDecoder()
     expected = [_python_values(m) for m in decoder.feed(stream)]
     lines = harness.ask(f"stream {_hex(stream)}")
     assert _parse_messages(lines) == expected
@@ -197,9 +207,9 @@ def test_fuzz_c_decoder_on_random_bytes(harness: Harness, stream: bytes) -> None
 @settings(suppress_health_check=[HealthCheck.function_scoped_fixture], deadline=None)
 @given(st.lists(_valid_message, max_size=12), st.data())
 def test_fuzz_c_decoder_on_damaged_streams(
-    harness: Harness, messages: list[p.Message], data: st.DataObject
+    harness: Harness, messages: list[protocol.Message], data: st.DataObject
 ) -> None:
-    stream = bytearray(b"".join(p.encode(m) for m in messages))
+    stream = bytearray(b"".join(protocol.encode(m) for m in messages))
     for _ in range(data.draw(st.integers(0, 6))):
         if not stream:
             break
@@ -223,19 +233,19 @@ def _send_bytes(event: dict[str, Any]) -> bytes:
     spec = dict(event["send"])
     kind = spec.pop("type")
     if kind == "command":
-        flags = p.Flag(0)
+        flags = protocol.Flag(0)
         for name in spec.pop("flags"):
-            flags |= p.Flag[name]
-        return p.encode(p.Command(flags=flags, **spec))
+            flags |= protocol.Flag[name]
+        return protocol.encode(protocol.Command(flags=flags, **spec))
     if kind == "hello_request":
-        return p.encode(p.HelloRequest(**spec))
-    return p.encode(p.Place(**spec))
+        return protocol.encode(protocol.HelloRequest(**spec))
+    return protocol.encode(protocol.Place(**spec))
 
 
 def _status(names: list[str]) -> int:
     value = 0
     for name in names:
-        value |= p.Status[name]
+        value |= protocol.Status[name]
     return value
 
 
@@ -250,12 +260,12 @@ def test_device_scenario(harness: Harness, scenario: dict[str, Any]) -> None:
             lines = harness.ask(
                 f"dev_tick {event['at_us']} {sample['sensor']} {sample['aux']} {hw}"
             )
-            state = p.decode(bytes.fromhex(lines[0].split()[1])[:-1])
-            assert isinstance(state, p.State), where
+            state = protocol.decode(bytes.fromhex(lines[0].split()[1])[:-1])
+            assert isinstance(state, protocol.State), where
             for key, want in event.get("state", {}).items():
                 got = getattr(state, key)
                 if key == "status":
-                    assert got == _status(want), f"{where}: status {p.Status(got)!r}"
+                    assert got == _status(want), f"{where}: status {protocol.Status(got)!r}"
                 else:
                     assert got == want, f"{where}: {key}"
             motor_line = lines[1]
@@ -265,8 +275,8 @@ def test_device_scenario(harness: Harness, scenario: dict[str, Any]) -> None:
             if "zero" in event:
                 assert bool(act & 0x02) == event["zero"], f"{where}: zero action"
             if "reply" in event:
-                hello = p.decode(bytes.fromhex(lines[1].split()[1])[:-1])
-                assert isinstance(hello, p.Hello), where
+                hello = protocol.decode(bytes.fromhex(lines[1].split()[1])[:-1])
+                assert isinstance(hello, protocol.Hello), where
                 for key, want in event["reply"].items():
                     assert int(getattr(hello, key)) == want, f"{where}: Hello.{key}"
             else:
@@ -312,7 +322,7 @@ def test_python_firmware_follows_the_scenarios(
             for key, want in event["reply"].items():
                 got = int(getattr(hello, key))
                 if key == "capabilities":
-                    got &= ~p.Capability.PLACE  # the emulator also honours Place
+                    got &= ~protocol.Capability.PLACE  # the emulator also honours Place
                 assert got == want, f"{where}: Hello.{key}"
 
 
@@ -336,17 +346,19 @@ def test_c_guard_constants_equal_guard_py() -> None:
 def test_device_amplifier_follows_arming(harness: Harness) -> None:
     assert harness.ask("dev_init rotary 0") == ["ok"]
     assert harness.ask("dev_tick 2000 0 0 0")[1] == "motor 0 amp 0"
-    rearm = p.encode(p.Command(1, 0, p.Flag.REARM | p.Flag.ENABLE)).hex()
+    rearm = protocol.encode(
+        protocol.Command(1, 0, protocol.Flag.REARM | protocol.Flag.ENABLE)
+    ).hex()
     assert harness.ask(f"dev_rx 2500 {rearm}") == ["act 1 motor 0 amp 1"]
     assert harness.ask("dev_estop") == ["motor 0 amp 0"]
 
 
 def test_device_watchdog_option(harness: Harness) -> None:
-    hello = p.encode(p.HelloRequest()).hex()
+    hello = protocol.encode(protocol.HelloRequest()).hex()
     assert harness.ask("dev_init rotary 50") == ["ok"]
     reply = harness.ask(f"dev_rx 0 {hello}")[1].split()[1]
-    message = p.decode(bytes.fromhex(reply)[:-1])
-    assert isinstance(message, p.Hello)
+    message = protocol.decode(bytes.fromhex(reply)[:-1])
+    assert isinstance(message, protocol.Hello)
     assert message.watchdog_ms == 50
 
 
@@ -396,9 +408,14 @@ def _sim(sim: Harness, request: str) -> tuple[list[bytes], dict[int, bytes]]:
     return spi, tx
 
 
-def _states(data: bytes) -> list[p.State]:
-    messages = p.FrameDecoder().feed(data)
-    states = [m for m in messages if isinstance(m, p.State)]
+def _rx(link: int, message: protocol.Command) -> str:
+    """The harness line that feeds ``message`` to the device on ``link``."""
+    return f"rx {link} {protocol.encode(message).hex()}"
+
+
+def _states(data: bytes) -> list[protocol.State]:
+    messages = protocol.FrameDecoder().feed(data)
+    states = [m for m in messages if isinstance(m, protocol.State)]
     assert len(states) == len(messages), f"not only States: {messages}"
     return states
 
@@ -423,39 +440,48 @@ def test_qube_bridge_sketch(sketches: dict[str, Harness]) -> None:
     assert spi[0][2] & 0x60 == 0x60, "boot zeroes both encoders"
     assert _motor_word(spi[0]) == 0, "boot: motor 0, amplifier disabled"
     qube.ask(f"miso {_miso(encoder=-5, current_raw=8190 + 3276)}")  # -5 counts, 330 mA
-    qube.ask(f"rx 0 {p.encode(p.HelloRequest()).hex()}")
+    qube.ask(_rx(0, protocol.HelloRequest()))
     _, tx = _sim(qube, "run 50")
-    (hello,) = p.FrameDecoder().feed(tx[0])
-    assert hello == p.Hello(1, p.DeviceKind.ROTARY, p.Capability.WATCHDOG, 500, 2048, 1000,
-                            10000, 100, FIRMWARE_BUILD)  # fmt: skip
+    (hello,) = protocol.FrameDecoder().feed(tx[0])
+    assert hello == protocol.Hello(
+        1,
+        protocol.DeviceKind.ROTARY,
+        protocol.Capability.WATCHDOG,
+        500,
+        2048,
+        1000,
+        10000,
+        100,
+        FIRMWARE_BUILD,
+    )
     _, tx = _sim(qube, "run 2000")
     (state,) = _states(tx[0])
-    assert state == p.State(p.Status.DISABLED, 1, state.tick_us, 0, 0, -5, 330)
+    assert state == protocol.State(protocol.Status.DISABLED, 1, state.tick_us, 0, 0, -5, 330)
 
-    qube.ask(f"rx 0 {p.encode(p.Command(1, 5000, p.Flag.REARM | p.Flag.ENABLE)).hex()}")
+    qube.ask(_rx(0, protocol.Command(1, 5000, protocol.Flag.REARM | protocol.Flag.ENABLE)))
     spi, _ = _sim(qube, "run 50")
     assert _motor_word(spi[-1]) == 0x8000 | 208, "5 V = 208 PWM counts (625/15), amplifier on"
-    qube.ask(f"rx 0 {p.encode(p.Command(2, -5000)).hex()}")
+    qube.ask(_rx(0, protocol.Command(2, -5000)))
     spi, _ = _sim(qube, "run 50")
     assert _motor_word(spi[-1]) == 0x8000 | (-208 & 0x7FFF)
     _, tx = _sim(qube, "run 2000")
     (state,) = _states(tx[0])
     assert (state.status, state.seq_applied, state.applied) == (0, 2, -5000)
 
-    qube.ask(f"rx 0 {p.encode(p.Command(3, 0, p.Flag.ENABLE | p.Flag.ZERO_POSITION)).hex()}")
+    qube.ask(_rx(0, protocol.Command(3, 0, protocol.Flag.ENABLE | protocol.Flag.ZERO_POSITION)))
     spi, _ = _sim(qube, "run 50")
     assert spi[-1][2] & 0x60 == 0x20, "ZERO_POSITION zeroes encoder 0 only"
 
     spi, tx = _sim(qube, "run 110000")  # no commands: the watchdog trips after 100 ms
     states = _states(tx[0])
     assert len(states) == 55
-    assert states[-1].status == p.Status.WATCHDOG | p.Status.DISABLED
+    assert states[-1].status == protocol.Status.WATCHDOG | protocol.Status.DISABLED
     assert _motor_word(spi[-1]) == 0, "watchdog: motor 0, amplifier disabled"
 
     qube.ask(f"miso {_miso(module=0)}")  # no QUBE answering
-    qube.ask(f"rx 0 {p.encode(p.Command(4, 1000, p.Flag.REARM | p.Flag.ENABLE)).hex()}")
+    qube.ask(_rx(0, protocol.Command(4, 1000, protocol.Flag.REARM | protocol.Flag.ENABLE)))
     spi, tx = _sim(qube, "run 4000")
-    assert _states(tx[0])[-1].status & p.Status.AMP_FAULT
+    assert _states(tx[0])[-1].status & protocol.Status.AMP_FAULT
     assert _motor_word(spi[-1]) == 0
 
 
@@ -487,14 +513,14 @@ def test_altino_sketch(sketches: dict[str, Harness]) -> None:
     (boot,) = _car_frames(tx[0])
     assert _wheels(boot) == ((255, 0), (255, 0)), "boot: both wheels stopped"
     car.ask(f"rx 0 {_car_reply(150)}")  # 4.95 cm
-    car.ask(f"rx 1 {p.encode(p.Command(1, 400, p.Flag.REARM | p.Flag.ENABLE)).hex()}")
+    car.ask(_rx(1, protocol.Command(1, 400, protocol.Flag.REARM | protocol.Flag.ENABLE)))
     _, tx = _sim(car, "run 10000")
     assert _wheels(_car_frames(tx[0])[-1]) == ((255, 0), (255, 0)), "no sample yet: refused"
     _, tx = _sim(car, "run 40000")  # the first tick samples the distance
     (state,) = _states(tx[1])
     assert (state.status, state.sensor, state.applied, state.seq) == (0, 150, 0, 1)
     car.ask(f"rx 0 {_car_reply(150)}")  # +400 held from rest would stop at 3.6 cm: passes
-    car.ask(f"rx 1 {p.encode(p.Command(1, 400, p.Flag.REARM | p.Flag.ENABLE)).hex()}")
+    car.ask(_rx(1, protocol.Command(1, 400, protocol.Flag.REARM | protocol.Flag.ENABLE)))
     _, tx = _sim(car, "run 10000")  # the vendor's 10 ms frame gap
     (drive,) = _car_frames(tx[0])
     assert _wheels(drive) == ((0, 400), (0, 400))
@@ -507,30 +533,30 @@ def test_altino_sketch(sketches: dict[str, Harness]) -> None:
 
     # 4.95 cm -> 1.95 cm in a period: 60 cm/s, far too fast to stop 1.5 cm short of the wall
     car.ask(f"rx 0 {_car_reply(450)}")
-    car.ask(f"rx 1 {p.encode(p.Command(2, 400)).hex()}")
+    car.ask(_rx(1, protocol.Command(2, 400)))
     _, tx = _sim(car, "run 50000")
     (state,) = _states(tx[1])
-    assert (state.status, state.sensor, state.applied) == (p.Status.LIMIT, 450, 400)
+    assert (state.status, state.sensor, state.applied) == (protocol.Status.LIMIT, 450, 400)
     _, tx = _sim(car, "run 10000")
     brake = (0, 32768 + 1000)
     assert _wheels(_car_frames(tx[0])[-1]) == (brake, brake), "the guard brakes: full reverse"
     car.ask(f"rx 0 {_car_reply(450)}")  # the car stopped there
-    car.ask(f"rx 1 {p.encode(p.Command(3, 400)).hex()}")
+    car.ask(_rx(1, protocol.Command(3, 400)))
     _, tx = _sim(car, "run 10000")
     assert _wheels(_car_frames(tx[0])[-1]) == (brake, brake), "forward: refused, still braking"
     _, tx = _sim(car, "run 30000")
     (state,) = _states(tx[1])
-    assert (state.status, state.sensor, state.applied) == (p.Status.LIMIT, 450, -1000)
+    assert (state.status, state.sensor, state.applied) == (protocol.Status.LIMIT, 450, -1000)
     _, tx = _sim(car, "run 10000")
     assert _wheels(_car_frames(tx[0])[-1]) == ((255, 0), (255, 0)), "stopped: no more brake"
-    car.ask(f"rx 1 {p.encode(p.Command(4, -300)).hex()}")
+    car.ask(_rx(1, protocol.Command(4, -300)))
     _, tx = _sim(car, "run 10000")
     assert _wheels(_car_frames(tx[0])[-1]) == ((0, 32768 + 300), (0, 32768 + 300))
 
     _, tx = _sim(car, "run 200000")  # commands and car replies stop
     states = _states(tx[1])
-    assert states[-1].status & p.Status.AMP_FAULT
-    assert states[-1].status & p.Status.DISABLED
+    assert states[-1].status & protocol.Status.AMP_FAULT
+    assert states[-1].status & protocol.Status.DISABLED
     assert _wheels(_car_frames(tx[0])[-1]) == ((255, 0), (255, 0))
 
 

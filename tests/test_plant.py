@@ -30,7 +30,7 @@ from frictiongym.friction import (
     NoFriction,
 )
 from frictiongym.plants import Plant, PlantParams
-from frictiongym.plants import _kernel as k
+from frictiongym.plants import _kernel as plant_kernel
 
 
 def test_scalar_equals_batch_bit_for_bit() -> None:
@@ -48,7 +48,7 @@ def test_scalar_equals_batch_bit_for_bit() -> None:
     for i in range(n_plants):
         # one batch shares one substep count: give the single plant the same
         single = Plant(BATCH_PARAMS[i], BATCH_LAWS[i], DT, substeps=batch.substeps)
-        single.reset(position=start[i, k.S_X], velocity=start[i, k.S_V])
+        single.reset(position=start[i, plant_kernel.S_X], velocity=start[i, plant_kernel.S_V])
         ts = run(single, n, commands=u[:, i])
         for field in ("x", "v", "stuck", "command", "friction"):
             assert np.array_equal(getattr(ts, field)[:, 0], getattr(tb, field)[:, i]), (i, field)
@@ -120,8 +120,11 @@ def test_py_func_batch_loop_agrees_with_compiled() -> None:
     rng = np.random.default_rng(1)
     for _ in range(200):
         u = rng.uniform(-1.3, 1.3, len(BATCH_LAWS))
-        assert k.step_batch(state_a, buf_a, 0, u, DT, plant.substeps, plant.rows) == -1
-        assert k.step_batch.py_func(state_b, buf_b, 0, u, DT, plant.substeps, plant.rows) == -1
+        assert plant_kernel.step_batch(state_a, buf_a, 0, u, DT, plant.substeps, plant.rows) == -1
+        assert (
+            plant_kernel.step_batch.py_func(state_b, buf_b, 0, u, DT, plant.substeps, plant.rows)
+            == -1
+        )
         assert np.array_equal(state_a, state_b)
 
 
@@ -178,15 +181,15 @@ def test_place_moves_plants_and_keeps_the_rest_of_their_state() -> None:
     moving = plant.state.copy()
     buffer = plant.delay_buffer.copy()
     plant.place(0.25, mask=[True, False])  # an encoder reset: only the position changes
-    assert plant.position.tolist() == [0.25, moving[1, k.S_X]]
-    others = [c for c in range(k.STATE_SIZE) if c != k.S_X]
+    assert plant.position.tolist() == [0.25, moving[1, plant_kernel.S_X]]
+    others = [c for c in range(plant_kernel.STATE_SIZE) if c != plant_kernel.S_X]
     np.testing.assert_array_equal(plant.state[:, others], moving[:, others])
     np.testing.assert_array_equal(plant.delay_buffer, buffer)
     plant.place(-1.0, stop=True)  # an inelastic stop: at rest and stuck there
     assert plant.position.tolist() == [-1.0, -1.0]
     assert plant.velocity.tolist() == [0.0, 0.0]
     assert plant.stuck.all()
-    kept = [k.S_Z, k.S_LAG, k.S_FRICTION, k.S_COMMAND]
+    kept = [plant_kernel.S_Z, plant_kernel.S_LAG, plant_kernel.S_FRICTION, plant_kernel.S_COMMAND]
     np.testing.assert_array_equal(plant.state[:, kept], moving[:, kept])
 
 
@@ -202,7 +205,7 @@ def test_actuator_lag_first_order_response(lag: float) -> None:
     y, v = [], []
     for _ in range(n):
         plant.step(u)
-        y.append(plant.state[0, k.S_LAG])
+        y.append(plant.state[0, plant_kernel.S_LAG])
         v.append(plant.velocity[0])
     np.testing.assert_allclose(y, -u * np.expm1(-t / lag), rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(v, u / inertia * (t + lag * np.expm1(-t / lag)), rtol=1e-12)

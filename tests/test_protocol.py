@@ -19,7 +19,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.errors import HardwareError, ProtocolError
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -28,18 +28,24 @@ VECTORS = json.loads(VECTOR_FILE.read_text())
 
 I16 = st.integers(-(2**15), 2**15 - 1)
 U16 = st.integers(0, 2**16 - 1)
-commands = st.builds(p.Command, U16, I16, st.builds(p.Flag, st.integers(0, 255)), I16)
-hello_requests = st.builds(p.HelloRequest, st.integers(0, 255))
-places = st.builds(p.Place, st.floats(width=32, allow_nan=False))
+commands = st.builds(protocol.Command, U16, I16, st.builds(protocol.Flag, st.integers(0, 255)), I16)
+hello_requests = st.builds(protocol.HelloRequest, st.integers(0, 255))
+places = st.builds(protocol.Place, st.floats(width=32, allow_nan=False))
 hellos = st.builds(
-    p.Hello, st.integers(0, 255), st.sampled_from(p.DeviceKind),
-    st.builds(p.Capability, st.integers(0, 255)), U16, U16, U16, I16, U16,
+    protocol.Hello, st.integers(0, 255), st.sampled_from(protocol.DeviceKind),
+    st.builds(protocol.Capability, st.integers(0, 255)), U16, U16, U16, I16, U16,
     st.integers(0, 2**32 - 1),
 )  # fmt: skip
 states = st.builds(
-    p.State, st.builds(p.Status, st.integers(0, 255)), U16, st.integers(0, 2**32 - 1), U16,
-    I16, st.integers(-(2**31), 2**31 - 1), I16,
-)  # fmt: skip
+    protocol.State,
+    st.builds(protocol.Status, st.integers(0, 255)),
+    U16,
+    st.integers(0, 2**32 - 1),
+    U16,
+    I16,
+    st.integers(-(2**31), 2**31 - 1),
+    I16,
+)
 messages = st.one_of(commands, hello_requests, places, hellos, states)
 
 # COBS inputs: arbitrary bytes, runs of zeros, and whole 254/255-byte blocks.
@@ -67,12 +73,12 @@ def _crc_bitwise(data: bytes) -> int:
 
 
 def test_crc_check_value() -> None:
-    assert p.crc16(b"123456789") == 0x29B1  # the CRC catalogue's check for CCITT-FALSE
+    assert protocol.crc16(b"123456789") == 0x29B1  # the CRC catalogue's check for CCITT-FALSE
 
 
 @given(st.binary(max_size=300))
 def test_crc_matches_its_definition(data: bytes) -> None:
-    assert p.crc16(data) == _crc_bitwise(data)
+    assert protocol.crc16(data) == _crc_bitwise(data)
 
 
 # --- COBS --------------------------------------------------------------------------------------
@@ -80,10 +86,10 @@ def test_crc_matches_its_definition(data: bytes) -> None:
 
 @given(cobs_inputs)
 def test_cobs_round_trip(data: bytes) -> None:
-    encoded = p.cobs_encode(data)
+    encoded = protocol.cobs_encode(data)
     assert 0 not in encoded
     assert len(encoded) <= len(data) + len(data) // 254 + 1
-    assert p.cobs_decode(encoded) == data
+    assert protocol.cobs_decode(encoded) == data
 
 
 @pytest.mark.parametrize(
@@ -100,62 +106,68 @@ def test_cobs_round_trip(data: bytes) -> None:
     ],
 )
 def test_cobs_known_encodings(data: bytes, encoded: bytes) -> None:
-    assert p.cobs_encode(data) == encoded
-    assert p.cobs_decode(encoded) == data
+    assert protocol.cobs_encode(data) == encoded
+    assert protocol.cobs_decode(encoded) == data
 
 
 def test_cobs_decodes_a_final_full_block_without_its_empty_successor() -> None:
     # Encoders that omit the trailing 0x01 after a final 254-byte block interoperate.
-    assert p.cobs_decode(b"\xff" + bytes(range(1, 255))) == bytes(range(1, 255))
+    assert protocol.cobs_decode(b"\xff" + bytes(range(1, 255))) == bytes(range(1, 255))
 
 
 @pytest.mark.parametrize("frame", [b"\x00", b"\x05\x01\x02", b"\x03\x01\x00", b"\x02\x01\x00\x01"])
 def test_cobs_rejects_malformed_blocks(frame: bytes) -> None:
-    with pytest.raises(p.FrameError, match="COBS"):
-        p.cobs_decode(frame)
+    with pytest.raises(protocol.FrameError, match="COBS"):
+        protocol.cobs_decode(frame)
 
 
 # --- messages ----------------------------------------------------------------------------------
 
 
 @given(messages)
-def test_every_message_round_trips(message: p.Message) -> None:
-    wire = p.encode(message)
+def test_every_message_round_trips(message: protocol.Message) -> None:
+    wire = protocol.encode(message)
     assert wire.endswith(b"\x00")
     assert 0 not in wire[:-1]
-    assert len(wire) - 1 <= p.MAX_FRAME
-    assert p.decode(wire[:-1]) == message
-    assert p.unpack(p.pack(message)) == message
+    assert len(wire) - 1 <= protocol.MAX_FRAME
+    assert protocol.decode(wire[:-1]) == message
+    assert protocol.unpack(protocol.pack(message)) == message
 
 
 def test_place_nan_decodes_as_nan() -> None:
-    decoded = p.decode(p.encode(p.Place(math.nan))[:-1])
-    assert isinstance(decoded, p.Place)
+    decoded = protocol.decode(protocol.encode(protocol.Place(math.nan))[:-1])
+    assert isinstance(decoded, protocol.Place)
     assert math.isnan(decoded.position)
 
 
 def test_payload_sizes_match_the_documented_table() -> None:
-    sizes = {p.Command: 8, p.HelloRequest: 2, p.Place: 5, p.Hello: 18, p.State: 18}
+    sizes = {
+        protocol.Command: 8,
+        protocol.HelloRequest: 2,
+        protocol.Place: 5,
+        protocol.Hello: 18,
+        protocol.State: 18,
+    }
     for cls, size in sizes.items():
         assert struct.calcsize(cls.FORMAT) == size  # type: ignore[attr-defined]
-        assert size + 2 <= p.MAX_PAYLOAD
+        assert size + 2 <= protocol.MAX_PAYLOAD
 
 
 @pytest.mark.parametrize(
     "message",
     [
-        p.Command(seq=65536, command=0),
-        p.Command(seq=-1, command=0),
-        p.Command(seq=0, command=40000),
-        p.Command(seq=0, command=0, flags=p.Flag(256)),
-        p.Place(1e39),
-        p.State(p.Status(0), 0, 2**32, 0, 0, 0),
-        p.State(p.Status(0), 0, 0, 0, 0, 2**31),
+        protocol.Command(seq=65536, command=0),
+        protocol.Command(seq=-1, command=0),
+        protocol.Command(seq=0, command=40000),
+        protocol.Command(seq=0, command=0, flags=protocol.Flag(256)),
+        protocol.Place(1e39),
+        protocol.State(protocol.Status(0), 0, 2**32, 0, 0, 0),
+        protocol.State(protocol.Status(0), 0, 0, 0, 0, 2**31),
     ],
 )
-def test_pack_refuses_what_does_not_fit(message: p.Message) -> None:
+def test_pack_refuses_what_does_not_fit(message: protocol.Message) -> None:
     with pytest.raises(ValueError, match="does not fit"):
-        p.pack(message)
+        protocol.pack(message)
 
 
 @pytest.mark.parametrize(
@@ -164,18 +176,18 @@ def test_pack_refuses_what_does_not_fit(message: p.Message) -> None:
         (b"", "empty"),
         (b"\x42\x00", "unknown message type"),
         (b"\x01\x01\x00", "expected 8"),
-        (p.pack(p.State(p.Status(0), 0, 0, 0, 0, 0)) + b"\x00", "expected 18"),
+        (protocol.pack(protocol.State(protocol.Status(0), 0, 0, 0, 0, 0)) + b"\x00", "expected 18"),
         (b"\x80\x01\x07" + bytes(15), "unknown device kind"),
     ],
 )
 def test_unpack_rejects_bad_payloads(payload: bytes, match: str) -> None:
-    with pytest.raises(p.FrameError, match=match):
-        p.unpack(payload)
+    with pytest.raises(protocol.FrameError, match=match):
+        protocol.unpack(payload)
 
 
 def test_frame_errors_are_hardware_errors() -> None:
-    assert issubclass(p.FrameError, ProtocolError)
-    assert issubclass(p.FrameError, HardwareError)
+    assert issubclass(protocol.FrameError, ProtocolError)
+    assert issubclass(protocol.FrameError, HardwareError)
 
 
 # --- the shared vectors ------------------------------------------------------------------------
@@ -200,22 +212,24 @@ def test_vector_file_is_what_the_script_writes_now() -> None:
 
 @pytest.mark.parametrize("vector", VECTORS["messages"], ids=lambda v: v["name"])
 def test_vectors_decode_in_python(vector: dict[str, Any]) -> None:
-    message = p.decode(bytes.fromhex(vector["wire"])[:-1])
-    assert p.pack(message).hex() == vector["payload"]
-    assert p.crc16(bytes.fromhex(vector["payload"])) == vector["crc"]
+    message = protocol.decode(bytes.fromhex(vector["wire"])[:-1])
+    assert protocol.pack(message).hex() == vector["payload"]
+    assert protocol.crc16(bytes.fromhex(vector["payload"])) == vector["crc"]
 
 
 @pytest.mark.parametrize("vector", VECTORS["corrupt"], ids=lambda v: v["name"])
 def test_corrupted_vectors_are_rejected(vector: dict[str, Any]) -> None:
-    with pytest.raises(p.FrameError):
-        p.decode(bytes.fromhex(vector["frame"]))
+    with pytest.raises(protocol.FrameError):
+        protocol.decode(bytes.fromhex(vector["frame"]))
 
 
 # --- FrameDecoder ------------------------------------------------------------------------------
 
 
-def _feed_in_chunks(decoder: p.FrameDecoder, stream: bytes, cuts: list[int]) -> list[p.Message]:
-    out: list[p.Message] = []
+def _feed_in_chunks(
+    decoder: protocol.FrameDecoder, stream: bytes, cuts: list[int]
+) -> list[protocol.Message]:
+    out: list[protocol.Message] = []
     start = 0
     for cut in [*sorted(cuts), len(stream)]:
         out += decoder.feed(stream[start:cut])
@@ -224,38 +238,45 @@ def _feed_in_chunks(decoder: p.FrameDecoder, stream: bytes, cuts: list[int]) -> 
 
 
 @given(st.lists(messages, max_size=10), st.lists(st.integers(0, 300), max_size=20))
-def test_decoder_splits_streams_fed_in_any_chunks(batch: list[p.Message], cuts: list[int]) -> None:
-    stream = b"".join(p.encode(m) for m in batch)
-    decoder = p.FrameDecoder()
+def test_decoder_splits_streams_fed_in_any_chunks(
+    batch: list[protocol.Message], cuts: list[int]
+) -> None:
+    stream = b"".join(protocol.encode(m) for m in batch)
+    decoder = protocol.FrameDecoder()
     got = _feed_in_chunks(decoder, stream, [c for c in cuts if c <= len(stream)])
-    assert [p.pack(m) for m in got] == [p.pack(m) for m in batch]
+    assert [protocol.pack(m) for m in got] == [protocol.pack(m) for m in batch]
     assert (decoder.frames, decoder.errors) == (len(batch), 0)
 
 
 def test_decoder_resynchronises_after_garbage() -> None:
-    a, b = p.Command(seq=1, command=100), p.State(p.Status(0), 1, 2000, 1, 100, 7)
-    decoder = p.FrameDecoder()
+    a, b = (
+        protocol.Command(seq=1, command=100),
+        protocol.State(protocol.Status(0), 1, 2000, 1, 100, 7),
+    )
+    decoder = protocol.FrameDecoder()
     assert decoder.feed(b"\x13\x37\xff") == []  # mid-frame start: no delimiter yet
-    assert decoder.feed(b"\x42" + p.encode(a)) == []  # the garbage glues onto a's frame
+    assert decoder.feed(b"\x42" + protocol.encode(a)) == []  # the garbage glues onto a's frame
     assert decoder.errors == 1
-    assert decoder.feed(p.encode(a) + b"\x05\x06\x00" + p.encode(b)) == [a, b]
+    assert decoder.feed(protocol.encode(a) + b"\x05\x06\x00" + protocol.encode(b)) == [a, b]
     assert (decoder.frames, decoder.errors) == (2, 2)
 
 
 def test_decoder_skips_empty_frames_without_counting() -> None:
-    decoder = p.FrameDecoder()
-    assert decoder.feed(b"\x00\x00" + p.encode(p.HelloRequest()) + b"\x00") == [p.HelloRequest()]
+    decoder = protocol.FrameDecoder()
+    assert decoder.feed(b"\x00\x00" + protocol.encode(protocol.HelloRequest()) + b"\x00") == [
+        protocol.HelloRequest()
+    ]
     assert (decoder.frames, decoder.errors) == (1, 0)
 
 
 def test_decoder_stays_bounded_on_endless_garbage() -> None:
-    decoder = p.FrameDecoder()
+    decoder = protocol.FrameDecoder()
     junk = bytes(range(1, 256)) * 20
     for _ in range(200):  # 1 MB without a delimiter
         assert decoder.feed(junk) == []
-        assert len(decoder._partial) <= p.MAX_FRAME
-    command = p.Command(seq=9, command=-9)
-    assert decoder.feed(b"\x00" + p.encode(command)) == [command]
+        assert len(decoder._partial) <= protocol.MAX_FRAME
+    command = protocol.Command(seq=9, command=-9)
+    assert decoder.feed(b"\x00" + protocol.encode(command)) == [command]
     assert (decoder.frames, decoder.errors) == (1, 1)
 
 
@@ -282,7 +303,7 @@ def _reference_decode(stream: bytes) -> tuple[list[bytes], int, int]:
     *segments, _partial = stream.split(b"\x00")
     payloads, bad = [], 0
     for segment in filter(None, segments):
-        data = _reference_cobs_decode(segment) if len(segment) <= p.MAX_FRAME else None
+        data = _reference_cobs_decode(segment) if len(segment) <= protocol.MAX_FRAME else None
         if data is None or len(data) < 3:
             bad += 1
             continue
@@ -291,8 +312,8 @@ def _reference_decode(stream: bytes) -> tuple[list[bytes], int, int]:
             bad += 1
             continue
         try:
-            p.unpack(payload)
-        except p.FrameError:
+            protocol.unpack(payload)
+        except protocol.FrameError:
             bad += 1
             continue
         payloads.append(payload)
@@ -300,14 +321,14 @@ def _reference_decode(stream: bytes) -> tuple[list[bytes], int, int]:
 
 
 def _check_decoder_on(stream: bytes, cuts: list[int]) -> None:
-    decoder = p.FrameDecoder()
+    decoder = protocol.FrameDecoder()
     got = _feed_in_chunks(decoder, stream, [c for c in cuts if c <= len(stream)])
     payloads, good, bad = _reference_decode(stream)
-    assert [p.pack(m) for m in got] == [p.pack(p.unpack(x)) for x in payloads]
+    assert [protocol.pack(m) for m in got] == [protocol.pack(protocol.unpack(x)) for x in payloads]
     assert (decoder.frames, decoder.errors) == (good, bad)
     for message in got:  # every message came from a frame with a valid CRC in the input
-        if not (isinstance(message, p.Place) and math.isnan(message.position)):
-            assert p.encode(message) in b"\x00" + stream
+        if not (isinstance(message, protocol.Place) and math.isnan(message.position)):
+            assert protocol.encode(message) in b"\x00" + stream
 
 
 @given(st.binary(max_size=3000), st.lists(st.integers(0, 3000), max_size=30))
@@ -322,9 +343,9 @@ def test_fuzz_random_bytes(stream: bytes, cuts: list[int]) -> None:
     st.lists(st.integers(0, 400), max_size=10),
 )  # fmt: skip
 def test_fuzz_damaged_streams(
-    batch: list[p.Message], damage: list[tuple[str, int, int]], cuts: list[int]
+    batch: list[protocol.Message], damage: list[tuple[str, int, int]], cuts: list[int]
 ) -> None:
-    stream = bytearray(b"".join(p.encode(m) for m in batch))
+    stream = bytearray(b"".join(protocol.encode(m) for m in batch))
     for action, where, value in damage:
         if not stream:
             break

@@ -13,10 +13,10 @@ import numba
 import numpy as np
 import pytest
 
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.friction import ROTARY_PAPER
 from frictiongym.plants import Plant, PlantParams, threads
-from frictiongym.plants import _kernel as pk
+from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, select_kernel
 from tests._envs import IDS, RANDOM_KWARGS, commands
 
@@ -72,7 +72,7 @@ def run(kernel: AdaptiveKernel, calls: int) -> list[bool]:
 
 
 def test_small_batches_and_one_thread_run_serially() -> None:
-    serial, threaded = pk.step_batch, pk.step_batch_parallel
+    serial, threaded = plant_kernel.step_batch, plant_kernel.step_batch_parallel
     assert select_kernel(serial, threaded, PARALLEL_MIN_PLANTS - 1, None) is serial
     assert select_kernel(serial, threaded, 1, None) is serial
     large = select_kernel(serial, threaded, PARALLEL_MIN_PLANTS, None)
@@ -80,7 +80,7 @@ def test_small_batches_and_one_thread_run_serially() -> None:
 
 
 def test_parallel_true_or_false_forces_a_twin() -> None:
-    serial, threaded = pk.step_batch, pk.step_batch_parallel
+    serial, threaded = plant_kernel.step_batch, plant_kernel.step_batch_parallel
     for size in (1, PARALLEL_MIN_PLANTS, 65536):
         assert select_kernel(serial, threaded, size, True) is threaded
         assert select_kernel(serial, threaded, size, False) is serial
@@ -92,19 +92,22 @@ def test_parallel_true_or_false_forces_a_twin() -> None:
 def test_plant_and_envs_take_their_kernel_from_the_policy() -> None:
     small = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS - 1)
     large = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS)
-    assert small._step_kernel is pk.step_batch
+    assert small._step_kernel is plant_kernel.step_batch
     assert not small.parallel
     assert isinstance(large._step_kernel, AdaptiveKernel) == THREADS
     forced = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS, parallel=False)
-    assert forced._step_kernel is pk.step_batch
+    assert forced._step_kernel is plant_kernel.step_batch
     assert not forced.parallel
-    assert Plant(PARAMS, ROTARY_PAPER, 0.002, parallel=True)._step_kernel is pk.step_batch_parallel
+    assert (
+        Plant(PARAMS, ROTARY_PAPER, 0.002, parallel=True)._step_kernel
+        is plant_kernel.step_batch_parallel
+    )
     vec = gym.make_vec(
         IDS[0], num_envs=PARALLEL_MIN_PLANTS, vectorization_mode="vector_entry_point"
     )
     assert isinstance(vec.unwrapped.sim.plants._step_kernel, AdaptiveKernel) == THREADS
     serial = gym.make_vec(IDS[0], 8, vectorization_mode="vector_entry_point", parallel=True)
-    assert serial.unwrapped.sim.plants._step_kernel is ek.step_envs_parallel
+    assert serial.unwrapped.sim.plants._step_kernel is env_kernel.step_envs_parallel
 
 
 def test_the_faster_twin_runs_once_both_are_measured(clock: FakeClock) -> None:
@@ -170,7 +173,7 @@ def test_switching_twins_mid_run_changes_no_trajectory(
     switching = make(env_id, n, vectorization_mode="vector_entry_point", **kwargs)
     sim = switching.unwrapped.sim
     cost = [100.0 * US, 200.0 * US]
-    twins = (ek.step_envs, ek.step_envs_parallel)
+    twins = (env_kernel.step_envs, env_kernel.step_envs_parallel)
     sim.plants._step_kernel = AdaptiveKernel(
         *(flipping(twin, i, cost, clock) for i, twin in enumerate(twins))
     )
@@ -232,9 +235,9 @@ def test_keep_drops_plants_and_the_others_go_on_exactly() -> None:
         part.step(row[kept])
         np.testing.assert_array_equal(part.state, full.state[kept])
         if t == 60:
-            assert part._step_kernel is (kernel if THREADS else pk.step_batch)
+            assert part._step_kernel is (kernel if THREADS else plant_kernel.step_batch)
     assert part.num_plants == kept.size < PARALLEL_MIN_PLANTS
-    assert part._step_kernel is pk.step_batch
+    assert part._step_kernel is plant_kernel.step_batch
     assert not part.parallel
     assert part.params == [params[i] for i in kept]
 

@@ -8,8 +8,8 @@ kernel's own :func:`~frictiongym.plants._kernel.step_plant`, the sensors those o
 
 Layouts (all float64 unless noted):
 
-* plant rows (N or 1, ``pk.ROW_SIZE``): the plant kernel's rows, one shared by all envs unless
-  they are randomised (a shared row keeps the working set of 4 096 envs in cache);
+* plant rows (N or 1, ``plant_kernel.ROW_SIZE``): the plant kernel's rows, one shared by all
+  envs unless they are randomised (a shared row keeps the working set of 4 096 envs in cache);
 * task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
   the episode;
 * state (N, ``ENV_STATE_SIZE``): the plant state, then the step count, the estimated
@@ -26,7 +26,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.envs.references import REF_SIZE, reference_at
-from frictiongym.plants import _kernel as pk
+from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.sensors import (
     SENSOR_ENCODER,
     derivative_update,
@@ -43,7 +43,7 @@ T_REF = 2
 TASK_ROW_SIZE = T_REF + REF_SIZE
 
 # State columns after the plant's.
-E_STEPS = pk.STATE_SIZE
+E_STEPS = plant_kernel.STATE_SIZE
 E_ESTIMATE = E_STEPS + 1  #: estimated position: angle (rad) or distance (cm)
 E_VELOCITY = E_STEPS + 2  #: filtered derivative of the estimate
 E_REFERENCE = E_STEPS + 3
@@ -62,7 +62,9 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 CONFIG_SIZE = 11
-TASK_COLUMNS = ENV_STATE_SIZE - pk.STATE_SIZE  #: the env's state columns after the plant's
+TASK_COLUMNS = (
+    ENV_STATE_SIZE - plant_kernel.STATE_SIZE
+)  #: the env's state columns after the plant's
 
 
 def _named(prefix: str) -> dict[str, int]:
@@ -137,23 +139,39 @@ def _env_element(
 ) -> None:
     """Step env ``i`` (or, if ``fresh[i]``, only observe its just-reset state)."""
     if not fresh[i]:
-        pk.step_plant(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row,
-                      False, delayed)  # fmt: skip
+        plant_kernel.step_plant(
+            i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row, False, delayed
+        )
         state[i, E_STEPS] += 1.0
-    x, encoder = state[i, pk.S_X], config[C_SENSOR] == SENSOR_ENCODER
+    x, encoder = state[i, plant_kernel.S_X], config[C_SENSOR] == SENSOR_ENCODER
     noise = 0.0
     if config[C_NOISE] > 0.0:
         noise = config[C_NOISE] * normal_draw(rng, i)
     quantize, gain, offset = config[C_QUANTIZE] != 0.0, rows[i, T_GAIN], rows[i, T_OFFSET]
     measured = measure(x, encoder, gain, offset, noise, quantize, config[C_ENCODER_STEP])
     if encoder:
-        position, velocity = x, state[i, pk.S_V]
+        position, velocity = x, state[i, plant_kernel.S_V]
     else:  # IR: the plant moves toward the wall, so the distance is -x
-        position, velocity = 0.0 - x, 0.0 - state[i, pk.S_V]  # not -0.0 at the wall
-    umax = plant_rows[0 if one_row else i, pk.I_UMAX]
-    _observe(i, measured, position, velocity, state[i, pk.S_COMMAND], umax, dt, state, rows,
-             config, fresh, obs, out, flags, False)  # fmt: skip
-    flags[F_STUCK, i] = state[i, pk.S_STUCK] != 0.0
+        position, velocity = 0.0 - x, 0.0 - state[i, plant_kernel.S_V]  # not -0.0 at the wall
+    umax = plant_rows[0 if one_row else i, plant_kernel.I_UMAX]
+    _observe(
+        i,
+        measured,
+        position,
+        velocity,
+        state[i, plant_kernel.S_COMMAND],
+        umax,
+        dt,
+        state,
+        rows,
+        config,
+        fresh,
+        obs,
+        out,
+        flags,
+        False,
+    )
+    flags[F_STUCK, i] = state[i, plant_kernel.S_STUCK] != 0.0
 
 
 #: The smallest normal float32: an observation below it would be subnormal (slow to compute
@@ -293,7 +311,7 @@ def reset_envs(
     With ``set_rows`` their task rows also get unit sensor gain and the ``reference`` row;
     otherwise the caller has set the rows. The sensor offset is always zeroed.
     """
-    pk.reset_plants(mask, state, delay_buffer, position, velocity)
+    plant_kernel.reset_plants(mask, state, delay_buffer, position, velocity)
     for i in range(mask.shape[0]):
         if mask[i]:
             if set_rows:
@@ -302,7 +320,7 @@ def reset_envs(
             rows[i, T_OFFSET] = 0.0
 
 
-@pk.serial_njit
+@plant_kernel.serial_njit
 def step_envs(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
@@ -323,7 +341,7 @@ def step_envs(
 
     Returns -1, or the index of the first non-finite command (then nothing changed).
     """
-    bad = pk.first_non_finite(command)
+    bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
     one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
@@ -351,7 +369,7 @@ def step_envs_parallel(
     flags: npt.NDArray[np.bool_],
 ) -> int:
     """:func:`step_envs` with the envs spread over numba's threads (bit-identical results)."""
-    bad = pk.first_non_finite(command)
+    bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
     one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0

@@ -25,7 +25,7 @@ from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import Device, EnvCore, Simulation
 from frictiongym.hardware import SIM
 from frictiongym.plants.sensors import IR_MAX_READOUT, ir_estimate
@@ -34,7 +34,13 @@ ObsArray = npt.NDArray[np.float32]
 ActArray = npt.NDArray[np.float32]
 
 INFO_KEYS = ("position", "velocity", "command", "reference", "time")
-_OUT_ROWS = (ek.O_POSITION, ek.O_VELOCITY, ek.O_COMMAND, ek.O_REFERENCE, ek.O_TIME)
+_OUT_ROWS = (
+    env_kernel.O_POSITION,
+    env_kernel.O_VELOCITY,
+    env_kernel.O_COMMAND,
+    env_kernel.O_REFERENCE,
+    env_kernel.O_TIME,
+)
 _RENDER_FPS = 50
 
 
@@ -73,7 +79,7 @@ def _spaces(device: Device, sim: EnvCore) -> tuple[spaces.Space[Any], spaces.Spa
     action = spaces.Box(-limit, limit, shape=(1,), dtype=np.float32)
     low = np.full(sim.observation_size, -np.inf, dtype=np.float32)
     high = np.full(sim.observation_size, np.inf, dtype=np.float32)
-    if device.sensor == ek.SENSOR_IR:  # readout 0..800 and the distance it can stand for
+    if device.sensor == env_kernel.SENSOR_IR:  # readout 0..800 and the distance it can stand for
         low[0], high[0] = 0.0, IR_MAX_READOUT
         low[1], high[1] = ir_estimate(IR_MAX_READOUT), ir_estimate(0.0)
     return action, spaces.Box(low, high, dtype=np.float32)
@@ -120,8 +126,8 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         self._command = np.zeros(1)
         self._fresh = np.zeros(1, dtype=bool)
         self._obs = np.zeros((1, self.sim.observation_size), dtype=np.float32)
-        self._out = np.zeros((ek.OUT_SIZE, 1))
-        self._flags = np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        self._out = np.zeros((env_kernel.OUT_SIZE, 1))
+        self._flags = np.zeros((env_kernel.FLAG_SIZE, 1), dtype=bool)
         self._window: Any = None
         self._render_every = max(1, round(1.0 / (_RENDER_FPS * self.dt)))
         self._needs_reset = True
@@ -140,12 +146,12 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
     def _info(self) -> dict[str, Any]:
         out = self._out[:, 0].tolist()
         return {
-            "position": out[ek.O_POSITION],
-            "velocity": out[ek.O_VELOCITY],
-            "command": out[ek.O_COMMAND],
-            "reference": out[ek.O_REFERENCE],
-            "time": out[ek.O_TIME],
-            "stuck": bool(self._flags[ek.F_STUCK, 0]),
+            "position": out[env_kernel.O_POSITION],
+            "velocity": out[env_kernel.O_VELOCITY],
+            "command": out[env_kernel.O_COMMAND],
+            "reference": out[env_kernel.O_REFERENCE],
+            "time": out[env_kernel.O_TIME],
+            "stuck": bool(self._flags[env_kernel.F_STUCK, 0]),
         }
 
     def reset(
@@ -179,8 +185,8 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
             raise
         return (
             self._obs[0].copy(),
-            float(self._out[ek.O_REWARD, 0]),
-            bool(self._flags[ek.F_TERMINATED, 0]),
+            float(self._out[env_kernel.O_REWARD, 0]),
+            bool(self._flags[env_kernel.F_TERMINATED, 0]),
             False,
             self._info(),
         )
@@ -254,7 +260,7 @@ def _frame(sim: EnvCore, i: int) -> npt.NDArray[np.uint8]:
 
     x, reference, stuck, steps, command = sim.frame(i)
     time = steps * sim.dt
-    if sim.device.sensor == ek.SENSOR_ENCODER:
+    if sim.device.sensor == env_kernel.SENSOR_ENCODER:
         return rendering.draw_servo(x, reference, stuck=stuck, time=time, command=command)
     return rendering.draw_altino(0.0 - x, reference, stuck=stuck, time=time, command=command)
 
@@ -314,15 +320,15 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         n = self.num_envs
         return (
             np.empty((n, self.sim.observation_size), dtype=np.float32),
-            np.empty((ek.OUT_SIZE, n)),
-            np.empty((ek.FLAG_SIZE, n), dtype=bool),
+            np.empty((env_kernel.OUT_SIZE, n)),
+            np.empty((env_kernel.FLAG_SIZE, n), dtype=bool),
         )
 
     def _info(self, out: npt.NDArray[np.float64], flags: npt.NDArray[np.bool_]) -> dict[str, Any]:
         info: dict[str, Any] = {
             key: out[row] for key, row in zip(INFO_KEYS, _OUT_ROWS, strict=True)
         }
-        info["stuck"] = flags[ek.F_STUCK]
+        info["stuck"] = flags[env_kernel.F_STUCK]
         for key in (*INFO_KEYS, "stuck"):  # every env reports every key; new masks each call
             info["_" + key] = np.ones(self.num_envs, dtype=bool)
         return info
@@ -389,9 +395,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
         self.sim.run(command, fresh, obs, out, flags)
-        terminated, truncated = flags[ek.F_TERMINATED], flags[ek.F_TRUNCATED]
+        terminated, truncated = flags[env_kernel.F_TERMINATED], flags[env_kernel.F_TRUNCATED]
         self._done = terminated | truncated
-        return obs, out[ek.O_REWARD], terminated, truncated, self._info(out, flags)
+        return obs, out[env_kernel.O_REWARD], terminated, truncated, self._info(out, flags)
 
     def render(self) -> tuple[npt.NDArray[np.uint8], ...] | None:
         """One RGB frame per env (``render_mode='rgb_array'``)."""

@@ -19,7 +19,7 @@ import numpy.typing as npt
 
 from frictiongym._validation import real_number
 from frictiongym.devices import Device
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, device_physics
@@ -171,12 +171,12 @@ class Simulation:
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
         )
         self.plants = self._new_plants(parallel)
-        self._default_x0 = -device.start if device.sensor == ek.SENSOR_IR else device.start
+        self._default_x0 = -device.start if device.sensor == env_kernel.SENSOR_IR else device.start
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
-            self.reference.sample() if not self.reference.random else np.zeros(ek.REF_SIZE)
+            self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
         )
-        self.rows: FloatArray = np.zeros((self.num_envs, ek.TASK_ROW_SIZE))
+        self.rows: FloatArray = np.zeros((self.num_envs, env_kernel.TASK_ROW_SIZE))
         self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
 
     def _task_config(
@@ -199,8 +199,8 @@ class Simulation:
             )
         cutoff = device.velocity_cutoff
         pole = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
-        quantum = QUBE_ENCODER_STEP if device.sensor == ek.SENSOR_ENCODER else ir_quantum()
-        return ek.pack_config(
+        quantum = QUBE_ENCODER_STEP if device.sensor == env_kernel.SENSOR_ENCODER else ir_quantum()
+        return env_kernel.pack_config(
             sensor=device.sensor,
             quantize=float(quantize),
             noise=noise_std(sensor_noise, device.noise_std),
@@ -228,8 +228,8 @@ class Simulation:
             self.num_envs,
             substeps=default_substeps([worst], [self.friction], self.dt),
             parallel=parallel,
-            task_columns=ek.TASK_COLUMNS,
-            kernels=(ek.step_envs, ek.step_envs_parallel),
+            task_columns=env_kernel.TASK_COLUMNS,
+            kernels=(env_kernel.step_envs, env_kernel.step_envs_parallel),
         )
         self._nominal_row = plants.rows[0].copy()
         if self.randomize is not None:
@@ -257,9 +257,9 @@ class Simulation:
         plants = self.plants
         return Frame(
             float(plants.position[i]),
-            float(ek.task_state(self.state, "reference")[i]),
+            float(env_kernel.task_state(self.state, "reference")[i]),
             bool(plants.stuck[i]),
-            float(ek.task_state(self.state, "steps")[i]),
+            float(env_kernel.task_state(self.state, "steps")[i]),
             float(plants.command[i]),
         )
 
@@ -273,7 +273,7 @@ class Simulation:
         vel = np.broadcast_to(np.asarray(options.get("velocity", 0.0), np.float64), count)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset options 'position' and 'velocity' must be finite numbers")
-        if self.device.sensor == ek.SENSOR_IR:
+        if self.device.sensor == env_kernel.SENSOR_IR:
             if np.any(pos <= self.limit):
                 raise ValueError(
                     f"reset option 'position' is the distance to the wall in cm and must exceed "
@@ -311,7 +311,7 @@ class Simulation:
         else:
             options = {}
         x0, v0 = self.start_state(options, int(np.count_nonzero(mask)))
-        noisy = ek.setting(self.config, "noise") > 0.0
+        noisy = env_kernel.setting(self.config, "noise") > 0.0
         draws = self.randomize is not None or reference.random or noisy
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
         if not draws and reference is not self.reference:
@@ -323,11 +323,11 @@ class Simulation:
                 if self.randomize is not None:
                     factors = self.randomize.draw(rng)
                     self.plants.rows[j], gain = apply_factors(self._nominal_row, factors)
-                ek.set_episode(self.rows, int(j), gain, reference.sample(rng))
+                env_kernel.set_episode(self.rows, int(j), gain, reference.sample(rng))
                 if noisy:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
         plants = self.plants
-        ek.reset_envs(
+        env_kernel.reset_envs(
             mask, plants.state, plants.delay_buffer, self.rows, x0, v0, ref_row, not draws
         )
 

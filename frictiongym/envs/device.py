@@ -30,7 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import devices
-from frictiongym.envs import _kernel as ek
+from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import BoolArray, FloatArray, Frame, Simulation
 from frictiongym.hardware import resolve_backend
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
@@ -143,11 +143,11 @@ class DeviceSession:
 
     def _compile(self) -> None:
         """Compile the observation code now: a first step must not stall while the motor runs."""
-        state, flags = self.task.state.copy(), np.zeros((ek.FLAG_SIZE, 1), dtype=bool)
+        state, flags = self.task.state.copy(), np.zeros((env_kernel.FLAG_SIZE, 1), dtype=bool)
         obs = np.zeros((1, self.observation_size), dtype=np.float32)
-        out, fresh = np.zeros((ek.OUT_SIZE, 1)), np.ones(1, dtype=bool)
+        out, fresh = np.zeros((env_kernel.OUT_SIZE, 1)), np.ones(1, dtype=bool)
         task = (self.task.rows, self.task.config, 0.0, 0.0, 1.0, self.dt, fresh, obs, out, flags)
-        ek.observe_device(state, *task)
+        env_kernel.observe_device(state, *task)
 
     @property
     def observation_size(self) -> int:
@@ -157,9 +157,9 @@ class DeviceSession:
     def frame(self, i: int) -> Frame:
         """Return what a frame draws: the measured position (the device knows no other)."""
         frame = self.task.frame(i)
-        estimate = float(ek.task_state(self.task.state, "estimate")[i])
+        estimate = float(env_kernel.task_state(self.task.state, "estimate")[i])
         return frame._replace(
-            position=estimate if self.device.sensor == ek.SENSOR_ENCODER else -estimate
+            position=estimate if self.device.sensor == env_kernel.SENSOR_ENCODER else -estimate
         )
 
     def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
@@ -224,11 +224,11 @@ class DeviceSession:
                 sample = self.backend.step(requested)
             task, umax = self.task, self.plant.command_limit
             reading = (sample.measured, sample.applied, umax, self.dt, fresh, obs, out, flags)
-            ek.observe_device(task.state, task.rows, task.config, *reading)
+            env_kernel.observe_device(task.state, task.rows, task.config, *reading)
             if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
-                if not flags[ek.F_TERMINATED, 0]:
-                    out[ek.O_REWARD, 0] -= ek.setting(task.config, "penalty")
-                flags[ek.F_TERMINATED, 0] = True
+                if not flags[env_kernel.F_TERMINATED, 0]:
+                    out[env_kernel.O_REWARD, 0] -= env_kernel.setting(task.config, "penalty")
+                flags[env_kernel.F_TERMINATED, 0] = True
             self.last_sample = sample
             self._account(sample, not fresh[0], 0.0 if fresh[0] else requested, obs, out, flags)
         except BaseException as exc:
@@ -236,7 +236,7 @@ class DeviceSession:
             if isinstance(exc, HardwareError | OSError):
                 self._record_fault(exc)
             raise
-        if flags[ek.F_TERMINATED, 0]:
+        if flags[env_kernel.F_TERMINATED, 0]:
             self.backend.stop()
 
     def stop(self) -> None:
@@ -262,14 +262,14 @@ class DeviceSession:
         if self.log is None:
             return
         self.log.record((
-            self.episode, self._steps(), out[ek.O_TIME, 0], sample.host_ns,
+            self.episode, self._steps(), out[env_kernel.O_TIME, 0], sample.host_ns,
             sample.tick_us, sample.seq, sample.seq_applied, int(sample.late), sample.skipped,
             sample.status, requested, sample.applied, sample.measured, *obs[0].tolist(),
-            out[ek.O_REWARD, 0], int(flags[ek.F_TERMINATED, 0]),
+            out[env_kernel.O_REWARD, 0], int(flags[env_kernel.F_TERMINATED, 0]),
         ))  # fmt: skip
 
     def _steps(self) -> int:
-        return int(ek.task_state(self.task.state, "steps")[0])
+        return int(env_kernel.task_state(self.task.state, "steps")[0])
 
     def _record_fault(self, error: BaseException) -> None:
         fault = {

@@ -13,7 +13,7 @@ from types import FrameType
 from typing import Any
 
 from frictiongym._validation import check_seed
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.base import KINDS
 from frictiongym.hardware.emulator import Emulator, Faults
 
@@ -141,7 +141,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _status_line(emu: Any) -> str:
     s = emu.stats(timing=False)  # no percentiles: the device thread must not wait
-    bits = "|".join(bit.name or "" for bit in p.Status if emu.status & bit) or "OK"
+    bits = "|".join(bit.name or "" for bit in protocol.Status if emu.status & bit) or "OK"
     return (
         f"ticks {s.ticks} (missed {s.missed})  commands {s.commands}  crc errors "
         f"{s.crc_errors}  late {s.late}  motor {emu.motor:+.3f}  status {bits}  "

@@ -45,7 +45,7 @@ from typing import Any
 import numpy as np
 
 from frictiongym.friction import FrictionModel
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.firmware import Firmware, Tick
 from frictiongym.hardware.guard import CarBounds
 from frictiongym.hardware.realtime import (
@@ -171,7 +171,7 @@ class Emulator:
         return self.firmware.motor
 
     @property
-    def status(self) -> p.Status:
+    def status(self) -> protocol.Status:
         """Status bits of the latest state (``DISABLED`` at boot)."""
         return self.firmware.status
 
@@ -338,17 +338,17 @@ class Emulator:
             self._do_unplug()
         return ready
 
-    def _read(self, ready: list[int]) -> list[p.Message]:
+    def _read(self, ready: list[int]) -> list[protocol.Message]:
         if not ready or self._link is None or self._unplugged.is_set():
             return []
         return self.firmware.feed(self._link.read(ready))
 
-    def _send(self, message: p.Message) -> None:
+    def _send(self, message: protocol.Message) -> None:
         """Write a frame through the fault injection (or queue it for its delay)."""
         if self._frozen or self._unplugged.is_set() or self._link is None:
             return
         faults, rng = self.faults, self._rng
-        encoded = p.encode(message)
+        encoded = protocol.encode(message)
         frame = faults.mangle(encoded, rng)
         self._bytes_dropped += len(encoded) - len(frame)
         self._frames_sent += 1
@@ -372,7 +372,7 @@ class Emulator:
             self._link.flush()
         return self._delayed[0][0] - now if self._delayed else math.inf
 
-    def _after_tick(self, state: p.State, started: float) -> None:
+    def _after_tick(self, state: protocol.State, started: float) -> None:
         self._send(state)
         took = time.perf_counter() - started
         self._tick_times.append(took)
@@ -387,12 +387,12 @@ class Emulator:
             self._unplug_requested.set()
             self._do_unplug()
 
-    def _answer(self, message: p.Message, now: float) -> bool:
+    def _answer(self, message: protocol.Message, now: float) -> bool:
         """Hand ``message`` to the firmware, answer a ``HelloRequest``; True for a command."""
         reply = self.firmware.receive(message, now)
         if reply is not None:
             self._send(reply)
-        return isinstance(message, p.Command)
+        return isinstance(message, protocol.Command)
 
     def _loop_realtime(self) -> None:
         fw, dt = self.firmware, self.dt
@@ -449,7 +449,7 @@ class Emulator:
                 commanded = True
                 with self._lock:
                     self._after_tick(self.firmware.tick(now), time.perf_counter())
-            elif isinstance(message, p.Place):
+            elif isinstance(message, protocol.Place):
                 self.firmware.apply_pending()
         return commanded
 

@@ -32,7 +32,7 @@ import numpy as np
 
 from frictiongym import devices
 from frictiongym.friction import FrictionModel
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.base import KINDS
 from frictiongym.hardware.guard import CarBounds, DistanceGuard
 from frictiongym.params import DeviceParams, device_physics
@@ -67,7 +67,7 @@ class Tick(NamedTuple):
     tick: int  #: device tick number (1 is the first)
     seq_applied: int  #: ``seq`` of the command held over the period
     applied: int  #: motor command held over the period, counts
-    status: p.Status  #: status bits sent
+    status: protocol.Status  #: status bits sent
     sensor: int  #: encoder counts or IR readout sent
     position: float  #: true position at the tick: rad, or cm from the wall
     velocity: float  #: its true rate
@@ -154,13 +154,13 @@ class Firmware:
                 f"got {watchdog_ms!r}"
             )
         self.watchdog_s = watchdog_ms / 1000.0
-        caps = p.Capability.PLACE | (p.Capability.WATCHDOG if watchdog_ms else 0)
+        caps = protocol.Capability.PLACE | (protocol.Capability.WATCHDOG if watchdog_ms else 0)
         if altino:
-            caps |= p.Capability.DISTANCE_LIMIT
-        self.hello = p.Hello(
-            version=p.PROTOCOL_VERSION,
-            kind=p.DeviceKind.ALTINO if altino else p.DeviceKind.ROTARY,
-            capabilities=p.Capability(caps),
+            caps |= protocol.Capability.DISTANCE_LIMIT
+        self.hello = protocol.Hello(
+            version=protocol.PROTOCOL_VERSION,
+            kind=protocol.DeviceKind.ALTINO if altino else protocol.DeviceKind.ROTARY,
+            capabilities=protocol.Capability(caps),
             rate_hz=round(1.0 / self.dt),
             counts_per_rev=0 if altino else QUBE_COUNTS_PER_REV,
             command_scale=self.scale,
@@ -170,8 +170,8 @@ class Firmware:
         )
         self._period_us = round(self.dt * 1e6)
         self._rng = np.random.default_rng(seed)
-        self.decoder = p.FrameDecoder()
-        self._pending: list[p.Command | p.Place] = []
+        self.decoder = protocol.FrameDecoder()
+        self._pending: list[protocol.Command | protocol.Place] = []
         self.ticks = 0  #: device ticks so far
         self.commands = 0  #: valid ``Command`` frames received
         self.late = 0  #: ticks that held an old command while armed and enabled
@@ -181,8 +181,8 @@ class Firmware:
         self.held = 0  #: counts of the newest command (clipped to the limit)
         self.motor_counts = 0  #: counts the motor holds now (negative while the guard brakes)
         self.seq_applied = 0
-        self.latched = p.Status(0)  #: latched WATCHDOG / LIMIT bits
-        self.status = p.Status.DISABLED  #: status bits of the last state
+        self.latched = protocol.Status(0)  #: latched WATCHDOG / LIMIT bits
+        self.status = protocol.Status.DISABLED  #: status bits of the last state
         self.last_command = -math.inf  #: arrival time of the newest command, s
         #: Per-tick records, as :meth:`ticks_history` returns them (:data:`TickRecord`).
         self.history: deque[TickRecord] = deque(maxlen=HISTORY_TICKS)
@@ -295,23 +295,23 @@ class Firmware:
 
     # -- messages ---------------------------------------------------------------------------
 
-    def feed(self, data: bytes) -> list[p.Message]:
+    def feed(self, data: bytes) -> list[protocol.Message]:
         """Decode the bytes the host sent (bad frames are counted for ``CRC_ERROR``)."""
         return self.decoder.feed(data)
 
-    def receive(self, message: p.Message, now: float) -> p.Hello | None:
+    def receive(self, message: protocol.Message, now: float) -> protocol.Hello | None:
         """Take one message that arrived at ``now`` (s); return the reply to send at once.
 
         ``HelloRequest`` (of any version: the host decides) is answered with the ``Hello``;
         ``Command`` and ``Place`` wait for the next tick; a device's own messages are ignored.
         """
-        if isinstance(message, p.HelloRequest):
+        if isinstance(message, protocol.HelloRequest):
             return self.hello
-        if isinstance(message, p.Command):
+        if isinstance(message, protocol.Command):
             self.commands += 1
             self.last_command = now
             self._pending.append(message)
-        elif isinstance(message, p.Place):
+        elif isinstance(message, protocol.Place):
             self._pending.append(message)
         else:
             self.rejected += 1
@@ -321,7 +321,7 @@ class Firmware:
         """Apply the queued messages in order; return whether a command was among them."""
         got = False
         for message in self._pending:
-            if isinstance(message, p.Place):
+            if isinstance(message, protocol.Place):
                 try:
                     self._place(float(message.position))
                 except ValueError:  # out of range or not finite: a device ignores it
@@ -329,17 +329,17 @@ class Firmware:
                 continue
             got = True
             flags = message.flags
-            if flags & p.Flag.REARM:
-                self.latched = p.Status(0)
+            if flags & protocol.Flag.REARM:
+                self.latched = protocol.Status(0)
                 self.armed = True
                 if self.guard is not None and self.guard.rearm():
-                    self.latched |= p.Status.LIMIT  # still too close or too fast: at once
-            if flags & p.Flag.ESTOP:
+                    self.latched |= protocol.Status.LIMIT  # still too close or too fast: at once
+            if flags & protocol.Flag.ESTOP:
                 self.armed = False
-            if flags & p.Flag.ZERO_POSITION and self.kind == "rotary":
+            if flags & protocol.Flag.ZERO_POSITION and self.kind == "rotary":
                 self._zero_position()
                 self.sensor = 0
-            self.enabled = bool(flags & p.Flag.ENABLE)
+            self.enabled = bool(flags & protocol.Flag.ENABLE)
             limit = self.hello.command_limit
             self.held = min(max(int(message.command), -limit), limit)
             self.seq_applied = message.seq
@@ -362,7 +362,7 @@ class Firmware:
 
     def ticks_history(self) -> list[Tick]:
         """Return :attr:`history` as :class:`Tick` records (newest last)."""
-        return [Tick(t, seq, applied, p.Status(status), sensor, x, v)
+        return [Tick(t, seq, applied, protocol.Status(status), sensor, x, v)
                 for t, seq, applied, status, sensor, x, v in self.history]  # fmt: skip
 
     # -- tick -------------------------------------------------------------------------------
@@ -370,7 +370,7 @@ class Firmware:
     def _watch(self, held: int) -> None:
         """Feed the latest sample and the counts held before it to the guard; latch on a trip."""
         if self.guard is not None and self.guard.update(self.sensor, held / self.scale):
-            self.latched |= p.Status.LIMIT
+            self.latched |= protocol.Status.LIMIT
 
     def _output(self) -> int:
         """Return the counts the motor holds: the request if armed and enabled, via the guard.
@@ -385,7 +385,7 @@ class Firmware:
             return requested
         counts = round(self.guard.command(requested))
         if self.guard.tripped:
-            self.latched |= p.Status.LIMIT
+            self.latched |= protocol.Status.LIMIT
         return counts
 
     def hold(self, counts: int) -> None:
@@ -399,7 +399,7 @@ class Firmware:
         if self.kind == "altino" and self.plant.position[0] >= 0.0:
             self.plant.place(0.0, stop=True)  # an inelastic wall (the env ends its episode there)
 
-    def tick(self, now: float) -> p.State:
+    def tick(self, now: float) -> protocol.State:
         """Run one device period ending at ``now`` (s); return its ``State``.
 
         Applies the queued messages, trips the watchdog if it is due, holds the motor output
@@ -413,7 +413,7 @@ class Firmware:
         deadline = self.watchdog_deadline()
         if deadline is not None and now >= deadline:
             self.armed = False
-            self.latched |= p.Status.WATCHDOG
+            self.latched |= protocol.Status.WATCHDOG
         counts = self._output()  # the newest command, a forward one checked by the guard
         self.motor_counts = counts
         self.hold(counts)
@@ -423,19 +423,19 @@ class Firmware:
         driving = self.armed and self.enabled
         status = self.latched
         if not driving:
-            status |= p.Status.DISABLED
+            status |= protocol.Status.DISABLED
         elif not got:
-            status |= p.Status.COMMAND_LATE
+            status |= protocol.Status.COMMAND_LATE
             self.late += 1
         if self.decoder.errors > self._errors_seen:
-            status |= p.Status.CRC_ERROR
+            status |= protocol.Status.CRC_ERROR
             self._errors_seen = self.decoder.errors
         self.status = status
         self.history.append(
             (self.ticks, self.seq_applied, counts, int(status), self.sensor, self.position,
              self.velocity)
         )  # fmt: skip
-        return p.State(
+        return protocol.State(
             status=status,
             seq=self.ticks & 0xFFFF,
             tick_us=(self.ticks * self._period_us) & 0xFFFFFFFF,

@@ -25,7 +25,7 @@ import time
 from typing import Any
 
 from frictiongym._validation import real_number
-from frictiongym.hardware import protocol as p
+from frictiongym.hardware import protocol
 from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
 from frictiongym.hardware.echo import EchoTimes
 from frictiongym.hardware.errors import (
@@ -55,11 +55,12 @@ LATE_HELLO = 0.5
 READ_WAIT = 0.05
 
 _FAULTS = {
-    p.Status.WATCHDOG: "its watchdog tripped (no command reached it in time: the host loop "
+    protocol.Status.WATCHDOG: "its watchdog tripped (no command reached it in time: the host loop "
     "stalled or the link lost frames)",
-    p.Status.AMP_FAULT: "the amplifier reports a fault (check the supply and the motor cable)",
-    p.Status.STALL_ERROR: "the motor stalled under voltage for too long (free the load, then "
-    "re-arm)",
+    protocol.Status.AMP_FAULT: "the amplifier reports a fault (check the supply and the motor "
+    "cable)",
+    protocol.Status.STALL_ERROR: "the motor stalled under voltage for too long (free the load, "
+    "then re-arm)",
 }
 
 
@@ -115,11 +116,11 @@ class SerialBackend(Backend):
         self.baud = baud
         self.timeout = timeout
         self.handshake_timeout = handshake_timeout
-        self.hello: p.Hello | None = None
-        self.decoder = p.FrameDecoder()
+        self.hello: protocol.Hello | None = None
+        self.decoder = protocol.FrameDecoder()
         self._serial: Any = None
         self._seq = 0
-        self._last: p.State | None = None
+        self._last: protocol.State | None = None
         self._echoes = EchoTimes()
         self._echoed = False  # a state of this episode echoed one of our commands
         self._hellos_due = 0  # our HelloRequests not answered yet
@@ -179,13 +180,13 @@ class SerialBackend(Backend):
             command_step=1.0 / hello.command_scale,
             counts_per_rev=hello.counts_per_rev,
             watchdog_s=hello.watchdog_ms / 1000.0 if hello.watchdog_ms else None,
-            can_place=bool(hello.capabilities & p.Capability.PLACE),
-            distance_limit=bool(hello.capabilities & p.Capability.DISTANCE_LIMIT),
+            can_place=bool(hello.capabilities & protocol.Capability.PLACE),
+            distance_limit=bool(hello.capabilities & protocol.Capability.DISTANCE_LIMIT),
             firmware=f"build {hello.firmware}",
             link=f"frictiongym protocol {hello.version} on {self.port}",
         )
 
-    def _handshake(self) -> p.Hello:
+    def _handshake(self) -> protocol.Hello:
         """Ask for a ``Hello`` until one comes (a booting Arduino misses the first requests)."""
         self._serial.reset_input_buffer()
         deadline = time.monotonic() + self.handshake_timeout
@@ -193,7 +194,7 @@ class SerialBackend(Backend):
         while time.monotonic() < deadline:
             try:
                 if time.monotonic() >= next_request:
-                    self._write(p.HelloRequest())
+                    self._write(protocol.HelloRequest())
                     self._hellos_due += 1
                     next_request = time.monotonic() + 0.25
                 arrived = self._read_available()
@@ -204,7 +205,7 @@ class SerialBackend(Backend):
                     "or it stopped; close the other host, or start another emulator"
                 ) from None
             for message in self.decoder.feed(arrived):
-                if isinstance(message, p.Hello):
+                if isinstance(message, protocol.Hello):
                     self._hellos_due -= 1
                     self._late_hellos_until = time.monotonic() + LATE_HELLO
                     return self._check_hello(message)
@@ -214,11 +215,12 @@ class SerialBackend(Backend):
             f"({self.baud}), or that the emulator is running"
         )
 
-    def _check_hello(self, hello: p.Hello) -> p.Hello:
-        if hello.version != p.PROTOCOL_VERSION:
+    def _check_hello(self, hello: protocol.Hello) -> protocol.Hello:
+        if hello.version != protocol.PROTOCOL_VERSION:
             raise ProtocolError(
                 f"the device at {self.port!r} speaks protocol version {hello.version}, this "
-                f"frictiongym speaks {p.PROTOCOL_VERSION}: update the firmware or frictiongym"
+                f"frictiongym speaks {protocol.PROTOCOL_VERSION}: update the firmware or "
+                "frictiongym"
             )
         if hello.rate_hz <= 0 or hello.command_scale <= 0 or hello.command_limit <= 0:
             raise ProtocolError(f"the device's Hello makes no sense: {hello}")
@@ -245,10 +247,10 @@ class SerialBackend(Backend):
             ) from None
         return data
 
-    def _write(self, message: p.Message) -> None:
+    def _write(self, message: protocol.Message) -> None:
         serial = _pyserial()
         try:
-            self._serial.write(p.encode(message))
+            self._serial.write(protocol.encode(message))
         except serial.SerialTimeoutException:
             raise DeviceTimeoutError(
                 f"writing to {self.port!r} timed out: the device stopped reading (check that it "
@@ -259,22 +261,22 @@ class SerialBackend(Backend):
                 f"could not write to {self.port!r} ({exc}); check the cable and the device"
             ) from None
 
-    def _opened(self) -> p.Hello:
+    def _opened(self) -> protocol.Hello:
         if self.hello is None or self._serial is None:
             raise HardwareError(f"{self.port!r} is not open: call open() or start() first")
         return self.hello
 
     # -- states -----------------------------------------------------------------------------------
 
-    def _states(self, wait: bool) -> list[p.State]:
+    def _states(self, wait: bool) -> list[protocol.State]:
         """Decode the states that arrived (waiting up to the port timeout if ``wait``)."""
         self._echoes.reading(time.perf_counter_ns())
         data = self._read_available(wait)
         states = []
         for message in self.decoder.feed(data):
-            if isinstance(message, p.State):
+            if isinstance(message, protocol.State):
                 states.append(message)
-            elif isinstance(message, p.Hello):
+            elif isinstance(message, protocol.Hello):
                 if self._hellos_due > 0 and time.monotonic() < self._late_hellos_until:
                     # the late answer to a second request of our handshake
                     self._hellos_due -= 1
@@ -290,12 +292,12 @@ class SerialBackend(Backend):
             f"{self.port} names it), then start a new episode"
         )
 
-    def _restarted_or_second_host(self, state: p.State) -> DeviceFaultError | None:
+    def _restarted_or_second_host(self, state: protocol.State) -> DeviceFaultError | None:
         """Why ``state`` echoes a command this host never sent (None: it may, before ours)."""
         if not self._echoed:
             return None  # states sent before our first command arrived: from before the start
         last = self._last
-        if state.status & p.Status.DISABLED and (
+        if state.status & protocol.Status.DISABLED and (
             last is None or ((state.seq - last.seq) & 0xFFFF) > 0x8000 or state.tick_us < 1_000_000
         ):  # off, and its clock or frame counter started over: a reboot
             return DeviceFaultError(
@@ -316,7 +318,7 @@ class SerialBackend(Backend):
         """
         period = 1.0 / self._opened().rate_hz
         sent = time.monotonic()
-        newest: p.State | None = None
+        newest: protocol.State | None = None
         listened = 0.0
         while True:
             started = time.monotonic()
@@ -341,12 +343,12 @@ class SerialBackend(Backend):
                     f"every {period * 1000:.1f} ms): the device stopped or the link is down"
                 )
 
-    def _sample(self, state: p.State, late: bool) -> Sample:
+    def _sample(self, state: protocol.State, late: bool) -> Sample:
         hello = self._opened()
-        if state.status & p.FAULT_BITS:
+        if state.status & protocol.FAULT_BITS:
             reasons = "; ".join(text for bit, text in _FAULTS.items() if state.status & bit)
             message = f"the device at {self.port!r} stopped its motor: {reasons}"
-            if state.status & p.FAULT_BITS == p.Status.WATCHDOG:
+            if state.status & protocol.FAULT_BITS == protocol.Status.WATCHDOG:
                 raise WatchdogTripError(message)
             raise DeviceFaultError(message)
         skipped = 0
@@ -370,7 +372,7 @@ class SerialBackend(Backend):
             age=self._echoes.age(),
         )
 
-    def _send(self, command: float, flags: p.Flag) -> int:
+    def _send(self, command: float, flags: protocol.Flag) -> int:
         hello = self.hello
         assert hello is not None
         counts = max(
@@ -378,15 +380,15 @@ class SerialBackend(Backend):
         )
         self._seq = (self._seq + 1) & 0xFFFF
         self._echoes.sent(self._seq, time.perf_counter_ns())
-        self._write(p.Command(seq=self._seq, command=counts, flags=flags))
+        self._write(protocol.Command(seq=self._seq, command=counts, flags=flags))
         return self._seq
 
     # -- Backend ----------------------------------------------------------------------------------
 
     def _start(self, zero_position: bool) -> Sample:
-        flags = p.Flag.ENABLE | p.Flag.REARM
+        flags = protocol.Flag.ENABLE | protocol.Flag.REARM
         if zero_position and self.info is not None and self.info.counts_per_rev:
-            flags |= p.Flag.ZERO_POSITION
+            flags |= protocol.Flag.ZERO_POSITION
         self._states(wait=False)  # drop states of before the start
         self._last = None
         self._echoed = False
@@ -394,16 +396,16 @@ class SerialBackend(Backend):
         return self._await(self._send(0.0, flags))
 
     def _exchange(self, command: float) -> Sample:
-        return self._await(self._send(command, p.Flag.ENABLE))
+        return self._await(self._send(command, protocol.Flag.ENABLE))
 
     def _place(self, position: float) -> None:
-        self._write(p.Place(float(position)))
+        self._write(protocol.Place(float(position)))
 
     def _stop(self) -> None:
         if self._serial is None or not self._serial.is_open:
             return
         for _ in range(2):  # a second copy in case the first is corrupted on the line
-            self._send(0.0, p.Flag.ESTOP)
+            self._send(0.0, protocol.Flag.ESTOP)
         try:
             self._serial.flush()
         except Exception:  # the link may be gone; the device's watchdog covers that

@@ -39,7 +39,7 @@ import numpy.typing as npt
 from numba import njit, prange
 from numba.core.errors import NumbaPerformanceWarning
 
-from frictiongym.friction import _core as fc
+from frictiongym.friction import _core as friction_core
 
 #: Decorator of the serial batch loops: ``parallel=True`` over a plain ``range``: they start
 #: no threads, but numba's parallel pipeline drops the reference counting that the plain
@@ -61,8 +61,8 @@ I_UMAX = 2
 I_LAG = 3
 I_STOP = 4  #: position of the rigid end stop ahead (inf: none)
 F0 = 5  #: offset of the friction row inside a plant row
-ROW_SIZE = F0 + fc.ROW_SIZE
-if fc.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
+ROW_SIZE = F0 + friction_core.ROW_SIZE
+if friction_core.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
     raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
 
 # State columns.
@@ -96,10 +96,18 @@ def scale_row(
 ) -> npt.NDArray[np.float64]:
     """Return a plant row with its friction levels, inertia and damping (B, viscous) scaled."""
     scaled = row.copy()
-    levels = [F0 + i for i in (fc.I_US_POS, fc.I_US_NEG, fc.I_UC_POS, fc.I_UC_NEG)]
+    levels = [
+        F0 + i
+        for i in (
+            friction_core.I_US_POS,
+            friction_core.I_US_NEG,
+            friction_core.I_UC_POS,
+            friction_core.I_UC_NEG,
+        )
+    ]
     scaled[levels] *= friction
     scaled[I_J] *= inertia
-    scaled[[I_B, F0 + fc.I_VISCOUS]] *= damping
+    scaled[[I_B, F0 + friction_core.I_VISCOUS]] *= damping
     return scaled
 
 
@@ -232,9 +240,9 @@ def breakaway_direction(u: float, p: Row) -> float:
     ``[-us_neg, us_pos]`` (Filippov's sliding-mode semantics, as Modelica's friction
     elements; docs/physics.md).
     """
-    if u > p[fc.I_US_POS]:
+    if u > p[friction_core.I_US_POS]:
         return 1.0
-    if u < -p[fc.I_US_NEG]:
+    if u < -p[friction_core.I_US_NEG]:
         return -1.0
     return 0.0
 
@@ -265,7 +273,7 @@ def exact_static(
     x, v, impulse : float
         New state and the time integral of the nonlinear friction force over the step.
     """
-    linear_shape = p[fc.I_SHAPE] == fc.SHAPE_LINEAR
+    linear_shape = p[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
     t_left = h
     impulse = 0.0
     for _ in range(_MAX_SEGMENTS):
@@ -278,15 +286,23 @@ def exact_static(
                 t_left = 0.0
                 break
             if held_at_stop(x, s, stop):  # pressed on the stop: friction at break-away
-                impulse += p[fc.I_US_POS] * t_left
+                impulse += p[friction_core.I_US_POS] * t_left
                 t_left = 0.0
                 break
         else:
             s = 1.0 if v > 0.0 else -1.0
         if s > 0.0:
-            us, uc, v0 = p[fc.I_US_POS], p[fc.I_UC_POS], p[fc.I_V0_POS]
+            us, uc, v0 = (
+                p[friction_core.I_US_POS],
+                p[friction_core.I_UC_POS],
+                p[friction_core.I_V0_POS],
+            )
         else:
-            us, uc, v0 = p[fc.I_US_NEG], p[fc.I_UC_NEG], p[fc.I_V0_NEG]
+            us, uc, v0 = (
+                p[friction_core.I_US_NEG],
+                p[friction_core.I_UC_NEG],
+                p[friction_core.I_V0_NEG],
+            )
         decays = linear_shape and us > uc
         speed = s * v
         # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
@@ -356,10 +372,10 @@ def split_static(
         if s == 0.0:
             return x, 0.0, u * h
         if held_at_stop(x, s, stop):
-            return x, 0.0, p[fc.I_US_POS] * h
+            return x, 0.0, p[friction_core.I_US_POS] * h
     else:
         s = 1.0 if v > 0.0 else -1.0
-    f = s * fc.sliding_level(abs(v), s, p)
+    f = s * friction_core.sliding_level(abs(v), s, p)
     v_try = (j * v + h * (u - f)) / (j + h * b_total)
     if v != 0.0 and s * v_try < 0.0:  # crosses zero inside the substep
         # Locate the stop with the deceleration at the substep's start, damping included: the
@@ -372,7 +388,7 @@ def split_static(
         s = breakaway_direction(u, p)
         if s == 0.0:
             return x, 0.0, impulse + u * rest
-        f = s * fc.sliding_level(0.0, s, p)
+        f = s * friction_core.sliding_level(0.0, s, p)
         v_new = rest * (u - f) / (j + rest * b_total)
         return x + rest * v_new / 2.0, v_new, impulse + f * rest
     return x + h * (v + v_try) / 2.0, v_try, f * h
@@ -393,11 +409,11 @@ def lugre_substep(
 
     Returns ``x, v, z`` and the impulse of the bristle force ``sigma0 z + sigma1 dz/dt``.
     """
-    sigma0, sigma1 = p[fc.I_SIGMA0], p[fc.I_SIGMA1]
+    sigma0, sigma1 = p[friction_core.I_SIGMA0], p[friction_core.I_SIGMA1]
     z_new = z
     if v != 0.0:
         s = 1.0 if v > 0.0 else -1.0
-        g = fc.sliding_level(abs(v), s, p)
+        g = friction_core.sliding_level(abs(v), s, p)
         z_ss = s * g / sigma0
         z_new = z_ss + (z - z_ss) * math.exp(-sigma0 * abs(v) / g * h)
     z_dot = (z_new - z) / h
@@ -439,19 +455,20 @@ def advance(
         The new state and the friction force averaged over the step.
     """
     j = plant[I_J]
-    b_total = plant[I_B] + friction[fc.I_VISCOUS]
+    b_total = plant[I_B] + friction[friction_core.I_VISCOUS]
     lag = plant[I_LAG]
     stop = plant[I_STOP]
-    law = friction[fc.I_LAW]
-    exact = law == fc.LAW_STATIC and (
-        friction[fc.I_SHAPE] == fc.SHAPE_STEP or friction[fc.I_SHAPE] == fc.SHAPE_LINEAR
+    law = friction[friction_core.I_LAW]
+    exact = law == friction_core.LAW_STATIC and (
+        friction[friction_core.I_SHAPE] == friction_core.SHAPE_STEP
+        or friction[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
     )
     x_start = x
     hs = h / n_sub
     impulse = 0.0
     # Held at rest for the whole step (static law, no lag): friction equals the input exactly,
     # not impulse / h, which can be off by one ulp (the test oracle F_f = u of docs/physics.md).
-    held = law == fc.LAW_STATIC and lag == 0.0
+    held = law == friction_core.LAW_STATIC and lag == 0.0
     for _ in range(n_sub):
         force = u
         if lag > 0.0:  # hold the lag output at its exact average over the substep
@@ -463,7 +480,7 @@ def advance(
         if exact:
             x, v, imp = exact_static(x, v, force, hs, j, b_total, friction, stop)
         else:
-            if law == fc.LAW_STATIC:
+            if law == friction_core.LAW_STATIC:
                 x, v, imp = split_static(x, v, force, hs, j, b_total, friction, stop)
             else:
                 x, v, z, imp = lugre_substep(x, v, z, force, hs, j, b_total, friction)
@@ -472,7 +489,7 @@ def advance(
         impulse += imp
     if held:
         return x, v, z, y, u
-    return x, v, z, y, (impulse + friction[fc.I_VISCOUS] * (x - x_start)) / h
+    return x, v, z, y, (impulse + friction[friction_core.I_VISCOUS] * (x - x_start)) / h
 
 
 @njit(cache=True)

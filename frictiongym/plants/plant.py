@@ -18,7 +18,7 @@ import numpy.typing as npt
 
 from frictiongym._validation import check_finite, check_nonnegative, check_positive
 from frictiongym.friction.laws import FrictionModel, LuGre
-from frictiongym.plants import _kernel as k
+from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, Kernel, select_kernel
 
 FloatArray = npt.NDArray[np.float64]
@@ -80,7 +80,7 @@ class PlantParams:
 def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     """Pack plant and friction parameters into one kernel row."""
     plant = (params.inertia, params.damping, params.command_limit, params.lag, params.end_stop)
-    return k.pack_row(plant, friction.row())
+    return plant_kernel.pack_row(plant, friction.row())
 
 
 def default_substeps(
@@ -162,7 +162,10 @@ class Plant:
         parallel: bool | None = None,
         *,
         task_columns: int = 0,
-        kernels: tuple[Kernel, Kernel] = (k.step_batch, k.step_batch_parallel),
+        kernels: tuple[Kernel, Kernel] = (
+            plant_kernel.step_batch,
+            plant_kernel.step_batch_parallel,
+        ),
     ) -> None:
         if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):
             raise ValueError(f"dt must be a finite positive number of seconds, got {dt!r}")
@@ -192,7 +195,7 @@ class Plant:
         self._step_kernel = select_kernel(*kernels, self.num_plants, parallel)
         #: whether the threaded kernel may run (always, or when the adaptive choice picks it)
         self.parallel = self._step_kernel is not self._serial
-        self.state: FloatArray = np.zeros((self.num_plants, k.STATE_SIZE + task_columns))
+        self.state: FloatArray = np.zeros((self.num_plants, plant_kernel.STATE_SIZE + task_columns))
         #: Commands in flight over the dead time, ``(N, delay_steps)``.
         self.delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
         self.head = 0
@@ -286,14 +289,14 @@ class Plant:
         vel = np.broadcast_to(np.asarray(velocity, dtype=np.float64), count)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset position and velocity must be finite")
-        beyond = pos > np.broadcast_to(k.end_stops(self.rows), self.num_plants)[selected]
+        beyond = pos > np.broadcast_to(plant_kernel.end_stops(self.rows), self.num_plants)[selected]
         if np.any(beyond):
             raise ValueError(
                 f"reset position {pos[beyond][0]!r} lies beyond the plant's end stop; "
                 "start at or before it"
             )
         start = (np.ascontiguousarray(pos), np.ascontiguousarray(vel))
-        k.reset_plants(selected, self.state, self.delay_buffer, *start)
+        plant_kernel.reset_plants(selected, self.state, self.delay_buffer, *start)
 
     def place(
         self, position: float, *, stop: bool = False, mask: npt.ArrayLike | None = None
@@ -345,7 +348,7 @@ class Plant:
         return bad
 
     def _column(self, name: str) -> FloatArray:
-        return self.state[:, k.COLUMNS[name]]
+        return self.state[:, plant_kernel.COLUMNS[name]]
 
     @property
     def position(self) -> FloatArray:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, fields, replace
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym.plants import _kernel as pk
+from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.plant import PlantParams
 
 FloatArray = npt.NDArray[np.float64]
@@ -102,4 +102,4 @@ class DomainRandomization:
 def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
     """Scaled copy of a plant row, and the sensor-gain factor."""
     scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping"))
-    return pk.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)
+    return plant_kernel.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)
