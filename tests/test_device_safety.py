@@ -118,7 +118,7 @@ def _observation_fails(env: Any, monkeypatch: pytest.MonkeyPatch) -> None:
     def observe(*args: Any) -> None:
         raise RuntimeError("observation code failed")
 
-    monkeypatch.setattr(device_module.ek, "observe_device", observe)
+    monkeypatch.setattr(device_module.env_kernel, "observe_device", observe)
     env.step(np.array([-250.0]))
 
 
