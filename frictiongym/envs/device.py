@@ -122,7 +122,7 @@ class DeviceSession:
             self.task = Simulation(device, 1, dt=dt, **kwargs)
             self.device, self.dt, self.plant = device, dt, self.task.plant
             self.params, self.model_friction = self.task.params, self.task.model_friction
-            self.limit, self.reference = self.task.limit, self.task.reference
+            self.limit = self.task.limit
             self.log = None
             if log is not False:
                 directory = default_directory(device.name) if log is True else Path(log)
@@ -167,7 +167,7 @@ class DeviceSession:
             "device": self.device.name,
             "backend": self.info,
             "dt": self.dt,
-            "reference": repr(self.reference),
+            "reference": repr(self.task.reference),
             "params": None if self.params is None else self.params.to_dict(),
             "model_friction": self.model_friction,
             "safety_limit": self.limit,

@@ -44,7 +44,6 @@ from typing import Any
 
 import numpy as np
 
-from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol
 from frictiongym.hardware.firmware import Firmware, Tick
 from frictiongym.hardware.guard import CarBounds
@@ -56,7 +55,6 @@ from frictiongym.hardware.realtime import (
     thaw_heap,
 )
 from frictiongym.hardware.transport import Faults, Link, PtyLink, TcpLink
-from frictiongym.params import DeviceParams
 
 #: Longest wait of the lock-step thread between checks, s (a pty without a host is retried).
 LOCKSTEP_POLL = 0.02
@@ -92,9 +90,9 @@ class Emulator:
     ----------
     kind : {"rotary", "altino"}
         The device.
-    params, friction, sensor_noise, randomize, watchdog_ms, start, seed, car_bounds
-        The plant's "true" parameters and the firmware's settings, the distance guard's
-        bounds among them (:class:`~frictiongym.hardware.firmware.Firmware`).
+    seed : int, default 0
+        Seed of the plant's draws (as :class:`~frictiongym.hardware.firmware.Firmware`'s) and,
+        through a spawned child, of the link faults.
     lockstep : bool, default False
         One tick per command received instead of the real-time clock.
     faults : Faults, optional
@@ -102,33 +100,27 @@ class Emulator:
     realtime : bool, default True
         Run the device thread under ``SCHED_FIFO`` where the system permits it
         (:attr:`priority` says what it got); False leaves it an ordinary thread.
+    **firmware
+        The plant's "true" parameters and the firmware's settings: ``params``, ``friction``,
+        ``sensor_noise``, ``randomize``, ``watchdog_ms``, ``start``, ``car_bounds``
+        (:class:`~frictiongym.hardware.firmware.Firmware`).
     """
 
     def __init__(
         self,
         kind: str,
         *,
-        params: str | os.PathLike[str] | DeviceParams | None = None,
-        friction: str | FrictionModel = "paper",
-        sensor_noise: bool | float = False,
         lockstep: bool = False,
         faults: Faults | None = None,
-        watchdog_ms: int | None = None,
-        start: float | None = None,
         seed: int = 0,
-        randomize: dict[str, Any] | None = None,
         realtime: bool = True,
-        car_bounds: CarBounds | None = None,
+        **firmware: Any,
     ) -> None:
         if faults is None:
             faults = Faults()
         if not isinstance(faults, Faults):
             raise TypeError(f"faults must be a Faults(...), got {faults!r}")
-        self.firmware = Firmware(
-            kind, params=params, friction=friction, sensor_noise=sensor_noise,
-            randomize=randomize, watchdog_ms=watchdog_ms, start=start, seed=seed,
-            car_bounds=car_bounds,
-        )  # fmt: skip
+        self.firmware = Firmware(kind, seed=seed, **firmware)
         self.kind = kind
         self.dt = self.firmware.dt
         self.lockstep = bool(lockstep)

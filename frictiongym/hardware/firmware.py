@@ -38,7 +38,13 @@ from frictiongym.hardware.guard import CarBounds, DistanceGuard
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
-from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV, measure, noise_std, normal_draw
+from frictiongym.plants.sensors import (
+    QUBE_COUNTS_PER_REV,
+    QUBE_ENCODER_STEP,
+    measure,
+    noise_std,
+    normal_draw,
+)
 
 #: Build number the firmware reports in its ``Hello``, the same as ``FG_FIRMWARE_BUILD`` in
 #: firmware/common/fg_device.h: 3 = the guard bounds the speed and the car (2: the predictive
@@ -57,8 +63,6 @@ HISTORY_TICKS = 100_000
 #: One :attr:`Firmware.history` record: a plain tuple of numbers, which the garbage collector
 #: stops tracking (a full history of :class:`Tick` objects made each collection 8 ms longer).
 TickRecord = tuple[int, int, int, int, int, float, float]
-
-_ENCODER_STEP = 2.0 * math.pi / QUBE_COUNTS_PER_REV
 
 
 class Tick(NamedTuple):
@@ -278,20 +282,12 @@ class Firmware:
     def _new_guard(self) -> DistanceGuard:
         return DistanceGuard(self.dt, self.hello.command_limit, car=self.car_bounds)
 
-    def _zero_position(self) -> None:
-        """Reset the encoder count: the plant's position is 0, the rest of its state kept.
-
-        The disk's dynamics do not depend on its angle, so this is the encoder reset; at rest
-        the state equals that of a freshly reset simulation (apart from its step count).
-        """
-        self.plant.place(0.0)
-
     def _sensor(self) -> int:
         """Sample the sensor, as the env does: encoder counts or IR readout."""
         noise = self.noise_std * normal_draw(self._noise, 0) if self.noise_std > 0.0 else 0.0
         x, rotary = float(self.plant.position[0]), self.kind == "rotary"
-        measured = measure(x, rotary, self._gain, 0.0, noise, True, _ENCODER_STEP)
-        return _wrap_i32(round(measured / _ENCODER_STEP)) if rotary else int(measured)
+        measured = measure(x, rotary, self._gain, 0.0, noise, True, QUBE_ENCODER_STEP)
+        return _wrap_i32(round(measured / QUBE_ENCODER_STEP)) if rotary else int(measured)
 
     # -- messages ---------------------------------------------------------------------------
 
@@ -337,7 +333,7 @@ class Firmware:
             if flags & protocol.Flag.ESTOP:
                 self.armed = False
             if flags & protocol.Flag.ZERO_POSITION and self.kind == "rotary":
-                self._zero_position()
+                self.plant.place(0.0)  # the encoder reset (Plant.place)
                 self.sensor = 0
             self.enabled = bool(flags & protocol.Flag.ENABLE)
             limit = self.hello.command_limit

@@ -174,20 +174,20 @@ class Plant:
         self.dt = float(dt)
         self.num_plants = int(num_plants)
         self._params: list[PlantParams] = self._per_plant(params, "params", PlantParams)
-        self._frictions: list[FrictionModel] = self._per_plant(friction, "friction", FrictionModel)
+        frictions: list[FrictionModel] = self._per_plant(friction, "friction", FrictionModel)
         delays = {p.delay_steps(self.dt) for p in self._params}
         if len(delays) > 1:
             raise ValueError("all plants of a batch must share one dead time")
         self.delay_steps = delays.pop()
         if substeps is None:
-            substeps = default_substeps(self._params, self._frictions, self.dt)
+            substeps = default_substeps(self._params, frictions, self.dt)
         if not isinstance(substeps, numbers.Integral) or substeps < 1:
             raise ValueError(f"substeps must be a positive integer, got {substeps!r}")
         self.substeps = int(substeps)
-        count = max(len(self._params), len(self._frictions))
+        count = max(len(self._params), len(frictions))
         pairs = zip(
             self._params * (count // len(self._params)),
-            self._frictions * (count // len(self._frictions)),
+            frictions * (count // len(frictions)),
             strict=True,
         )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
@@ -226,11 +226,6 @@ class Plant:
         """Plant parameters (one entry when shared by the whole batch)."""
         return list(self._params)
 
-    @property
-    def frictions(self) -> list[FrictionModel]:
-        """Friction laws (one entry when shared by the whole batch)."""
-        return list(self._frictions)
-
     def own_rows(self) -> None:
         """Give every plant its own parameter row (to change them one by one), if they share one."""
         if self.rows.shape[0] == 1 < self.num_plants:
@@ -251,8 +246,6 @@ class Plant:
             raise ValueError("keep() must keep at least one plant")
         if len(self._params) > 1:
             self._params = [self._params[i] for i in idx]
-        if len(self._frictions) > 1:
-            self._frictions = [self._frictions[i] for i in idx]
         if self.rows.shape[0] > 1:
             self.rows = np.ascontiguousarray(self.rows[idx])
         self.state = np.ascontiguousarray(self.state[idx])
