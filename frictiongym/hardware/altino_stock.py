@@ -41,7 +41,6 @@ from frictiongym.hardware.errors import (
     DeviceTimeoutError,
     HardwareError,
     ProtocolError,
-    SDKNotAvailableError,
 )
 from frictiongym.hardware.guard import (
     LIMIT_CM,
@@ -51,22 +50,10 @@ from frictiongym.hardware.guard import (
     readout_jump_possible,
 )
 from frictiongym.hardware.ports import is_lock_failure, port_busy_error
+from frictiongym.hardware.ports import pyserial as _import_serial
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.uri import positive, uri_options
 from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET
-
-
-def _import_serial() -> Any:
-    """Import pyserial, or say how to install it."""
-    try:
-        import serial
-    except ImportError as exc:
-        raise SDKNotAvailableError(
-            "the Altino backend needs pyserial: pip install pyserial "
-            "(or pip install 'frictiongym[hardware]')"
-        ) from exc
-    return serial
-
 
 try:  # a hung-up tty makes tcflush raise termios.error, which is not an OSError
     import termios

@@ -30,8 +30,10 @@ import reprlib
 import threading
 import weakref
 from abc import ABC, abstractmethod
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -279,8 +281,14 @@ class Backend(ABC):
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def _stopping_on_error(self) -> _StopOnError:
-        return _StopOnError(self)
+    @contextmanager
+    def _stopping_on_error(self) -> Iterator[None]:
+        """Zero the motor if the block raises anything, ``KeyboardInterrupt`` included."""
+        try:
+            yield
+        except BaseException:
+            self.stop()
+            raise
 
     def _place(self, position: float) -> None:
         raise HardwareError(f"{type(self).__name__} cannot place the plant")
@@ -304,17 +312,3 @@ class Backend(ABC):
     @abstractmethod
     def _close(self) -> None:
         """Close the link (after :meth:`_stop`)."""
-
-
-class _StopOnError:
-    """Zero the motor if the block raises anything, ``KeyboardInterrupt`` included."""
-
-    def __init__(self, backend: Backend) -> None:
-        self._backend = backend
-
-    def __enter__(self) -> None:
-        return None
-
-    def __exit__(self, kind: type[BaseException] | None, *rest: Any) -> None:
-        if kind is not None:
-            self._backend.stop()

@@ -1,4 +1,4 @@
-"""Ports held by another program: recognising pyserial's failed exclusive lock, naming who holds it.
+"""pyserial and its ports: importing it, recognising a port another program holds, naming who.
 
 Backends open their ports with pyserial's ``exclusive=True`` (a ``flock`` on POSIX; Windows
 ports are exclusive anyway), so a second host on one port fails to open it instead of sharing
@@ -8,8 +8,20 @@ the device's stream and both driving its motor.
 from __future__ import annotations
 
 import os
+from typing import Any
 
-from frictiongym.hardware.errors import DeviceBusyError
+from frictiongym.hardware.errors import DeviceBusyError, SDKNotAvailableError
+
+
+def pyserial() -> Any:
+    """Import pyserial, or raise :class:`SDKNotAvailableError` saying how to install it."""
+    try:
+        import serial
+    except ImportError as exc:
+        raise SDKNotAvailableError(
+            "serial backends need pyserial: pip install 'frictiongym[hardware]' (or pyserial)"
+        ) from exc
+    return serial
 
 
 def is_lock_failure(exc: BaseException) -> bool:
@@ -48,4 +60,4 @@ def port_busy_error(port: str) -> DeviceBusyError:
     )
 
 
-__all__ = ["is_lock_failure", "port_busy_error", "port_users"]
+__all__ = ["is_lock_failure", "port_busy_error", "port_users", "pyserial"]

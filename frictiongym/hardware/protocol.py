@@ -29,6 +29,7 @@ the host command it held over the period that ended at this tick.
 from __future__ import annotations
 
 import binascii
+import dataclasses
 import enum
 import struct
 from dataclasses import dataclass
@@ -106,7 +107,16 @@ class Capability(enum.IntFlag):
 
 
 @dataclass(frozen=True)
-class Command:
+class _Fields:
+    """A message whose fields, in declaration order, are its payload's after the type byte."""
+
+    def fields(self) -> tuple[int | float, ...]:
+        """Payload fields after the type byte, in order."""
+        return tuple(getattr(self, f.name) for f in dataclasses.fields(self))
+
+
+@dataclass(frozen=True)
+class Command(_Fields):
     """Host to device: hold ``command`` counts (``Hello.command_scale`` counts per unit)."""
 
     seq: int
@@ -122,33 +132,25 @@ class Command:
 
 
 @dataclass(frozen=True)
-class HelloRequest:
+class HelloRequest(_Fields):
     """Host to device: ask for a ``Hello``."""
 
     version: int = PROTOCOL_VERSION
     FORMAT: ClassVar[str] = "<BB"
     TYPE: ClassVar[MessageType] = MessageType.HELLO_REQUEST
 
-    def fields(self) -> tuple[int, ...]:
-        """Payload fields after the type byte, in order."""
-        return (self.version,)
-
 
 @dataclass(frozen=True)
-class Place:
+class Place(_Fields):
     """Host to emulator: put the plant at rest at ``position`` (a real device ignores it)."""
 
     position: float
     FORMAT: ClassVar[str] = "<Bf"
     TYPE: ClassVar[MessageType] = MessageType.PLACE
 
-    def fields(self) -> tuple[float, ...]:
-        """Payload fields after the type byte, in order."""
-        return (self.position,)
-
 
 @dataclass(frozen=True)
-class Hello:
+class Hello(_Fields):
     """Device to host: who it is and how it runs."""
 
     version: int
@@ -163,17 +165,9 @@ class Hello:
     FORMAT: ClassVar[str] = "<BBBBHHHhHI"
     TYPE: ClassVar[MessageType] = MessageType.HELLO
 
-    def fields(self) -> tuple[int | float, ...]:
-        """Payload fields after the type byte, in order."""
-        return (
-            self.version, int(self.kind), int(self.capabilities), self.rate_hz,
-            self.counts_per_rev, self.command_scale, self.command_limit, self.watchdog_ms,
-            self.firmware,
-        )  # fmt: skip
-
 
 @dataclass(frozen=True)
-class State:
+class State(_Fields):
     """Device to host, once per tick: the sensor and the command held over the last period."""
 
     status: Status
@@ -185,13 +179,6 @@ class State:
     aux: int = 0  #: motor current in mA (servo), or 0
     FORMAT: ClassVar[str] = "<BBHIHhih"
     TYPE: ClassVar[MessageType] = MessageType.STATE
-
-    def fields(self) -> tuple[int, ...]:
-        """Payload fields after the type byte, in order."""
-        return (
-            int(self.status), self.seq, self.tick_us, self.seq_applied, self.applied,
-            self.sensor, self.aux,
-        )  # fmt: skip
 
 
 Message = Union[Command, HelloRequest, Place, Hello, State]  # noqa: UP007  (runtime alias)

@@ -37,7 +37,7 @@ from frictiongym.hardware.errors import (
     ProtocolError,
     WatchdogTripError,
 )
-from frictiongym.hardware.ports import is_lock_failure, port_busy_error
+from frictiongym.hardware.ports import is_lock_failure, port_busy_error, pyserial
 from frictiongym.hardware.uri import check_socket_url, integer, positive, uri_options
 
 #: Default line rate: the QUBE bridge's (exact on 16 MHz AVRs, room for 500 Hz frames both
@@ -62,16 +62,6 @@ _FAULTS = {
     protocol.Status.STALL_ERROR: "the motor stalled under voltage for too long (free the load, "
     "then re-arm)",
 }
-
-
-def _pyserial() -> Any:
-    try:
-        import serial
-    except ImportError:
-        raise HardwareError(
-            "serial backends need pyserial: pip install 'frictiongym[hardware]' (or pyserial)"
-        ) from None
-    return serial
 
 
 class SerialBackend(Backend):
@@ -138,7 +128,7 @@ class SerialBackend(Backend):
     # -- link -------------------------------------------------------------------------------------
 
     def _open(self) -> DeviceInfo:
-        serial = _pyserial()
+        serial = pyserial()
         try:
             self._serial = serial.serial_for_url(
                 self.port, baudrate=self.baud, timeout=READ_WAIT, write_timeout=0.5,
@@ -228,7 +218,7 @@ class SerialBackend(Backend):
 
     def _read_available(self, wait: bool = True) -> bytes:
         """Read what arrived, waiting at most the port's timeout for a first byte if ``wait``."""
-        serial = _pyserial()
+        serial = pyserial()
         try:
             waiting = self._serial.in_waiting
             if not (wait or waiting):
@@ -248,7 +238,7 @@ class SerialBackend(Backend):
         return data
 
     def _write(self, message: protocol.Message) -> None:
-        serial = _pyserial()
+        serial = pyserial()
         try:
             self._serial.write(protocol.encode(message))
         except serial.SerialTimeoutException:
