@@ -84,7 +84,7 @@ def check_nonnegative(
         try:
             real_number(f"{type(obj).__name__}.{name}", value, ">= 0")
         except ValueError as error:
-            if hint is None or not value < 0.0:
+            if hint is None or not -math.inf < value < 0.0:  # advise on finite numbers only
                 raise
             raise ValueError(f"{error}{hint(name, value)}") from None
 

@@ -114,14 +114,7 @@ def sliding_level(speed: float, direction: float, p: tuple[float, ...]) -> float
     return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_NEG], p[I_UC_NEG], p[I_V0_NEG])
 
 
-@vectorize(
-    [
-        float64(
-            float64, float64, float64, float64, float64, float64, float64, float64, float64, float64
-        )
-    ],
-    cache=True,
-)
+@vectorize([float64(*[float64] * 10)], cache=True)
 def sliding_force_ufunc(
     v: float,
     law: float,

@@ -29,7 +29,7 @@ from typing import ClassVar, Literal
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym._validation import check_finite, check_nonnegative, check_positive, real_number
+from frictiongym._validation import check_nonnegative, check_positive, real_number
 from frictiongym.friction import _core
 
 Shape = Literal["step", "linear", "smooth", "exponential"]
@@ -42,19 +42,24 @@ def _magnitude_hint(name: str, value: float) -> str:
     return ""
 
 
-def _check_nonnegative(obj: object, *names: str) -> None:
+def _check_levels(obj: object, *names: str) -> None:
+    """Check the named fields are finite and >= 0 (the magnitude hint), then ``uc <= us``."""
     check_nonnegative(obj, *names, hint=_magnitude_hint)
+    for direction in ("pos", "neg"):
+        us = getattr(obj, f"us_{direction}")
+        uc = getattr(obj, f"uc_{direction}")
+        if uc > us:
+            raise ValueError(
+                f"{type(obj).__name__}.uc_{direction}={uc!r} exceeds us_{direction}={us!r}: "
+                f"the Coulomb level must not exceed the break-away level (uc_{direction} <= "
+                f"us_{direction})"
+            )
 
 
-def _check_levels(obj: object, direction: str) -> None:
-    us = getattr(obj, f"us_{direction}")
-    uc = getattr(obj, f"uc_{direction}")
-    if uc > us:
-        raise ValueError(
-            f"{type(obj).__name__}.uc_{direction}={uc!r} exceeds us_{direction}={us!r}: the "
-            f"Coulomb level must not exceed the break-away level (uc_{direction} <= "
-            f"us_{direction})"
-        )
+def _sliding_force(v: ArrayLike, p: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
+    return np.asarray(
+        _core.sliding_force_ufunc(np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1])
+    )
 
 
 class FrictionModel(ABC):
@@ -95,18 +100,13 @@ class FrictionModel(ABC):
         Vectorised over any shape. Zero at ``v == 0``, where friction is set-valued: the
         plant holds the body while the input lies in :attr:`breakaway`.
         """
-        p = self.row()
-        return np.asarray(
-            _core.sliding_force_ufunc(np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1])
-        )
+        return _sliding_force(v, self.row())
 
     def nonlinear_force(self, v: ArrayLike) -> npt.NDArray[np.float64]:
         """:meth:`force` without the viscous term: the stiction/Coulomb part a compensator adds."""
         p = self.row()
         p[_core.I_VISCOUS] = 0.0
-        return np.asarray(
-            _core.sliding_force_ufunc(np.asarray(v, dtype=np.float64), *p[: _core.I_VISCOUS + 1])
-        )
+        return _sliding_force(v, p)
 
     def replace(self, **changes: float | str) -> FrictionModel:
         """Return a copy with some fields changed (validated again)."""
@@ -178,12 +178,8 @@ class StictionCoulomb(FrictionModel):
     name: ClassVar[str] = "paper"
 
     def __post_init__(self) -> None:
-        fields = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous")
-        check_finite(self, *fields)
-        _check_nonnegative(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "viscous")
         check_positive(self, "v0_pos", "v0_neg")
-        _check_levels(self, "pos")
-        _check_levels(self, "neg")
+        _check_levels(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "viscous")
         if self.shape not in _core.SHAPES:
             raise ValueError(
                 f"StictionCoulomb.shape must be one of {sorted(_core.SHAPES)}, got {self.shape!r}"
@@ -228,8 +224,7 @@ class CoulombViscous(FrictionModel):
     name: ClassVar[str] = "coulomb"
 
     def __post_init__(self) -> None:
-        check_finite(self, "uc_pos", "uc_neg", "viscous")
-        _check_nonnegative(self, "uc_pos", "uc_neg", "viscous")
+        check_nonnegative(self, "uc_pos", "uc_neg", "viscous", hint=_magnitude_hint)
 
     def row(self) -> npt.NDArray[np.float64]:  # noqa: D102
         return StictionCoulomb(
@@ -278,22 +273,8 @@ class LuGre(FrictionModel):
     name: ClassVar[str] = "lugre"
 
     def __post_init__(self) -> None:
-        fields = (
-            "us_pos",
-            "us_neg",
-            "uc_pos",
-            "uc_neg",
-            "vs_pos",
-            "vs_neg",
-            "sigma0",
-            "sigma1",
-            "viscous",
-        )
-        check_finite(self, *fields)
-        _check_nonnegative(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "sigma1", "viscous")
         check_positive(self, "vs_pos", "vs_neg", "sigma0")
-        _check_levels(self, "pos")
-        _check_levels(self, "neg")
+        _check_levels(self, "us_pos", "us_neg", "uc_pos", "uc_neg", "sigma1", "viscous")
         if self.uc_pos == 0.0 or self.uc_neg == 0.0:
             raise ValueError(
                 "LuGre.uc_pos and LuGre.uc_neg must be > 0: the bristle time constant "

@@ -55,16 +55,6 @@ ALTINO_LUGRE = LuGre(
 )  # fmt: skip
 
 
-def _variants(paper: StictionCoulomb, lugre: LuGre) -> dict[str, FrictionModel]:
-    return {
-        "paper": paper,
-        "none": NoFriction(),
-        "coulomb": CoulombViscous(paper.uc_pos, paper.uc_neg, paper.viscous),
-        "stribeck": paper.replace(shape="exponential"),
-        "lugre": lugre,
-    }
-
-
 FRICTION_NAMES = ("paper", "none", "coulomb", "stribeck", "lugre")
 
 
@@ -84,11 +74,15 @@ def friction_from_name(name: str, paper: StictionCoulomb, lugre: LuGre) -> Frict
     -------
     FrictionModel
     """
-    variants = _variants(paper, lugre)
-    try:
-        return variants[name]
-    except KeyError:
+    if name not in FRICTION_NAMES:
         raise ValueError(
             f"unknown friction law {name!r}; choose one of {', '.join(FRICTION_NAMES)} or pass "
             "a FrictionModel object"
-        ) from None
+        )
+    return {
+        "paper": paper,
+        "none": NoFriction(),
+        "coulomb": CoulombViscous(paper.uc_pos, paper.uc_neg, paper.viscous),
+        "stribeck": paper.replace(shape="exponential"),
+        "lugre": lugre,
+    }[name]

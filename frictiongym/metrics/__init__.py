@@ -57,7 +57,7 @@ The definitions differ as follows (read from python-control 0.10.2's ``timeresp.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy.typing as npt
 
@@ -81,28 +81,18 @@ __all__ = [
 
 
 @dataclass(frozen=True)
-class ResponseMetrics:
+class ResponseMetrics(StepMetrics):
     """All metrics of one step run (times in s, errors in output units).
 
     The first six fields are those of :class:`StepMetrics`.
     """
 
-    rise_time: float  #: 10 % to 90 % of the step; inf if 90 % is never reached
-    peak_time: float  #: time of the largest excursion in the step's direction
-    settling_time: float  #: time after which y stays within the band; inf if it never does
-    overshoot_pct: float  #: peak beyond the reference, % of the step (>= 0)
-    steady_state_error: float  #: mean |reference - y| over the end window
-    steady_state_error_pct: float  #: the same, % of the step
     iae: float  #: ∫ |reference - y| dt, output units × s
     itae: float  #: ∫ (t - t[0]) |reference - y| dt, output units × s²
     control_effort: float  #: RMS command, command units; nan without command data
     limit_cycle_amplitude: float  #: half peak-to-peak of a sustained oscillation, else 0
     limit_cycle_period: float  #: its period in s; nan when there is none
     time_stuck: float  #: time held by friction after first moving, s; nan without stuck data
-
-    def as_dict(self) -> dict[str, float]:
-        """Return the metrics as a plain dict."""
-        return asdict(self)
 
 
 def response_metrics(

@@ -43,17 +43,21 @@ def as_times(t: npt.ArrayLike, min_samples: int = 2) -> FloatArray:
     return arr
 
 
+def _check_length(name: str, arr: npt.NDArray[np.generic], t: FloatArray, what: str) -> None:
+    if arr.ndim != 1 or arr.shape != t.shape:
+        raise ValueError(
+            f"t and {name} must be 1-D arrays of the same length: t has shape {t.shape}, "
+            f"{name} has shape {arr.shape}; pass one {name} {what} per sample time"
+        )
+
+
 def as_samples(name: str, values: npt.ArrayLike, t: FloatArray) -> FloatArray:
     """Return ``values`` as a float array of one finite value per sample time."""
     try:
         arr = np.asarray(values, dtype=np.float64)
     except (TypeError, ValueError) as exc:
         raise ValueError(f"{name} must be an array of numbers: {exc}") from exc
-    if arr.ndim != 1 or arr.shape != t.shape:
-        raise ValueError(
-            f"t and {name} must be 1-D arrays of the same length: t has shape {t.shape}, "
-            f"{name} has shape {arr.shape}; pass one {name} value per sample time"
-        )
+    _check_length(name, arr, t, "value")
     bad = np.flatnonzero(~np.isfinite(arr))
     if bad.size:
         i = int(bad[0])
@@ -67,11 +71,7 @@ def as_samples(name: str, values: npt.ArrayLike, t: FloatArray) -> FloatArray:
 def as_flags(name: str, values: npt.ArrayLike, t: FloatArray) -> BoolArray:
     """Return ``values`` as a bool array of one flag per sample time (bool or 0/1 input)."""
     arr = np.asarray(values)
-    if arr.ndim != 1 or arr.shape != t.shape:
-        raise ValueError(
-            f"t and {name} must be 1-D arrays of the same length: t has shape {t.shape}, "
-            f"{name} has shape {arr.shape}; pass one {name} flag per sample time"
-        )
+    _check_length(name, arr, t, "flag")
     if arr.dtype == np.bool_:
         return arr
     if not np.issubdtype(arr.dtype, np.number) or not np.all((arr == 0) | (arr == 1)):
@@ -98,8 +98,3 @@ def check_fraction(name: str, value: float) -> float:
 def trapezoid(t: FloatArray, f: FloatArray) -> float:
     """Trapezoidal integral of ``f`` over ``t``."""
     return float(np.sum(0.5 * (f[1:] + f[:-1]) * np.diff(t)))
-
-
-# --------------------------------------------------------------------------------------------
-# Step metrics
-# --------------------------------------------------------------------------------------------

@@ -252,8 +252,3 @@ def time_stuck(t: npt.ArrayLike, stuck: npt.ArrayLike) -> float:
         return float(times[-1] - times[0])
     after = flags[moving[0] :]
     return float(np.sum(durations[moving[0] :][after]))
-
-
-# --------------------------------------------------------------------------------------------
-# Everything for one run
-# --------------------------------------------------------------------------------------------

@@ -121,27 +121,11 @@ def step_metrics_batch(
             f"y must be finite, but y[{bad[0]}, {bad[1]}] = {values[bad[0], bad[1]]!r}; drop or "
             "interpolate the non-finite samples first"
         )
-    return _batch_core(
-        times, values, reference, y0, final_value, settling_band, rise_limits, end_fraction
-    )
-
-
-def _batch_core(
-    t: FloatArray,
-    y: FloatArray,
-    reference: float,
-    y0: float | npt.ArrayLike | None,
-    final_value: float | None,
-    settling_band: float,
-    rise_limits: tuple[float, float],
-    end_fraction: float,
-) -> StepMetricsBatch:
-    """Check the scalar parameters and measure the checked samples ``y`` of shape (n, N)."""
     reference = check_scalar("reference", reference)
     if y0 is None:
-        start = y[0].copy()
+        start = values[0].copy()
     else:
-        start = np.broadcast_to(np.asarray(y0, dtype=np.float64), y.shape[1:]).copy()
+        start = np.broadcast_to(np.asarray(y0, dtype=np.float64), values.shape[1:]).copy()
         if not np.all(np.isfinite(start)):
             raise ValueError(f"y0 must be finite, got {y0!r}")
     target = reference if final_value is None else check_scalar("final_value", final_value)
@@ -162,26 +146,26 @@ def _batch_core(
         raise ValueError(f"rise_limits must satisfy 0 <= low < high, got {rise_limits!r}")
     end_fraction = check_fraction("end_fraction", end_fraction)
 
-    progress = step_progress(y, start, step)  # 0 at the start, 1 at the target
-    columns = np.arange(y.shape[1])
+    progress = step_progress(values, start, step)  # 0 at the start, 1 at the target
+    columns = np.arange(values.shape[1])
 
     above_lo, above_hi = progress >= lo, progress >= hi
     first_lo, first_hi = np.argmax(above_lo, axis=0), np.argmax(above_hi, axis=0)
-    rise_time = np.where(above_hi[first_hi, columns], t[first_hi] - t[first_lo], math.inf)
+    rise_time = np.where(above_hi[first_hi, columns], times[first_hi] - times[first_lo], math.inf)
 
     peak = np.argmax(progress, axis=0)
-    peak_time = t[peak] - t[0]
+    peak_time = times[peak] - times[0]
     overshoot_pct = np.maximum(0.0, (progress[peak, columns] - 1.0) * 100.0)
 
     outside = np.abs(progress - 1.0) > settling_band
-    last = y.shape[0] - 1 - np.argmax(outside[::-1], axis=0)  # last sample outside the band
-    after = np.minimum(last + 1, y.shape[0] - 1)
-    settling_time = np.where(last == y.shape[0] - 1, math.inf, t[after] - t[0])
+    last = values.shape[0] - 1 - np.argmax(outside[::-1], axis=0)  # last sample outside the band
+    after = np.minimum(last + 1, values.shape[0] - 1)
+    settling_time = np.where(last == values.shape[0] - 1, math.inf, times[after] - times[0])
     settling_time = np.where(outside[last, columns], settling_time, 0.0)
 
-    tail = t >= t[-1] - end_fraction * (t[-1] - t[0])
+    tail = times >= times[-1] - end_fraction * (times[-1] - times[0])
     # Row-contiguous so each response is summed as np.mean sums a 1-D array (pairwise).
-    sse = np.ascontiguousarray(np.abs(reference - y[tail]).T).mean(axis=1)
+    sse = np.ascontiguousarray(np.abs(reference - values[tail]).T).mean(axis=1)
     return StepMetricsBatch(
         rise_time=rise_time,
         peak_time=peak_time,
@@ -242,7 +226,7 @@ def step_metrics(
     """
     times = as_times(t)
     values = as_samples("y", y, times)
-    batch = _batch_core(
+    batch = step_metrics_batch(
         times,
         values[:, np.newaxis],
         reference,
