@@ -72,12 +72,12 @@ def __getattr__(name: str) -> Any:
     raise AttributeError(f"module 'frictiongym.hardware' has no attribute {name!r}")
 
 
-#: URI scheme -> (module, class); each class has ``from_uri(path, query)``.
+#: URI scheme -> backend class (of :data:`_LAZY`); each class has ``from_uri(path, query)``.
 SCHEMES = {
-    "serial": ("frictiongym.hardware.serial_backend", "SerialBackend"),
-    "altino-stock": ("frictiongym.hardware.altino_stock", "AltinoStockBackend"),
-    "quanser-hil": ("frictiongym.hardware.quanser_hil", "QuanserHILBackend"),
-    "emulator": ("frictiongym.hardware.emulated", "EmulatedBackend"),
+    "serial": "SerialBackend",
+    "altino-stock": "AltinoStockBackend",
+    "quanser-hil": "QuanserHILBackend",
+    "emulator": "EmulatedBackend",
 }
 #: pyserial's own URL handlers, passed to :class:`SerialBackend` with the query options pyserial
 #: takes for each; the others (``baud``, ``timeout``, ``max_age``) are the backend's.
@@ -91,8 +91,7 @@ SIM = ("sim", "sim://")
 
 
 def _backend_class(scheme: str) -> Any:
-    module, name = SCHEMES[scheme]
-    return getattr(importlib.import_module(module), name)
+    return __getattr__(SCHEMES[scheme])
 
 
 def resolve_backend(spec: object, kind: str) -> Backend | None:

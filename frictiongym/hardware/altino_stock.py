@@ -1,17 +1,11 @@
 """The Altino car on its stock firmware: the vendor's serial frames, paced by the host.
 
 A user can start with an Altino as it ships, over its Bluetooth SPP (or cable) serial port,
-without flashing anything. The codec below follows the vendor's own PC and Arduino libraries
-``Altino.h``: 28-byte command frames ``0x02, 28, checksum, ..., 0x03`` and 31- or 56-byte
-sensor replies ``0x02, length, checksum, ..., 0x03``, with 8-bit additive checksums, 16-bit
-big-endian fields and sign-magnitude wheel values.
-
-Every command frame carries every field: the vendor's ``Go()`` and ``Sensor(1)`` send the same
-bytes (``Open()`` sets the request byte to 1 and ``Go()`` keeps it), so a sensor request also
-sets the motors and a Go is also a request. :class:`AltinoStockBackend` therefore sends **one
-frame per tick**, ``Go(u, u)`` with the request byte of its sensor group, and reads the one reply:
-only frames the vendor's library itself sends, and no doubt which reply answers which request
-on a link without sequence numbers.
+without flashing anything. Every stock command frame (:mod:`frictiongym.hardware.altino_frames`)
+carries every field, so a sensor request also sets the motors and a Go is also a request:
+:class:`AltinoStockBackend` therefore sends **one frame per tick**, ``Go(u, u)`` with the request
+byte of its sensor group, and reads the one reply: only frames the vendor's library itself
+sends, and no doubt which reply answers which request on a link without sequence numbers.
 """
 
 from __future__ import annotations
@@ -204,7 +198,6 @@ class AltinoStockBackend(Backend):
             raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
         self.car_bounds = car_bounds
         self.guard = self._new_guard()
-        self.last_sensors: StockSensors | None = None  #: the latest reply, every field
         self._serial: Any = None
         self._serial_module: Any = None
         self._held = 0
@@ -300,7 +293,6 @@ class AltinoStockBackend(Backend):
                 self.bad_replies += 1
                 why = "failed their checksum"
                 continue
-            self.last_sensors = sensors
             return sent, sensors
         raise ProtocolError(
             f"two replies in a row from {self.port} {why}: check the baud rate ({self.baud}), "

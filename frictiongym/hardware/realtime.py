@@ -77,14 +77,6 @@ def describe_priority(why_not: str | None, priority: int = REALTIME_PRIORITY) ->
     return f"ordinary, SCHED_FIFO {why_not}"
 
 
-def restore_priority(policy: int, priority: int) -> None:
-    """Put the calling thread back under ``policy`` at ``priority`` (best effort)."""
-    try:
-        os.sched_setscheduler(0, policy, os.sched_param(priority))
-    except (OSError, AttributeError):
-        pass
-
-
 @contextmanager
 def realtime_priority(priority: int = REALTIME_PRIORITY) -> Iterator[str]:
     """Run the block with the calling thread under ``SCHED_FIFO``, where permitted.
@@ -103,7 +95,10 @@ def realtime_priority(priority: int = REALTIME_PRIORITY) -> Iterator[str]:
         yield describe_priority(why_not, priority)
     finally:
         if why_not is None:
-            restore_priority(policy, previous)
+            try:
+                os.sched_setscheduler(0, policy, os.sched_param(previous))
+            except OSError:  # best effort
+                pass
 
 
 __all__ = [
@@ -112,6 +107,5 @@ __all__ = [
     "freeze_heap",
     "raise_priority",
     "realtime_priority",
-    "restore_priority",
     "thaw_heap",
 ]

@@ -33,7 +33,6 @@ from frictiongym.hardware.errors import (
     DeviceFaultError,
     DeviceNotFoundError,
     DeviceTimeoutError,
-    HardwareError,
     ProtocolError,
     WatchdogTripError,
 )
@@ -251,11 +250,6 @@ class SerialBackend(Backend):
                 f"could not write to {self.port!r} ({exc}); check the cable and the device"
             ) from None
 
-    def _opened(self) -> protocol.Hello:
-        if self.hello is None or self._serial is None:
-            raise HardwareError(f"{self.port!r} is not open: call open() or start() first")
-        return self.hello
-
     # -- states -----------------------------------------------------------------------------------
 
     def _states(self, wait: bool) -> list[protocol.State]:
@@ -306,7 +300,8 @@ class SerialBackend(Backend):
         collection, the scheduler) finds the frames that arrived meanwhile instead of
         blaming the device.
         """
-        period = 1.0 / self._opened().rate_hz
+        assert self.hello is not None  # opened by start() and step()
+        period = 1.0 / self.hello.rate_hz
         sent = time.monotonic()
         newest: protocol.State | None = None
         listened = 0.0
@@ -334,7 +329,8 @@ class SerialBackend(Backend):
                 )
 
     def _sample(self, state: protocol.State, late: bool) -> Sample:
-        hello = self._opened()
+        hello = self.hello
+        assert hello is not None
         if state.status & protocol.FAULT_BITS:
             reasons = "; ".join(text for bit, text in _FAULTS.items() if state.status & bit)
             message = f"the device at {self.port!r} stopped its motor: {reasons}"

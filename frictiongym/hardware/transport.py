@@ -255,13 +255,6 @@ class TcpLink(Link):
         self._client: socket.socket | None = None
         bound_host, bound_port = server.getsockname()[:2]
         self.url = f"socket://{bound_host}:{bound_port}"
-        self.clients = 0  #: connections accepted so far
-        self.refused = 0  #: connections closed at once because a host was being served
-
-    @property
-    def connected(self) -> bool:
-        """Whether a host is connected."""
-        return self._client is not None
 
     def fds(self) -> list[int]:
         """Return the client's socket and the server's (a newcomer is refused at once)."""
@@ -278,7 +271,6 @@ class TcpLink(Link):
         except (BlockingIOError, InterruptedError):
             return
         newcomer.close()
-        self.refused += 1
 
     def _drop_client(self) -> None:
         if self._client is not None:
@@ -303,7 +295,6 @@ class TcpLink(Link):
             client.setblocking(False)
             client.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
             self._client = client
-            self.clients += 1
             return b""
         try:
             data = self._client.recv(READ_SIZE)
