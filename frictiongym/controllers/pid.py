@@ -88,17 +88,14 @@ def _tracking_time(gains: PIDGains) -> float | FloatArray | None:
 
     None (numbers) or NaN (per env of array gains) where it is undefined (``ki`` or ``kp`` 0).
     """
-    if not gains.batched:
-        kp, ki, kd = (float(g) for g in gains)
-        if not (ki > 0.0 and kp > 0.0):
-            return None
-        ti = kp / ki
-        return math.sqrt(ti * kd / kp) if kd > 0.0 else ti
     p, i, d = np.broadcast_arrays(*(np.asarray(g, dtype=np.float64) for g in gains))
     with np.errstate(divide="ignore", invalid="ignore"):
         integral_time = p / i
         tracking = np.where(d > 0.0, np.sqrt(integral_time * d / p), integral_time)
-    return np.where((i > 0.0) & (p > 0.0), tracking, np.nan)
+    tt = np.where((i > 0.0) & (p > 0.0), tracking, np.nan)
+    if gains.batched:
+        return tt
+    return None if np.isnan(tt) else float(tt)
 
 
 class PID(Controller):
@@ -236,12 +233,10 @@ class PID(Controller):
             winding = (raw != command) & (np.sign(error) == np.sign(raw))
             integral = np.where(winding, self.integral, integral)
         elif self.anti_windup == "back-calculation" and self.tracking_time is not None:
-            if g.batched:  # envs without an integral (ki = 0) have nothing to bleed
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    bleed = (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
-                integral = integral + np.where(np.asarray(g.ki) > 0.0, bleed, 0.0)
-            else:
-                integral = integral + (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                bleed = (command - raw) * self.spec.dt / (g.ki * self.tracking_time)
+            # Envs without an integral (ki = 0) have nothing to bleed.
+            integral = integral + np.where(np.asarray(g.ki) > 0.0, bleed, 0.0)
         self.integral = np.asarray(integral, dtype=np.float64)
         return np.asarray(self.spec.direction * command, dtype=np.float64)
 

@@ -116,7 +116,8 @@ def _check_policy_kwargs(path: Path, kwargs: dict[str, Any]) -> None:
             )
 
 
-def _read_data(path: Path) -> dict[str, Any]:
+def read_data(path: Path) -> dict[str, Any]:
+    """Return the JSON ``data`` file of a model zip (ValueError if it is none)."""
     try:
         with zipfile.ZipFile(path) as archive:
             data = json.loads(archive.read("data"))
@@ -175,7 +176,7 @@ def load_policy(
     from stable_baselines3.common.save_util import load_from_zip_file
 
     path = Path(path)
-    data = _read_data(path)
+    data = read_data(path)
     foreign = [k for k in pickled_entries(data) if k not in SB3_PICKLED]
     if foreign:
         warnings.warn(

@@ -6,9 +6,7 @@ module is as light as the other controllers.
 
 from __future__ import annotations
 
-import json
 import os
-import zipfile
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -17,7 +15,7 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym.controllers.base import Controller, FloatArray
-from frictiongym.controllers.policy_file import load_policy
+from frictiongym.controllers.policy_file import load_policy, read_data
 from frictiongym.controllers.residual_core import (
     OBSERVATION_BOUND,
     OBSERVATION_SIZE,
@@ -50,12 +48,7 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise FileNotFoundError(
             f"no model at {path}: give the model.zip that frictiongym train wrote"
         )
-    try:
-        with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
-    except (zipfile.BadZipFile, KeyError, json.JSONDecodeError):
-        raise ValueError(f"{path} is not a Stable-Baselines3 model zip") from None
-    meta = data.get(METADATA_ATTRIBUTE)
+    meta = read_data(path).get(METADATA_ATTRIBUTE)
     if not isinstance(meta, dict) or "config" not in meta:
         raise ValueError(
             f"{path} is an SB3 model without frictiongym residual metadata: train it with "
