@@ -33,7 +33,7 @@ from frictiongym import devices
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import BoolArray, FloatArray, Frame, Simulation
 from frictiongym.hardware import resolve_backend
-from frictiongym.hardware.base import Backend, DeviceInfo, Sample
+from frictiongym.hardware.base import Sample
 from frictiongym.hardware.errors import HardwareError, ProtocolError
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import freeze_heap, thaw_heap
@@ -70,16 +70,8 @@ class DeviceSession:
         device's period, ``quantize=True``).
     """
 
-    #: The task: reference, sensor settings, reward, limits and resets (its plant never runs).
-    task: Simulation
     num_envs = 1
     on_device = True
-    backend: Backend
-    info: DeviceInfo
-    log: RunLog | None
-    last_sample: Sample | None
-    last_sample_ns: int
-    episode: int
 
     def __init__(
         self,
@@ -119,11 +111,13 @@ class DeviceSession:
                     "the loop; omit dt (or change the firmware's rate)"
                 )
             kwargs = {k: v for k, v in kwargs.items() if k not in SIM_ONLY}
+            #: The task: reference, sensor settings, reward, limits and resets (its plant never
+            #: runs).
             self.task = Simulation(device, 1, dt=dt, **kwargs)
             self.device, self.dt, self.plant = device, dt, self.task.plant
             self.params, self.model_friction = self.task.params, self.task.model_friction
             self.limit = self.task.limit
-            self.log = None
+            self.log: RunLog | None = None
             if log is not False:
                 directory = default_directory(device.name) if log is True else Path(log)
                 self.log = RunLog(directory, device.observation_names, self._metadata(run_metadata))
@@ -131,7 +125,7 @@ class DeviceSession:
             self.backend.close()
             raise
         self._compile()
-        self.last_sample = None
+        self.last_sample: Sample | None = None
         self.last_sample_ns = 0
         self.episode = -1
         self._first: Sample | None = None

@@ -191,14 +191,11 @@ class Firmware:
         #: Per-tick records, as :meth:`ticks_history` returns them (:data:`TickRecord`).
         self.history: deque[TickRecord] = deque(maxlen=HISTORY_TICKS)
         self._errors_seen = 0
-        if car_bounds is None:
-            car_bounds = self._car_bounds()
-        if not isinstance(car_bounds, CarBounds):
-            raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
-        #: What the distance guard assumes of the car (its mass range and least friction).
-        self.car_bounds = car_bounds
         #: The Altino's distance guard (None on the servo): brakes before the wall.
-        self.guard = self._new_guard() if altino else None
+        self.guard: DistanceGuard | None = None
+        self.set_car_bounds(self._car_bounds() if car_bounds is None else car_bounds)
+        if altino:
+            self.guard = self._new_guard()
         self.sensor = 0
         self.plant.step(0.0)  # compiled now: a first tick must not stall past the watchdog
         self._place(self.device.start if start is None else float(start))
@@ -275,6 +272,7 @@ class Firmware:
         """
         if not isinstance(car_bounds, CarBounds):
             raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
+        #: What the distance guard assumes of the car (its mass range and least friction).
         self.car_bounds = car_bounds
         if self.guard is not None:
             self.guard.car = car_bounds
