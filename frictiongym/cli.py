@@ -72,13 +72,13 @@ def _demo(args: argparse.Namespace) -> int:
     from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 
     gains = PIDGains(**ROTARY_PAPER_GAINS)
-    cases: list[tuple[str, FrictionModel]] = [("nominal (no friction)", NoFriction())]
-    cases.append(
+    cases: list[tuple[str, FrictionModel]] = [
+        ("nominal (no friction)", NoFriction()),
         (
             f"friction: {args.friction}",
             friction_from_name(args.friction, ROTARY_PAPER, ROTARY_LUGRE),
-        )
-    )
+        ),
+    ]
     print(
         f"QUBE-Servo 2, step of {args.reference} rad, PID Kp={gains.kp} Ki={gains.ki} "
         f"Kd={gains.kd} (paper §3.1), {args.duration} s at 500 Hz, "

@@ -6,15 +6,3 @@
 (running and records), :mod:`~frictiongym.benchmark.report` (JSON, CSV, markdown) and
 :mod:`~frictiongym.benchmark.figures` (PNG).
 """
-
-from frictiongym.benchmark.run import Result, run_benchmark, run_scenario
-from frictiongym.benchmark.scenarios import Scenario, all_scenarios, paper_scenarios
-
-__all__ = [
-    "Result",
-    "Scenario",
-    "all_scenarios",
-    "paper_scenarios",
-    "run_benchmark",
-    "run_scenario",
-]

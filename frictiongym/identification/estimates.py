@@ -22,7 +22,7 @@ import numpy.typing as npt
 from scipy.optimize import brentq, minimize_scalar
 
 from frictiongym.controllers.rollout import Rollout
-from frictiongym.identification.experiments import REST_SAMPLES, smallest_step
+from frictiongym.identification.experiments import REST_SAMPLES, rest_scatter
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -43,15 +43,6 @@ class ExponentialFit:
     start: float  #: ``t0``: first time of the window, s
     rms: float  #: residual RMS, output units
     samples: int
-
-
-def rest_scatter(rest: FloatArray, whole: FloatArray) -> float:
-    """Measurement scatter: the noise std at ``rest``, at least one quantisation step.
-
-    The step is the smallest change anywhere in ``whole`` (a body at rest under a noiseless
-    quantised sensor shows none; it shows up once the body moves).
-    """
-    return max(float(np.std(rest)), smallest_step(whole))
 
 
 def _basis(t: FloatArray, t0: float, tau: float) -> FloatArray:

@@ -75,11 +75,6 @@ class Runner:
         self._bounds = observation_bounds(env, self.spec.position)
         self.steps = 0  #: env steps taken so far
 
-    @property
-    def dt(self) -> float:
-        """Control period, s."""
-        return self.spec.dt
-
     def _measure(self, observation: npt.ArrayLike) -> tuple[float, bool]:
         y = float(np.asarray(observation, dtype=np.float64).reshape(-1)[self.spec.position])
         low, high = self._bounds
@@ -118,8 +113,8 @@ class Runner:
             ``feedback(positions_so_far, k)`` gives the command of sample ``k`` from the
             measured output (a closed-loop experiment); it replaces ``profile``'s value.
         """
-        n = max(1, round(duration / self.dt))
-        t = np.arange(n, dtype=np.float64) * self.dt
+        n = max(1, round(duration / self.spec.dt))
+        t = np.arange(n, dtype=np.float64) * self.spec.dt
         limit = self.spec.limit
         command = np.clip(profile(t), -limit, limit)
         if not np.all(np.isfinite(command)):
@@ -193,7 +188,7 @@ class Runner:
             if k < REST_SAMPLES:
                 return False
             rest = y[:REST_SAMPLES]
-            scatter = max(float(rest.std()), smallest_step(y))
+            scatter = rest_scatter(rest, y)
             return bool(abs(y[-1] - rest.mean()) > factor * scatter > 0.0)
 
         return self.run(
@@ -257,8 +252,12 @@ class Runner:
         )
 
 
-def smallest_step(position: FloatArray) -> float:
-    """Smallest non-zero change between samples: one quantisation step once the body moves."""
-    steps = np.abs(np.diff(position))
+def rest_scatter(rest: FloatArray, whole: FloatArray) -> float:
+    """Measurement scatter: the noise std at ``rest``, at least one quantisation step.
+
+    The step is the smallest non-zero change anywhere in ``whole`` (a body at rest under a
+    noiseless quantised sensor shows none; it shows up once the body moves).
+    """
+    steps = np.abs(np.diff(whole))
     steps = steps[steps > 0.0]
-    return float(steps.min()) if steps.size else 0.0
+    return max(float(np.std(rest)), float(steps.min()) if steps.size else 0.0)

@@ -51,7 +51,6 @@ class LawFit:
     rms: float  #: residual RMS, command units
     aic: float  #: Akaike information criterion (lower is better)
     points: int
-    free: tuple[str, ...]  #: parameters fitted here (the others are fixed)
 
     def predict(self, velocity: npt.ArrayLike) -> FloatArray:
         """Level that holds each (signed) steady speed: ``F(v) + b v``, signed."""
@@ -173,7 +172,6 @@ def fit_law(
         rms=math.sqrt(ssr / n),
         aic=aic,
         points=n,
-        free=names,
     )
 
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import gymnasium as gym
@@ -123,13 +123,6 @@ class Plan:
             settings["reading"] = ReciprocalReading(*settings["reading"])
         return cls(**settings)
 
-    @property
-    def longest_run(self) -> float:
-        """The longest experiment, s (the env's episode must allow it)."""
-        return max(
-            self.constant_duration, self.ramp_duration, self.step_duration, self.relay_duration
-        )
-
 
 #: Episode length of an identification env: longer than any run the plans hold.
 _NO_EPISODE_LIMIT = 1_000_000
@@ -197,12 +190,7 @@ class Identification:
             "refinement": None
             if self.refinement is None
             else {
-                "dead_time": self.refinement.dead_time,
-                "rms": self.refinement.rms,
-                "rms_start": self.refinement.rms_start,
-                "rms_split": self.refinement.rms_split,
-                "starts": self.refinement.starts,
-                "evaluations": self.refinement.evaluations,
+                k: v for k, v in asdict(self.refinement).items() if k not in ("values", "stderr")
             },
             "experiments": len(self.traces),
             "env_steps": self.env_steps,
@@ -229,8 +217,8 @@ def identify(
     Parameters
     ----------
     env : gymnasium.Env
-        A frictiongym env, made with the plan's ``env_kwargs`` and an episode limit of at
-        least ``plan.longest_run`` (:func:`make_env` does both).
+        A frictiongym env, made with the plan's ``env_kwargs`` and an episode limit longer
+        than any run (:func:`make_env` does both).
     plan : Plan, optional
         The experiments; the device's (:meth:`Plan.for_device`) by default.
     seed : int, optional
@@ -259,7 +247,7 @@ def identify(
         note(f"probe ramp {'+' if sign > 0 else '-'}")
         rate = plan.probe_to * limit / plan.probe_duration
         probe = keep(runner.ramp(sign, 0.0, rate, plan.probe_duration, start_at=start[sign]))
-        if probe.t[-1] >= plan.probe_duration - 2 * runner.dt:
+        if probe.t[-1] >= plan.probe_duration - 2 * runner.spec.dt:
             raise est.IdentificationError(
                 f"the probe ramp to {plan.probe_to * limit:g} did not move the body in the "
                 f"{'positive' if sign > 0 else 'negative'} direction: raise Plan.probe_to"
@@ -380,7 +368,7 @@ def _refined(
     start = {"J": inertia[0], "B": damping[0], **fit.values}
     runs = [t for t in traces if t.settings["kind"] in ("constant", "ramp", "relay")]
     result = refine(
-        runs, start, runner.dt, runner.spec.limit, shape,
+        runs, start, runner.spec.dt, runner.spec.limit, shape,
         reading=reading, direction=runner.spec.direction,
     )  # fmt: skip
     v = result.values

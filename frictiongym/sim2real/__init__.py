@@ -4,21 +4,7 @@
 and the figures; ``frictiongym sim2real`` does both from the command line.
 """
 
-from frictiongym.sim2real.report import summary, write_report
-from frictiongym.sim2real.run import (
-    DeviceRun,
-    Sim2RealResult,
-    fit_percent,
-    rmse,
-    run_sim2real,
-)
+from frictiongym.sim2real.report import write_report
+from frictiongym.sim2real.run import fit_percent, rmse, run_sim2real
 
-__all__ = [
-    "DeviceRun",
-    "Sim2RealResult",
-    "fit_percent",
-    "rmse",
-    "run_sim2real",
-    "summary",
-    "write_report",
-]
+__all__ = ["fit_percent", "rmse", "run_sim2real", "write_report"]

@@ -5,7 +5,6 @@ matplotlib is imported inside :func:`write_figures` with the non-interactive Agg
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any
@@ -23,9 +22,7 @@ from frictiongym.sim2real.run import (
     SAFETY_LIMIT,
     SIGNALS,
     WATCHDOG,
-    DeviceRun,
     Sim2RealResult,
-    differences,
     signal,
 )
 
@@ -53,13 +50,6 @@ def _num(value: float, digits: int = 4) -> str:
     return f"{value:.{digits}g}"
 
 
-def _runs(result: Sim2RealResult) -> list[DeviceRun]:
-    """Return every device run (a result built by hand may list only its complete traces)."""
-    if result.runs:
-        return result.runs
-    return [DeviceRun(i + 1, t.t.size - 1, COMPLETE, "", t) for i, t in enumerate(result.device)]
-
-
 def summary(result: Sim2RealResult) -> dict[str, Any]:
     """Return the report's numbers as plain data (``sim2real.json``).
 
@@ -67,7 +57,7 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
     they are ``null``. ``runs`` says how each device run ended; ``model_stops`` the step at
     which the safety limit ended a simulated model's run (``null``: it ran its full length).
     """
-    runs = _runs(result)
+    runs = result.runs
     timing = result.timing
     data: dict[str, Any] = {
         "env_id": result.env_id,
@@ -113,7 +103,12 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         if name != nominal
     }
     data["device_spread"] = {s: result.spread(s) for s in SIGNALS}
-    data["metric_differences"] = differences(result, list(METRICS))
+    data["metric_differences"] = {  # model minus the device runs' mean
+        name: {
+            k: model[k] - float(np.mean([d[k] for d in data["device_metrics"]])) for k in METRICS
+        }
+        for name, model in data["model_metrics"].items()
+    }
     return data
 
 
@@ -314,9 +309,3 @@ def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
     fig.suptitle(f"{result.env_id}: {result.controller} on the device and in simulation")
     fig.tight_layout()
     save_figure(fig, out / "overlay.png", dpi=110)
-
-
-def load_summary(path: Path) -> dict[str, Any]:
-    """Read a ``sim2real.json``."""
-    data: dict[str, Any] = json.loads(path.read_text())
-    return data

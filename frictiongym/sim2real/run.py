@@ -15,7 +15,7 @@ re-arms it. The comparison uses the complete runs only.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -132,8 +132,6 @@ class Sim2RealResult:
     runs: list[DeviceRun] = field(default_factory=list)
     #: The host loop's scheduling during the device runs (``realtime_priority``).
     priority: str = ""
-    #: The env's safety limit: |angle| in rad (servo), least distance to the wall in cm (Altino).
-    safety_limit: float = math.nan
 
     @property
     def stopped(self) -> list[DeviceRun]:
@@ -332,15 +330,4 @@ def run_sim2real(
         device=[run.trace for run in runs if run.complete and run.trace is not None],
         models=traces, model_descriptions={name: text for name, (_, text) in models.items()},
         timing=timing, periods=periods, log_dir=log_dir, runs=runs, priority=priority,
-        safety_limit=limit,
     )  # fmt: skip
-
-
-def differences(result: Sim2RealResult, keys: Sequence[str]) -> dict[str, dict[str, float]]:
-    """Model minus device-mean of each step metric in ``keys``, per model."""
-    device = [m.as_dict() for m in result.device_metrics()]
-    out = {}
-    for name, trace in result.models.items():
-        model = trace.metrics(output="measured").as_dict()
-        out[name] = {k: model[k] - float(np.mean([d[k] for d in device])) for k in keys}
-    return out

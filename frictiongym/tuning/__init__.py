@@ -14,25 +14,19 @@ Contents
     ``frictiongym tune``.
 """
 
-from frictiongym.tuning.evaluate import STOP_REASONS, Evaluation, TuningModel, simulate
+from frictiongym.tuning.evaluate import Evaluation, TuningModel, simulate
 from frictiongym.tuning.search import (
     DEFAULT_HORIZON,
-    DEFAULT_SAMPLES,
-    PAPER_GAINS,
     RULES,
     TuneResult,
     random_search,
     rule_scores,
 )
-from frictiongym.tuning.specs import SPEC_FIELDS, GainBounds, StepSpecs
+from frictiongym.tuning.specs import GainBounds, StepSpecs
 
 __all__ = [
     "DEFAULT_HORIZON",
-    "DEFAULT_SAMPLES",
-    "PAPER_GAINS",
     "RULES",
-    "SPEC_FIELDS",
-    "STOP_REASONS",
     "Evaluation",
     "GainBounds",
     "StepSpecs",

@@ -140,8 +140,7 @@ def summary(result: TuneResult) -> str:
     law = "no" if law == "none" else f"'{law}'"
     lines = [
         f"model {rec['model']['name']} ({law} friction, {rec['model']['velocity']} velocity), "
-        f"seed "
-        f"{rec['seed']}, horizon {rec['horizon']:g} s, dt {rec['dt'] * 1e3:g} ms",
+        f"seed {rec['seed']}, horizon {rec['horizon']:g} s, dt {rec['dt'] * 1e3:g} ms",
         f"{'':<18}{'Kp':>9}{'Ki':>9}{'Kd':>9}{'rise s':>8}{'peak s':>8}{'settle s':>9}"
         f"{'OS %':>7}{'feasible':>10}",
     ]

@@ -224,7 +224,11 @@ def simulate(
     pid = PID(LoopSpec(dt=dt, limit=model.plant.command_limit), PIDGains(*g.T.copy()))
     early_stop = early_stop and plant.delay_steps == 0
     checks = _Checks(t, specs) if early_stop else None
-    tach = _tachometer(model, size)
+    tach = (
+        None
+        if model.velocity == "ideal"
+        else FilteredDerivative(model.velocity_cutoff, dt, (size,))
+    )
     v = plant.velocity
 
     active = np.arange(size)
@@ -297,12 +301,6 @@ def simulate(
         itae=itae_v,
         traces=traces,
     )
-
-
-def _tachometer(model: TuningModel, size: int) -> FilteredDerivative | None:
-    if model.velocity == "ideal":
-        return None
-    return FilteredDerivative(model.velocity_cutoff, model.dt, (size,))
 
 
 class _Checks:
