@@ -183,7 +183,6 @@ def load_policy(
             f"{path} carries pickled entries that Stable-Baselines3 does not write "
             f"({', '.join(foreign)}): they may hold code. frictiongym ignored them (nothing in "
             "them ran), but do not open this file with stable_baselines3's own load",
-            UserWarning,
             stacklevel=3,
         )
     suspects = {k: names for k, names in suspect_names(data).items() if k not in foreign}
@@ -193,7 +192,6 @@ def load_policy(
             f"{path} carries pickles that name what runs commands or code ({listed}): "
             "frictiongym did not unpickle them (nothing ran), but stable_baselines3's own "
             "load would; do not open this file with it",
-            UserWarning,
             stacklevel=3,
         )
     kwargs = data.get("policy_kwargs", {})

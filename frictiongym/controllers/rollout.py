@@ -165,8 +165,7 @@ def rollout(
     steps = steps if steps is not None else _episode_steps(env)
     if steps is None or int(steps) < 1:
         raise ValueError(f"steps must be a positive number of steps, got {steps!r}")
-    vector = hasattr(env, "num_envs")
-    n = int(env.num_envs) if vector else 1
+    n = int(getattr(env, "num_envs", 1))
     size = (int(steps) + 1, n)
     rec = {name: np.full(size, np.nan) for name in (*SIGNALS, "measured", "rate", "reward")}
     stuck = np.zeros(size, dtype=bool)

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import numpy.typing as npt
 
+from frictiongym._validation import real_number
 from frictiongym.metrics._checks import (
     as_flags,
     as_samples,
@@ -170,9 +171,8 @@ def limit_cycle(
     """
     times = as_times(t, min_samples=3)
     values = as_samples("y", y, times)
-    hysteresis = check_scalar("hysteresis", hysteresis)
-    if hysteresis < 0.0:
-        raise ValueError(f"hysteresis must be >= 0 (a half-width in y units), got {hysteresis}")
+    hint = " (a half-width in y units)"
+    hysteresis = real_number("hysteresis", float(hysteresis), ">= 0", hint=hint)
     window = check_fraction("window", window)
     if int(min_cycles) != min_cycles or min_cycles < 1:
         raise ValueError(f"min_cycles must be an integer >= 1, got {min_cycles!r}")
