@@ -192,11 +192,9 @@ class AltinoStockBackend(Backend):
         self.implausible_replies = 0
         self._last_reading: tuple[float, float] | None = None  # (readout, send time) accepted
         self._speed_cap = 0.0  # bound of the car's speed either way at that reading, cm/s
-        if car_bounds is None:
-            car_bounds = CarBounds(command_limit=float(GO_LIMIT))
-        if not isinstance(car_bounds, CarBounds):
+        if not isinstance(car_bounds, CarBounds | None):
             raise TypeError(f"car_bounds must be a CarBounds(...), got {car_bounds!r}")
-        self.car_bounds = car_bounds
+        self.car_bounds = car_bounds  # None: the guard's default for GO_LIMIT
         self.guard = self._new_guard()
         self._serial: Any = None
         self._serial_module: Any = None

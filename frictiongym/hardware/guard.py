@@ -78,11 +78,6 @@ IR_NOISE_COUNTS = 8.0
 EDGE_CM = IR_NUMERATOR / (IR_OFFSET + 0.5)
 
 
-def readout_distance(readout: float) -> float | None:
-    """Distance (cm) an IR readout stands for (paper Eq. (1)); None when out of range (0)."""
-    return float(ir_estimate(readout)) if readout > 0 else None
-
-
 def readout_jump_possible(
     previous: float, readout: float, travel_cm: float, noise_counts: float = 0.0
 ) -> bool:
@@ -326,7 +321,7 @@ class DistanceGuard:
         """Take one readout and the command held over the period it ends; return whether tripped."""
         self._held.append(held)
         self.bound = self.car.advance(self.bound, max(self._held), self.dt)
-        distance = readout_distance(readout)
+        distance = float(ir_estimate(readout)) if readout > 0 else None  # None: out of range
         if distance is None or self._distance is None:
             self.speed = self.measured = self.bound  # no two readings: the fastest it can be
         else:

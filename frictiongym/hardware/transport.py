@@ -16,7 +16,6 @@ it can and keeps the rest in a bounded buffer (a device's UART drops what nobody
 from __future__ import annotations
 
 import errno
-import fcntl
 import os
 import socket
 import time
@@ -35,18 +34,6 @@ READ_SIZE = 4096
 OUT_LIMIT = 1024
 #: How long a pty waits before retrying a master that reported EIO (no host), s.
 HANGUP_RETRY = 0.02
-
-
-def _probability(name: str, value: float) -> float:
-    if not (isinstance(value, int | float) and 0.0 <= value <= 1.0):
-        raise ValueError(f"{name} is a probability and must lie in [0, 1], got {value!r}")
-    return float(value)
-
-
-def _seconds(name: str, value: float | None, optional: bool = False) -> None:
-    if optional and value is None:
-        return
-    real_number(name, value, ">= 0", unit=" s")
 
 
 @dataclass(frozen=True)
@@ -77,12 +64,13 @@ class Faults:
     freeze_after: float | None = None
 
     def __post_init__(self) -> None:
-        _probability("drop", self.drop)
-        _probability("corrupt", self.corrupt)
-        _seconds("delay", self.delay)
-        _seconds("jitter", self.jitter)
-        _seconds("unplug_after", self.unplug_after, optional=True)
-        _seconds("freeze_after", self.freeze_after, optional=True)
+        for name in ("drop", "corrupt"):
+            value = getattr(self, name)
+            if not (isinstance(value, int | float) and 0.0 <= value <= 1.0):
+                raise ValueError(f"{name} is a probability and must lie in [0, 1], got {value!r}")
+        for name in ("delay", "jitter", "unplug_after", "freeze_after"):
+            if getattr(self, name) is not None or not name.endswith("_after"):  # None: never
+                real_number(name, getattr(self, name), ">= 0", unit=" s")
 
     def mangle(self, frame: bytes, rng: np.random.Generator) -> bytes:
         """Return ``frame`` with a bit flipped (``corrupt``) and bytes dropped (``drop``)."""
@@ -100,11 +88,6 @@ class Faults:
     def delayed(self) -> bool:
         """Whether frames wait before they are written."""
         return self.delay > 0.0 or self.jitter > 0.0
-
-
-def _nonblocking(fd: int) -> None:
-    flags = fcntl.fcntl(fd, fcntl.F_GETFL)
-    fcntl.fcntl(fd, fcntl.F_SETFL, flags | os.O_NONBLOCK)
 
 
 class Link(ABC):
@@ -169,7 +152,7 @@ class PtyLink(Link):
         super().__init__()
         master, slave = os.openpty()
         tty.setraw(master)
-        _nonblocking(master)
+        os.set_blocking(master, False)
         self.url = os.ttyname(slave)
         os.close(slave)  # the host opens it by name
         self._master: int | None = master
