@@ -375,11 +375,6 @@ class DeviceParams:
             raise _fail(source, "its metadata is nested too deeply to be a params file") from None
 
 
-def _file(path: str | os.PathLike[str]) -> Path:
-    p = Path(path)
-    return p / FILE_NAME if p.is_dir() else p
-
-
 def load_params(path: str | os.PathLike[str]) -> DeviceParams:
     """Read and validate a params file (a directory means ``DIR/friction.json``).
 
@@ -388,10 +383,11 @@ def load_params(path: str | os.PathLike[str]) -> DeviceParams:
     ParamsFileError
         If the file is missing, unreadable, not JSON or not a valid params file.
     """
-    file = _file(path)
+    given = Path(path)
+    file = given / FILE_NAME if given.is_dir() else given
     source = str(file)
     if not file.exists():
-        where = "directory has no friction.json" if Path(path).is_dir() else "no such file"
+        where = "directory has no friction.json" if given.is_dir() else "no such file"
         raise _fail(source, f"{where}; write one with `frictiongym identify --out DIR`")
 
     def no_constant(name: str) -> None:

@@ -34,7 +34,7 @@ from frictiongym.plants.sensors import (
     measure,
     normal_draw,
 )
-from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read ek.SENSOR_IR
+from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read it here
 
 # Task row.
 T_GAIN = 0
@@ -62,9 +62,8 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 CONFIG_SIZE = 11
-TASK_COLUMNS = (
-    ENV_STATE_SIZE - plant_kernel.STATE_SIZE
-)  #: the env's state columns after the plant's
+#: The env's state columns after the plant's.
+TASK_COLUMNS = ENV_STATE_SIZE - plant_kernel.STATE_SIZE
 
 
 def _named(prefix: str) -> dict[str, int]:
