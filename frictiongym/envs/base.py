@@ -145,14 +145,11 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
 
     def _info(self) -> dict[str, Any]:
         out = self._out[:, 0].tolist()
-        return {
-            "position": out[env_kernel.O_POSITION],
-            "velocity": out[env_kernel.O_VELOCITY],
-            "command": out[env_kernel.O_COMMAND],
-            "reference": out[env_kernel.O_REFERENCE],
-            "time": out[env_kernel.O_TIME],
-            "stuck": bool(self._flags[env_kernel.F_STUCK, 0]),
+        info: dict[str, Any] = {
+            key: out[row] for key, row in zip(INFO_KEYS, _OUT_ROWS, strict=True)
         }
+        info["stuck"] = bool(self._flags[env_kernel.F_STUCK, 0])
+        return info
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
