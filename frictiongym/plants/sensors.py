@@ -231,14 +231,9 @@ class FilteredDerivative:
     def __init__(
         self, cutoff: float, dt: float, shape: tuple[int, ...] = (), resolution: float = 0.0
     ) -> None:
-        if not (math.isfinite(cutoff) and cutoff > 0.0):
-            raise ValueError(f"cutoff must be a positive frequency in rad/s, got {cutoff!r}")
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"dt must be a positive number of seconds, got {dt!r}")
-        self.cutoff = float(cutoff)
-        self.dt = float(dt)
-        if not (math.isfinite(resolution) and resolution >= 0.0):
-            raise ValueError(f"resolution must be a finite length >= 0, got {resolution!r}")
+        self.cutoff = real_number("cutoff", cutoff, "> 0", unit=" rad/s")
+        self.dt = real_number("dt", dt, "> 0", unit=" s")
+        resolution = real_number("resolution", resolution, ">= 0")
         self.pole = math.exp(-self.cutoff * self.dt)
         self.floor = velocity_floor(resolution, self.pole, self.dt)
         self._previous: FloatArray = np.zeros(shape)
