@@ -82,10 +82,8 @@ class AltinoStockBackend(Backend):
     Timing: the reply is read as the frame's command starts, so a sample shows the command of
     the previous step held over the period (``Sample.applied``), and a command acts one tick
     after the sample it was computed from: the stock link adds one period of dead time to the
-    car's own (50 ms at 20 Hz). Rates: a tick costs 5.1 ms on the wire at 115200 baud plus
-    about 10 ms on the car (its library waits 10 ms a frame), so 66 Hz is the ceiling
-    (:data:`STOCK_MAX_RATE_HZ`, refused above); Bluetooth SPP adds tens of ms of latency, so
-    10-20 Hz is realistic and 50 Hz optimistic.
+    car's own (50 ms at 20 Hz). Rates: at most 66 Hz (:data:`STOCK_MAX_RATE_HZ`, refused
+    above: the wire's and the car's time per frame); over Bluetooth SPP 10-20 Hz is realistic.
 
     Safety the stock link cannot give, and what this class does instead:
 

@@ -35,10 +35,9 @@ class EchoTimes:
         self._known.pop(seq, None)  # a wrapped number: its old send is forgotten
         self._pending.pop(seq, None)
         self._known[seq] = self._pending[seq] = ns
-        if len(self._known) > KEPT:
-            self._known.popitem(last=False)
-        if len(self._pending) > KEPT:
-            self._pending.popitem(last=False)
+        for table in (self._known, self._pending):
+            if len(table) > KEPT:
+                table.popitem(last=False)
 
     def reading(self, ns: int) -> None:
         """Note that a read of everything the link holds starts at ``ns``."""

@@ -307,12 +307,10 @@ class DistanceGuard:
         """
         command = max(command, *self._held)
         if self._distance is None:  # out of range: at the edge at worst, seen a period late
-            return stopping_point(
-                EDGE_CM, self.bound, self.dt, self.reaction_periods + 1, command, self.car
-            )
-        return stopping_point(
-            self._distance, self.speed, self.dt, self.reaction_periods, command, self.car
-        )
+            distance, speed, periods = EDGE_CM, self.bound, self.reaction_periods + 1
+        else:
+            distance, speed, periods = self._distance, self.speed, self.reaction_periods
+        return stopping_point(distance, speed, self.dt, periods, command, self.car)
 
     def _trips(self, command: float) -> bool:
         return self.predicted_stop(command) <= self.limit_cm

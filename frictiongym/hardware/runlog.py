@@ -18,7 +18,6 @@ import math
 import os
 import platform
 import sys
-import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timezone
@@ -173,7 +172,6 @@ class RunLog:
             self.steps_path.unlink(missing_ok=True)
             raise
         self.rows = 0
-        self._opened = time.monotonic()
 
     @staticmethod
     def _refuse(path: Path) -> NoReturn:

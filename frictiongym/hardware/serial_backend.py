@@ -7,11 +7,6 @@ period late and reported (``Sample.late``); a device that stays silent while the
 for ``timeout`` raises :class:`~frictiongym.hardware.errors.DeviceTimeoutError` (time the host
 itself was stalled, by a garbage collection or the scheduler, is not the device's silence).
 
-Each sample's :attr:`~frictiongym.hardware.base.Sample.age` is how long the device took at
-least to answer a recent command (:mod:`frictiongym.hardware.echo`: time the host itself was
-stalled does not count); a step refuses a sample older than ``max_age`` (default: max(5
-periods, 0.1 s)).
-
 A port is opened exclusively where the platform allows it (a ``flock`` on POSIX), so a second
 frictiongym on the same port is refused, naming the process that holds it; a second host that
 does not lock (another program) is recognised by what it does to the stream: a ``Hello``
@@ -361,9 +356,7 @@ class SerialBackend(Backend):
     def _send(self, command: float, flags: protocol.Flag) -> int:
         hello = self.hello
         assert hello is not None
-        counts = max(
-            -hello.command_limit, min(hello.command_limit, round(command * hello.command_scale))
-        )
+        counts = round(command * hello.command_scale)  # within the limit: step() saturated it
         self._seq = (self._seq + 1) & 0xFFFF
         self._echoes.sent(self._seq, time.perf_counter_ns())
         self._write(protocol.Command(seq=self._seq, command=counts, flags=flags))
