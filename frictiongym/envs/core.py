@@ -1,9 +1,9 @@
 """The batched simulation behind both env classes: N envs of one device on the env kernel.
 
-:class:`Device` describes what an env id simulates (plant, sensor, task defaults);
-:class:`Simulation` holds the state and parameters of N such envs, prepares resets from each
-env's own generator and steps them all with one call of the env kernel. The single env is a
-``Simulation`` of one; the vector env one of N: same code, same draws, same trajectories.
+:class:`Simulation` holds the state and parameters of N envs of a
+:class:`~frictiongym.devices.Device`, prepares resets from each env's own generator and steps
+them all with one call of the env kernel. The single env is a ``Simulation`` of one; the
+vector env one of N: same code, same draws, same trajectories.
 """
 
 from __future__ import annotations
