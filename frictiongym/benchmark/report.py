@@ -121,9 +121,8 @@ def paper_claims(results: Sequence[Result]) -> list[Claim]:
             f"SSE {ki20.steady_state_error:.2f} cm",
             cycle,
         ))  # fmt: skip
-    altino_comp = by_name.get("paper-altino-compensated")
-    if altino_comp is not None:
-        m = altino_comp
+    m = by_name.get("paper-altino-compensated")
+    if m is not None:
         claims.append(Claim(
             "Altino compensated (Kp 25, Ki 0.5, Kd 7): rise and settling < 1 s, no SSE, "
             "no oscillation", "yes",

@@ -161,18 +161,15 @@ def _identify(
     except (OSError, HardwareError) as exc:  # a device backend that cannot be opened
         print(f"error: backend {args.backend}: {exc}", file=sys.stderr)
         return 2
-    bar: Any = None
-    if not args.quiet:
-        from tqdm import tqdm
+    from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
-        total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
-        total += len(plan.relay_levels) + plan.refine
-        bar = tqdm(total=total, unit="run", desc="identify", leave=False)
+    total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
+    total += len(plan.relay_levels) + plan.refine
+    bar = tqdm(total=total, unit="run", desc="identify", leave=False, disable=args.quiet)
 
     def progress(label: str) -> None:
-        if bar is not None:
-            bar.set_postfix_str(label, refresh=False)
-            bar.update(1)
+        bar.set_postfix_str(label, refresh=False)
+        bar.update(1)
 
     try:
         result = identify(env, plan, seed=args.seed, progress=progress)
@@ -180,8 +177,7 @@ def _identify(
         print(f"error: identification failed: {exc}", file=sys.stderr)
         return 1
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
         env.close()
     params = result.params(args.law)
     metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
@@ -193,6 +189,3 @@ def _identify(
         plot_map(result, out.path / "friction_map.png", (units["velocity"], units["force"]))
     print(table)
     return 0
-
-
-__all__ = ["DESCRIPTION", "add_arguments", "run", "summary"]

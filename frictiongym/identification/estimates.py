@@ -129,29 +129,21 @@ def steady_velocity(
         ``weight(positions)``: each sample's weight in the fit (its inverse noise variance,
         up to a factor); equal weights by default.
     """
-    level = abs(trace.settings["level"])
+    level, sign = abs(trace.settings["level"]), trace.settings["sign"]
     y = trace.plant_output()
     index = np.flatnonzero(trace.signal("valid"))
     if index.size < 6:  # (almost) nothing in the sensor's range
-        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.settings["sign"])
+        return SteadyPoint(level, 0.0, 0.0, math.nan, False, sign)
     head = y[index[: min(5, index.size)]]
     tail = y[index[-min(10, index.size) :]]
     scatter = rest_scatter(head, y[index])
     if abs(tail.mean() - head.mean()) <= 10.0 * scatter:
-        return SteadyPoint(level, 0.0, 0.0, math.nan, False, trace.settings["sign"])
+        return SteadyPoint(level, 0.0, 0.0, math.nan, False, sign)
     index = index[int(skip * index.size) :]
     w = None if weight is None else weight(y[index])
     fit = fit_exponential(trace.t[index], y[index], tau_max, w)
     transient = abs(fit.amplitude) / max(fit.rms, 1e-300)
-    return SteadyPoint(
-        level,
-        trace.settings["sign"] * fit.velocity,
-        fit.velocity_se,
-        fit.tau,
-        True,
-        trace.settings["sign"],
-        transient,
-    )
+    return SteadyPoint(level, sign * fit.velocity, fit.velocity_se, fit.tau, True, sign, transient)
 
 
 def onset_displacement(s: float, rate: float, inertia: float, slope: float) -> float:

@@ -147,13 +147,9 @@ class Identification:
     seconds: float
     plan: Plan
 
-    def best_law(self) -> str:
-        """Return the law with the lowest AIC."""
-        return min(self.fits.values(), key=lambda f: f.aic).law
-
     def params(self, law: str = "paper") -> DeviceParams:
         """Return the parameters with ``law`` (``"best"``: lowest AIC) as a file's content."""
-        name = self.best_law() if law == "best" else law
+        name = min(self.fits.values(), key=lambda f: f.aic).law if law == "best" else law
         if name not in self.fits:
             raise ValueError(f"no fit of law {law!r}; choose one of best, {', '.join(self.fits)}")
         fit = self.fits[name]
@@ -377,7 +373,7 @@ def _refined(
         v["B"], shape,
     )  # fmt: skip
     values = {**{k: v[k] for k in fit.values if k != "viscous"}, "viscous": v["B"]}
-    stderr = {**{k: result.stderr[k] for k in values if k != "viscous"}}
+    stderr = {k: result.stderr[k] for k in values if k != "viscous"}
     stderr["viscous"] = result.stderr["B"]
     refined = replace(fit, model=model, values=values, stderr=stderr, rms=math.nan)
     return refined, result

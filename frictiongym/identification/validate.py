@@ -80,11 +80,6 @@ def errors(
     return result
 
 
-def within_tolerance(result: dict[str, float]) -> bool:
-    """Whether every error is inside the issue's :data:`TOLERANCE`."""
-    return all(abs(result[k]) < TOLERANCE[k] for k in KEYS)
-
-
 def _integers(text: str) -> list[int]:
     """Parse ``"0,2,5-7"`` into ``[0, 2, 5, 6, 7]``."""
     out: list[int] = []
@@ -125,7 +120,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             friction, plant = draw_device(rng, preset_friction, preset_plant)
         for seed in _integers(args.seeds):
             result = errors(args.env, friction, plant, seed, sensor_noise=args.noise, quantize=True)
-            good = within_tolerance(result)
+            good = all(abs(result[k]) < TOLERANCE[k] for k in KEYS)
             runs, good_runs = runs + 1, good_runs + good
             worst = {k: max(worst[k], abs(result[k])) for k in KEYS}
             cells = " | ".join(f"{100 * result[k]:+.2f} %" for k in KEYS)
@@ -135,8 +130,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"| worst \\|error\\| | | {cells} | {good_runs} of {runs} |")
     seconds = time.perf_counter() - started
     print(f"{runs} identifications in {seconds:.0f} s", file=sys.stderr)
-    ok = good_runs == runs
-    return 0 if ok else 1
+    return 0 if good_runs == runs else 1
 
 
 if __name__ == "__main__":

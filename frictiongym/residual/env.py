@@ -117,11 +117,9 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         self.base = controller
         self.config = config
         self.residual_cost = real_number("residual_cost", residual_cost, ">= 0")
-        self.precision = (
-            None
-            if precision is None
-            else real_number("precision", precision, "> 0", hint=" (an error scale)")
-        )
+        if precision is not None:
+            precision = real_number("precision", precision, "> 0", hint=" (an error scale)")
+        self.precision = precision
         self._error_scale = float(device_of(env).error_scale)  # the env's e0
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         bound = OBSERVATION_BOUND

@@ -165,9 +165,8 @@ def hyperparameters(
     larger than the run, learning from step 1000 (100 with ``quick``).
     """
     if algo == "ppo":
-        n_steps = max(64, (512 if quick else 2048) // n_envs)
         return {
-            "n_steps": n_steps,
+            "n_steps": max(64, (512 if quick else 2048) // n_envs),
             "batch_size": 64,
             "gamma": device.training_gamma,
             "policy_kwargs": {"log_std_init": -2.0},
@@ -303,14 +302,16 @@ def _validation_callback(
 
     class Validate(BaseCallback):
         def _on_training_start(self) -> None:
-            self.best, self.seconds = _best_score(table), 0.0
+            rows = _validation_rows(table)
+            self.best = min((float(row[1]) for row in rows), default=math.inf)
+            self.seconds = 0.0
             if not table.is_file():
                 table.write_text(",".join(["steps", "score", *names, "terminated"]) + "\n")
             done = self.num_timesteps
             self.due = max(-(-done // every) * every, every)
             if self.due == done:  # resumed on a validation step
                 self.due += every
-                if done not in _validated_steps(table):  # a Ctrl-C came during it
+                if done not in {int(float(row[0])) for row in rows}:  # a Ctrl-C came during it
                     self.validate()
 
         def _on_step(self) -> bool:
@@ -367,16 +368,6 @@ def _validation_rows(table: Path) -> list[list[str]]:
     if not table.is_file():
         return []
     return [line.split(",") for line in table.read_text().splitlines()[1:] if line]
-
-
-def _best_score(table: Path) -> float:
-    """Return the lowest score in a validation CSV (infinity if none)."""
-    return min((float(row[1]) for row in _validation_rows(table)), default=math.inf)
-
-
-def _validated_steps(table: Path) -> set[int]:
-    """Return the steps a validation CSV has a row for."""
-    return {int(float(row[0])) for row in _validation_rows(table)}
 
 
 def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> dict[str, Any]:

@@ -6,6 +6,7 @@ matplotlib is imported inside :func:`write_figures` with the non-interactive Agg
 from __future__ import annotations
 
 import math
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -75,7 +76,7 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         "gap": None,
         "gap_closed": None,
         "device_spread": None,
-        "device_metrics": [m.as_dict() for m in result.device_metrics()],
+        "device_metrics": [t.metrics(output="measured").as_dict() for t in result.device],
         "model_metrics": {
             n: t.metrics(output="measured").as_dict() for n, t in result.models.items()
         },
@@ -119,9 +120,7 @@ def runs_text(n: int) -> str:
 
 def stops(result: Sim2RealResult) -> str:
     """Return how many device runs ended early and by what, e.g. "2 by the device's watchdog"."""
-    counts: dict[str, int] = {}
-    for run in result.stopped:
-        counts[run.ended] = counts.get(run.ended, 0) + 1
+    counts = Counter(run.ended for run in result.stopped)
     names = {SAFETY_LIMIT: "the safety limit", DEVICE_LIMIT: "the device limit", **FAULT_TEXT}
     return ", ".join(f"{n} by {names[ended]}" for ended, n in counts.items()) or "none"
 

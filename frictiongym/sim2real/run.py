@@ -35,7 +35,6 @@ from frictiongym.hardware.errors import (
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
-from frictiongym.metrics import ResponseMetrics
 from frictiongym.plants.sensors import SENSOR_ENCODER, ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
@@ -149,11 +148,8 @@ class Sim2RealResult:
             return math.nan
         n = min(trace.t.size for trace in self.device)
         runs = np.array([signal(trace, name)[:n] for trace in self.device])
-        errors = []
-        for i in range(len(runs)):
-            others = np.delete(runs, i, axis=0).mean(axis=0)
-            errors.append(rmse(runs[i], others))
-        return float(np.mean(errors))
+        others = [np.delete(runs, i, axis=0).mean(axis=0) for i in range(len(runs))]
+        return float(np.mean([rmse(run, other) for run, other in zip(runs, others, strict=True)]))
 
     def gap(self, model: str, name: str) -> float:
         """RMSE of a model's signal against the device mean."""
@@ -162,10 +158,6 @@ class Sim2RealResult:
     def fit(self, model: str, name: str) -> float:
         """NRMSE fit (%) of a model's signal to the device mean."""
         return fit_percent(signal(self.models[model], name), self.device_mean(name))
-
-    def device_metrics(self) -> list[ResponseMetrics]:
-        """Step metrics of the measured output of each device run."""
-        return [trace.metrics(output="measured") for trace in self.device]
 
 
 def build_controller(env: Any, controller: str, gains: PIDGains) -> Controller:
@@ -318,8 +310,7 @@ def run_sim2real(
     traces = {}
     for name, (kwargs, _) in models.items():
         say(f"simulated model: {name}")
-        sim_kwargs = {**{k: v for k, v in task.items() if k != "params"}, **kwargs}
-        sim_env = gym.make(env_id, **{k: v for k, v in sim_kwargs.items() if v is not None})
+        sim_env = gym.make(env_id, **{k: v for k, v in task.items() if k != "params"}, **kwargs)
         try:
             traces[name] = rollout(sim_env, ctrl, n)
         finally:

@@ -63,8 +63,7 @@ def _responses(ax: Any, result: TuneResult) -> None:
     s, good = result.specs, result.feasible_indices
     good = good[np.argsort(result.scores[good])][:MAX_RESPONSES]
     picks = [*good, *([] if result.chosen is None else [result.chosen])]
-    rows = np.vstack([result.gains[picks], np.array([PAPER_GAINS])]) if picks else None
-    gains = np.array([PAPER_GAINS]) if rows is None else rows
+    gains = np.vstack([result.gains[picks], [PAPER_GAINS]]) if picks else np.array([PAPER_GAINS])
     ev = simulate(gains, result.model, s, result.horizon, early_stop=False, keep_traces=True)
     if ev.traces is None:  # pragma: no cover - keep_traces=True always returns them
         raise RuntimeError("simulate() returned no traces")

@@ -69,20 +69,19 @@ def rule_scores(rule: str, evaluation: Evaluation, specs: StepSpecs) -> FloatArr
 def _concat(parts: list[Evaluation]) -> Evaluation:
     """One Evaluation from chunks of the same grid (traces dropped)."""
 
-    def cat(name: str) -> Any:
-        return np.concatenate([getattr(p, name) for p in parts])
+    def cat(name: str, of: Any = parts) -> Any:
+        return np.concatenate([getattr(p, name) for p in of])
 
     metrics = StepMetricsBatch(
         **{
-            name: np.concatenate([getattr(p.metrics, name) for p in parts])
+            name: cat(name, [p.metrics for p in parts])
             for name in StepMetricsBatch.__dataclass_fields__
         }
     )
+    arrays = ("feasible", "complete", "stopped_at", "stop_reason", "peak_command", "iae", "itae")
     return Evaluation(
-        t=parts[0].t, metrics=metrics, feasible=cat("feasible"), complete=cat("complete"),
-        stopped_at=cat("stopped_at"), stop_reason=cat("stop_reason"),
-        peak_command=cat("peak_command"), iae=cat("iae"), itae=cat("itae"), traces=None,
-    )  # fmt: skip
+        t=parts[0].t, metrics=metrics, traces=None, **{name: cat(name) for name in arrays}
+    )
 
 
 @dataclass(frozen=True)

@@ -63,8 +63,7 @@ class StepSpecs:
 
     def feasible(self, metrics: StepMetricsBatch) -> BoolArray:
         """Which responses meet all four specs."""
-        fails = self.failures(metrics)
-        return ~np.logical_or.reduce(list(fails.values()))
+        return ~np.logical_or.reduce(list(self.failures(metrics).values()))
 
     def margin(self, metrics: StepMetricsBatch) -> FloatArray:
         """Worst-case relative margin ``min_i (1 - metric_i / limit_i)``; > 0 when feasible."""
