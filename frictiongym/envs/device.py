@@ -37,7 +37,7 @@ from frictiongym.hardware.base import Sample
 from frictiongym.hardware.errors import HardwareError, ProtocolError
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import freeze_heap, thaw_heap
-from frictiongym.hardware.runlog import RunLog, Timing, default_directory, read_steps
+from frictiongym.hardware.runlog import RunLog, Timing, default_directory
 
 #: Simulator-only settings, refused with a device (what each would need to mean there).
 SIM_ONLY = {
@@ -296,4 +296,4 @@ class DeviceSession:
             self.log.close(timing=self.timing() if self._periods else None)
 
 
-__all__ = ["SIM_ONLY", "DeviceSession", "read_steps"]
+__all__ = ["SIM_ONLY", "DeviceSession"]
