@@ -135,10 +135,6 @@ class Link(ABC):
             sent = self._send(bytes(self._out))
             del self._out[:sent]
 
-    def discard(self) -> None:
-        """Forget the queued bytes."""
-        self._out.clear()
-
 
 class PtyLink(Link):
     """A pseudo-terminal: the emulator holds the master, the host opens :attr:`url`.
@@ -259,7 +255,7 @@ class TcpLink(Link):
         if self._client is not None:
             self._client.close()
             self._client = None
-        self.discard()
+        self._out.clear()  # queued for the host that left
 
     def read(self, ready: list[int]) -> bytes:
         """Accept a waiting host, or read the connected one (refusing a second one)."""
