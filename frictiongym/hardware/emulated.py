@@ -67,10 +67,9 @@ class EmulatedBackend(SerialBackend):
             "max_age": positive("max_age"),
         }  # fmt: skip
         settings = uri_options(query, parsers, f"emulator://{path}")
-        lockstep = settings.pop("lockstep", False)
         if "noise" in settings:
             settings["sensor_noise"] = settings.pop("noise")
-        return cls(path.strip("/") or "rotary", lockstep=lockstep, **settings)
+        return cls(path.strip("/") or "rotary", **settings)
 
     def _open(self) -> DeviceInfo:
         settings = dict(self.emulator_settings)
