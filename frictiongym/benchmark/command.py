@@ -158,7 +158,7 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
     if plants < 1:
         raise ValueError(f"--heldout must be at least 1, got {plants}")
     models: dict[str, str] = {}
-    for spec in getattr(args, "residual", None) or []:
+    for spec in args.residual:
         device, sep, path = spec.partition("=")
         if not sep or device not in (d.kind for d in devices.DEVICES) or not path:
             takes = " or ".join(f"{d.kind}=MODEL" for d in devices.DEVICES)
@@ -173,9 +173,8 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
             raise ValueError(f"--residual {device}={path}: the model is for "
                              f"{meta['config']['device']}, not for {device}")  # fmt: skip
         randomize = meta.get("env_kwargs", {}).get("randomize")
-        seed = getattr(args, "heldout_seed", HELDOUT_SEED)
-        check_seed(seed, "--heldout-seed")
-        out += residual_scenarios(device, path, plants, randomize, seed)
+        check_seed(args.heldout_seed, "--heldout-seed")
+        out += residual_scenarios(device, path, plants, randomize, args.heldout_seed)
     return out
 
 

@@ -16,6 +16,7 @@ from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.figures import plot_map
 from frictiongym.identification.fit import LAWS
 from frictiongym.identification.identify import Identification, identify, make_env, plan_for
+from frictiongym.identification.validate import KEYS, truth
 from frictiongym.params import save_params
 
 DESCRIPTION = """\
@@ -40,7 +41,6 @@ the env's observations only, so a device backend (--backend) runs the same proce
 
 #: What a run may write into --out.
 OUTPUTS = ("friction.json", "friction_map.png", "summary.md")
-KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "viscous", "J", "B")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -71,17 +71,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulator (default: 0)")
     parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def _truth(env: Any) -> dict[str, float]:
-    """Return the simulated device's true parameters, B including the viscous slope."""
-    sim = env.unwrapped.sim
-    friction = sim.friction
-    viscous = float(getattr(friction, "viscous", 0.0))
-    truth = {k: float(getattr(friction, k, math.nan)) for k in KEYS[:6]}
-    total = sim.plant.damping + viscous
-    truth.update(viscous=total, J=sim.plant.inertia, B=total)
-    return truth
 
 
 def summary(result: Identification, law: str, truth: dict[str, float] | None) -> str:
@@ -182,7 +171,8 @@ def _identify(
     params = result.params(args.law)
     metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
     save_params(out.path / "friction.json", replace(params, metadata=metadata))
-    table = summary(result, args.law, _truth(env) if sim else None)
+    true = truth(env.unwrapped.sim.friction, env.unwrapped.sim.plant) if sim else None
+    table = summary(result, args.law, true)
     write_text_atomic(out.path / "summary.md", table)
     if not args.no_figures:
         units = devices.get(result.device).units

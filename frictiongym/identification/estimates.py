@@ -181,8 +181,7 @@ def breakaway_level(
     ``slope``); without ``inertia`` the detection itself is taken, which over-estimates the
     level by about ``rate`` times the detection delay.
     """
-    rate = trace.settings["rate"]
-    start = trace.settings["start"]
+    rate, start = trace.settings["rate"], trace.settings["start"]
     y = trace.plant_output()
     rest = y[:REST_SAMPLES]
     if y.size < REST_SAMPLES + 5:

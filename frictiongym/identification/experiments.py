@@ -129,8 +129,7 @@ class Runner:
         position = np.empty(n)
         valid = np.empty(n, dtype=bool)
         action = np.zeros(1, dtype=np.float32)
-        count = n
-        ended = False
+        count, ended = n, False
         outside = 0  # consecutive samples beyond the span (one may be noise)
         for k in range(n):
             position[k], valid[k] = self._measure(obs)  # in the plant's direction

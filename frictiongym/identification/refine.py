@@ -138,16 +138,10 @@ class Refinement:
 def segments(command: FloatArray) -> IntArray:
     """Segment index of each sample: it grows by one where the command reverses its sign."""
     sign = np.sign(command)
-    last = 0.0
-    ids = np.zeros(command.size, dtype=np.int64)
-    count = 0
-    for k, s in enumerate(sign):
-        if s != 0.0:
-            if last != 0.0 and s != last:
-                count += 1
-            last = s
-        ids[k] = count
-    return ids
+    moving = sign[sign != 0.0]  # a zero command between two signs is no reversal
+    reversal = np.zeros(command.size, dtype=np.int64)
+    reversal[np.flatnonzero(sign)[1:][moving[1:] != moving[:-1]]] = 1
+    return np.cumsum(reversal)
 
 
 class _Simulator:
@@ -442,8 +436,7 @@ def refine(
     # Back to levels: uc = ratio * us, its variance by the delta method.
     values = dict(zip(NAMES, (float(v) for v in x), strict=True))
     se = dict(zip(NAMES, (math.sqrt(max(float(c), 0.0)) for c in np.diag(cov)), strict=True))
-    for i, direction_name in zip(_RATIOS, ("pos", "neg"), strict=True):
-        j = 2 if direction_name == "pos" else 3
+    for i, j, direction_name in zip(_RATIOS, (2, 3), ("pos", "neg"), strict=True):
         grad = np.zeros(k)
         grad[i], grad[j] = x[j], x[i]
         values[f"uc_{direction_name}"] = float(x[i] * x[j])

@@ -10,6 +10,7 @@ docs/identification.md come from it; ``tests/test_identification.py`` checks the
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import time
 from collections.abc import Sequence
@@ -18,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from frictiongym import devices
-from frictiongym.friction import StictionCoulomb
+from frictiongym.friction import FrictionModel, StictionCoulomb
 from frictiongym.identification.identify import identify, make_env
 from frictiongym.plants.plant import PlantParams
 
@@ -58,6 +59,16 @@ def draw_device(
             )
 
 
+def truth(friction: FrictionModel, plant: PlantParams) -> dict[str, float]:
+    """Return a simulated device's true parameters (:data:`KEYS`) as the parameter file has them.
+
+    ``B`` and ``viscous`` are the total linear damping: the plant's and the law's viscous slope.
+    """
+    total = plant.damping + float(getattr(friction, "viscous", 0.0))
+    true = {k: float(getattr(friction, k, math.nan)) for k in FRICTION_KEYS}
+    return {**true, "viscous": total, "J": plant.inertia, "B": total}
+
+
 def errors(
     env_id: str,
     friction: StictionCoulomb,
@@ -65,19 +76,13 @@ def errors(
     seed: int = 3,
     **kwargs: Any,
 ) -> dict[str, float]:
-    """Identify the simulated device and return each parameter's relative error.
-
-    ``B`` and ``viscous`` are compared with the total linear damping (the plant's and the
-    law's viscous slope), as the parameter file defines them.
-    """
+    """Identify the simulated device and return each parameter's relative error (:func:`truth`)."""
     env = make_env(env_id, friction=friction, plant=plant, **kwargs)
     params = identify(env, seed=seed).params()
-    total = plant.damping + friction.viscous
-    truth = {**{k: getattr(friction, k) for k in FRICTION_KEYS}, "viscous": total}
-    result = {k: getattr(params.friction, k) / v - 1.0 for k, v in truth.items()}
-    result["J"] = params.inertia / plant.inertia - 1.0
-    result["B"] = params.damping / total - 1.0
-    return result
+    found = {k: getattr(params.friction, k) for k in (*FRICTION_KEYS, "viscous")}
+    found.update(J=params.inertia, B=params.damping)
+    true = truth(friction, plant)
+    return {k: found[k] / true[k] - 1.0 for k in KEYS}
 
 
 def _integers(text: str) -> list[int]:

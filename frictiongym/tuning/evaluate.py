@@ -316,7 +316,6 @@ class _Checks:
         self.max_before = np.zeros(0)
         self.max_after = np.zeros(0)
         self.first = True
-        self.end = 0  # samples checked so far
 
     def due(self, k: int) -> bool:
         return k >= self.k_peak and (k - self.k_peak) % CHECK_EVERY == 0

@@ -65,9 +65,8 @@ def _responses(ax: Any, result: TuneResult) -> None:
     picks = [*good, *([] if result.chosen is None else [result.chosen])]
     gains = np.vstack([result.gains[picks], [PAPER_GAINS]]) if picks else np.array([PAPER_GAINS])
     ev = simulate(gains, result.model, s, result.horizon, early_stop=False, keep_traces=True)
-    if ev.traces is None:  # pragma: no cover - keep_traces=True always returns them
-        raise RuntimeError("simulate() returned no traces")
     t, y = ev.t, ev.traces
+    assert y is not None  # keep_traces=True always returns them
     n = len(good)
     if n:
         ax.plot(t, y[:, :n], color="tab:blue", lw=0.5, alpha=0.25)
@@ -109,9 +108,8 @@ def plot_feasible_set(result: TuneResult, path: Path, responses: bool = True) ->
     m = result.model
     law = "no" if m.friction.name == "none" else f"'{m.friction.name}'"
     fig.suptitle(
-        f"Random search, {m.name} model ({law} friction, {m.velocity} velocity, dt "
-        f"{m.dt * 1e3:g} ms): "
-        f"{result.n_feasible} of {result.n_samples} feasible (seed {result.seed}); "
+        f"Random search, {m.name} model ({law} friction, {m.velocity} velocity, dt {m.dt * 1e3:g} "
+        f"ms): {result.n_feasible} of {result.n_samples} feasible (seed {result.seed}); "
         f"chosen by {result.rule}: {RULES[result.rule].split(',')[0]}",
         fontsize="medium",
     )
