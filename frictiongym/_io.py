@@ -223,13 +223,15 @@ def check_file_target(path: Path, option: str) -> None:
         raise OutputError(f"{option} {path} is a directory; give a file name")
     if not folder.is_dir():
         what = "is a file" if folder.exists() else "does not exist"
-        raise OutputError(f"{option} {path}: the folder {folder} {what}; give a path in "
-                          "an existing folder")  # fmt: skip
+        raise OutputError(
+            f"{option} {path}: the folder {folder} {what}; give a path in an existing folder"
+        )
     try:
         _probe(folder)
     except OSError as error:
-        raise OutputError(f"cannot write {option} {path}: {_reason(error)}; give a path "
-                          "in a writable folder") from None  # fmt: skip
+        raise OutputError(
+            f"cannot write {option} {path}: {_reason(error)}; give a path in a writable folder"
+        ) from None
 
 
 class OutputDir:
@@ -298,8 +300,10 @@ class OutputDir:
             raise OutputError(f"{option} {out} is a file, not a directory; give a directory")
         base = _first_existing(out)
         if not base.is_dir():
-            raise OutputError(f"{option} {out}: {base} is a file, not a directory; give a "
-                              "path whose parents are directories")  # fmt: skip
+            raise OutputError(
+                f"{option} {out}: {base} is a file, not a directory; give a "
+                "path whose parents are directories"
+            )
         found = self.earlier()
         if found and not (self.overwrite or self.continuing):
             shown = ", ".join(found[:4]) + (", ..." if len(found) > 4 else "")
@@ -320,8 +324,9 @@ class OutputDir:
             _probe(self.path)
         except OSError as error:
             self._discard()
-            raise OutputError(f"cannot write to {option} {out}: {_reason(error)}; give a "
-                              f"writable {option}") from None  # fmt: skip
+            raise OutputError(
+                f"cannot write to {option} {out}: {_reason(error)}; give a writable {option}"
+            ) from None
         except BaseException:
             self._discard()
             raise

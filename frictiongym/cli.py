@@ -57,8 +57,10 @@ def _check_plot(path: Path) -> None:
         return
     formats = FigureCanvasBase.get_supported_filetypes()
     if image_format not in formats:
-        raise OutputError(f"--plot {path}: matplotlib cannot write .{image_format} files; "
-                          f"end the name with one of .{', .'.join(sorted(formats))}")  # fmt: skip
+        raise OutputError(
+            f"--plot {path}: matplotlib cannot write .{image_format} files; "
+            f"end the name with one of .{', .'.join(sorted(formats))}"
+        )
 
 
 def _demo(args: argparse.Namespace) -> int:
@@ -118,9 +120,16 @@ def _demo(args: argparse.Namespace) -> int:
             error_pct = (args.reference - run.signal("position")) / args.reference * 100.0
             ax_err.plot(run.t, error_pct, color=line.get_color(), label=label)
             if run.stuck[1:].any():  # shade where friction holds the disk (not the start)
-                ax_err.fill_between(run.t, 0, 1, where=run.signal("stuck"), color=line.get_color(),
-                                    alpha=0.12, transform=ax_err.get_xaxis_transform(),
-                                    label=f"{label}: stuck")  # fmt: skip
+                ax_err.fill_between(
+                    run.t,
+                    0,
+                    1,
+                    where=run.signal("stuck"),
+                    color=line.get_color(),
+                    alpha=0.12,
+                    transform=ax_err.get_xaxis_transform(),
+                    label=f"{label}: stuck",
+                )
         ax.axhline(args.reference, color="k", lw=0.8, ls="--", label="reference")
         ax.set(ylabel="angle [rad]", title="QUBE-Servo 2 step under the paper's PID")
         ax.legend(loc="lower right")

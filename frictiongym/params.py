@@ -291,9 +291,16 @@ class DeviceParams:
             known = [d.units for d in DEVICES if d.name == device]
             units = known[0] if known else {}
         return cls(
-            friction, inertia, damping, law or friction.name, device, env_id,
-            dict(uncertainty or {}), dict(metadata or {}), dict(units),
-        )  # fmt: skip
+            friction,
+            inertia,
+            damping,
+            law or friction.name,
+            device,
+            env_id,
+            dict(uncertainty or {}),
+            dict(metadata or {}),
+            dict(units),
+        )
 
     def plant(self, base: PlantParams) -> PlantParams:
         """Return ``base`` with this inertia and (total) damping; limit, lag, dead time kept."""

@@ -120,8 +120,17 @@ def _cobs_edge(rng: random.Random) -> bytes:
 
 #: Mutations of the intact frame itself (the others make a new one, valid or not).
 DAMAGES = ("bit flips", "truncated", "extended", "byte replaced")
-MUTATIONS = ("none", "bit flips", "truncated", "extended", "byte replaced", "garbage", "bad CRC",
-             "bad layout", "COBS edge")  # fmt: skip
+MUTATIONS = (
+    "none",
+    "bit flips",
+    "truncated",
+    "extended",
+    "byte replaced",
+    "garbage",
+    "bad CRC",
+    "bad layout",
+    "COBS edge",
+)
 
 
 def random_stream(rng: random.Random) -> tuple[bytes, list[tuple[str, bytes, bytes]]]:
@@ -251,8 +260,10 @@ def _compare_with_c(
 ) -> None:
     answers, stderr = harness.run(requests)
     if answers is None:
-        part.fail(f"frames cases {first}..{first + len(requests) - 1}: the C harness died: "
-                  f"{stderr.strip()[:300]}")  # fmt: skip
+        part.fail(
+            f"frames cases {first}..{first + len(requests) - 1}: the C harness died: "
+            f"{stderr.strip()[:300]}"
+        )
         return
     if stderr.strip():
         part.fail(f"frames cases {first}..: the C harness reported: {stderr.strip()[:300]}")
@@ -268,8 +279,9 @@ def _random_sensors(rng: random.Random) -> af.StockSensors:
     group = rng.choice(sorted(af.REPLY_LENGTHS))
     ir = tuple(rng.randrange(801) for _ in range(6))
     if group == 2:
-        return af.StockSensors(group=2, accel=(rng.randrange(-999, 999),) * 3,
-                               battery=rng.randrange(1 << 16))  # fmt: skip
+        return af.StockSensors(
+            group=2, accel=(rng.randrange(-999, 999),) * 3, battery=rng.randrange(1 << 16)
+        )
     return af.StockSensors(group=group, ir=ir, torque=(rng.randrange(1 << 16),) * 2)
 
 
@@ -296,10 +308,13 @@ def _well_formed(frame: bytes, group: bool = True) -> bool:
     """
     total = sum(frame) - frame[2]
     return (
-        len(frame) in (31, 56) and frame[0] == af.STX and frame[1] == len(frame)
-        and frame[-1] == af.ETX and frame[2] == total % 256
+        len(frame) in (31, 56)
+        and frame[0] == af.STX
+        and frame[1] == len(frame)
+        and frame[-1] == af.ETX
+        and frame[2] == total % 256
         and (not group or af.REPLY_LENGTHS.get(frame[4]) == len(frame))
-    )  # fmt: skip
+    )
 
 
 def fuzz_altino(cases: range, seed: int, say: Progress) -> Part:

@@ -159,17 +159,23 @@ def _compare_watchdog_with_c(
     for lines, (case, *_, python) in zip(requests, timelines, strict=True):
         mine = answers[at : at + len(lines)]
         at += len(lines)
-        c_motors = [int(a[1].split()[1]) for line, a in zip(lines, mine, strict=True)
-                    if line.startswith("dev_tick")]  # fmt: skip
+        c_motors = [
+            int(a[1].split()[1])
+            for line, a in zip(lines, mine, strict=True)
+            if line.startswith("dev_tick")
+        ]
         if c_motors != python:
             pairs = enumerate(zip(c_motors, python, strict=False))
             first = next((i for i, (a, b) in pairs if a != b), min(map(len, (c_motors, python))))
             if first == min(len(c_motors), len(python)):
-                part.fail(f"watchdog case {case}: C ran {len(c_motors)} ticks, Python "
-                          f"{len(python)}")  # fmt: skip
+                part.fail(
+                    f"watchdog case {case}: C ran {len(c_motors)} ticks, Python {len(python)}"
+                )
                 continue
-            part.fail(f"watchdog case {case}: C motor {c_motors[first]}, Python "
-                      f"{python[first]} at tick {first}")  # fmt: skip
+            part.fail(
+                f"watchdog case {case}: C motor {c_motors[first]}, Python "
+                f"{python[first]} at tick {first}"
+            )
 
 
 # --- actions ----------------------------------------------------------------------------------
@@ -297,12 +303,15 @@ def _actions_on(
     env.close()
     beyond = [c for c in spy.commands if abs(c.command) > counts_limit]
     if beyond:
-        part.fail(f"actions {KIND[env_id]}: the device received {len(beyond)} commands beyond "
-                  f"its limit, e.g. {beyond[0]}")  # fmt: skip
+        part.fail(
+            f"actions {KIND[env_id]}: the device received {len(beyond)} commands beyond "
+            f"its limit, e.g. {beyond[0]}"
+        )
     rows = len(read_steps(log)["step"])
     if rows != returned:
-        part.fail(f"actions {KIND[env_id]}: the log holds {rows} rows, {returned} samples "
-                  "were returned")  # fmt: skip
+        part.fail(
+            f"actions {KIND[env_id]}: the log holds {rows} rows, {returned} samples were returned"
+        )
 
 
 def fuzz_stock(cases: range, seed: int, say: Progress) -> Part:
@@ -333,16 +342,20 @@ def fuzz_stock(cases: range, seed: int, say: Progress) -> Part:
                     if not isinstance(exc, ValueError):
                         part.fail(f"stock case {case} ({what}): {type(exc).__name__}: {exc}")
                     if not _stops_arrive(car, sent, STOP_REPEATS):
-                        part.fail(f"stock case {case} ({what}): no {STOP_REPEATS} stop frames "
-                                  f"after the error: {car.commands[sent:]}")  # fmt: skip
+                        part.fail(
+                            f"stock case {case} ({what}): no {STOP_REPEATS} stop frames "
+                            f"after the error: {car.commands[sent:]}"
+                        )
                     backend.start()
                 progress(say, part, cases, case, "commands")
         finally:
             backend.close()
     beyond = [c for c in car.commands if max(abs(c.left), abs(c.right)) > GO_LIMIT]
     if beyond or car.bad_frames:
-        part.fail(f"stock: the car received {len(beyond)} wheel values beyond {GO_LIMIT} and "
-                  f"{car.bad_frames} malformed frames")  # fmt: skip
+        part.fail(
+            f"stock: the car received {len(beyond)} wheel values beyond {GO_LIMIT} and "
+            f"{car.bad_frames} malformed frames"
+        )
     part.cases = len(cases)
     part.notes.append(f"stock altino: the car received {len(car.commands)} frames")
     return part

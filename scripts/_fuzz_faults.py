@@ -50,8 +50,12 @@ def fuzz_faults(runs: int, seed: int, say: Progress) -> Part:
     """Unplug, freeze and host silence on the real-time emulator; times to error and stop."""
     part = Part.named("faults")
     times: dict[str, list[float]] = {
-        "unplug": [], "freeze": [], "delay": [], "silence": [], "corrupt": [],
-    }  # fmt: skip
+        "unplug": [],
+        "freeze": [],
+        "delay": [],
+        "silence": [],
+        "corrupt": [],
+    }
     tally = Tally()
     with tempfile.TemporaryDirectory(prefix="fuzz-faults-") as folder:
         for run in range(runs):
@@ -65,13 +69,17 @@ def fuzz_faults(runs: int, seed: int, say: Progress) -> Part:
     for fault, values in times.items():
         if values:
             if fault == "corrupt":
-                part.notes.append(f"faults: corrupt: {min(values):.1%}-{max(values):.1%} of "
-                                  f"the frames damaged; {tally.checked} samples checked against "
-                                  "the device's record")  # fmt: skip
+                part.notes.append(
+                    f"faults: corrupt: {min(values):.1%}-{max(values):.1%} of "
+                    f"the frames damaged; {tally.checked} samples checked against "
+                    "the device's record"
+                )
                 continue
             what = "motor 0 (device time)" if fault == "silence" else "error raised"
-            part.notes.append(f"faults: {fault}: {what} {min(values) * 1000:.1f}-"
-                              f"{max(values) * 1000:.1f} ms after it began")  # fmt: skip
+            part.notes.append(
+                f"faults: {fault}: {what} {min(values) * 1000:.1f}-"
+                f"{max(values) * 1000:.1f} ms after it began"
+            )
     errors = ", ".join(f"{name} {count}" for name, count in sorted(tally.raised.items()))
     part.notes.append(f"faults: errors raised: {errors}")
     return part
@@ -190,15 +198,21 @@ def _corrupt_link(part: Part, where: str, rng: random.Random, log: Path, tally: 
         env.close()
     rows = read_steps(log)
     tally.checked += len(rows["seq"])
-    for row in zip(*(rows[k] for k in ("tick_us", "seq", "seq_applied", "status", "applied",
-                                      "measured")), strict=True):  # fmt: skip
+    for row in zip(
+        *(rows[k] for k in ("tick_us", "seq", "seq_applied", "status", "applied", "measured")),
+        strict=True,
+    ):
         tick = history.get(round(row[0] / period_us))
         if tick is None:
             part.fail(f"{where}: a sample of tick {row[0]} µs the device never sent")
             return faults.corrupt
-        sent = (tick.tick & 0xFFFF, tick.seq_applied, int(tick.status),
-                tick.applied / hello.command_scale,
-                tick.sensor * (2.0 * math.pi / hello.counts_per_rev))  # fmt: skip
+        sent = (
+            tick.tick & 0xFFFF,
+            tick.seq_applied,
+            int(tick.status),
+            tick.applied / hello.command_scale,
+            tick.sensor * (2.0 * math.pi / hello.counts_per_rev),
+        )
         got = tuple(float(value) for value in row[1:])
         if got != sent:
             part.fail(f"{where}: a sample {got} differs from the device's state {sent}")
@@ -219,8 +233,10 @@ def _silence(
         return None
     took = (stopped.tick - last_tick) * dt
     if took > watchdog_s + 2 * dt:
-        part.fail(f"{where}: the watchdog stopped the motor {took * 1000:.1f} ms after the "
-                  f"last command (its time: {watchdog_s * 1000:.0f} ms)")  # fmt: skip
+        part.fail(
+            f"{where}: the watchdog stopped the motor {took * 1000:.1f} ms after the "
+            f"last command (its time: {watchdog_s * 1000:.0f} ms)"
+        )
     try:
         env.step(np.array([2.0]))
     except WatchdogTripError:

@@ -25,8 +25,15 @@ from frictiongym import params as fp
 
 SHIPPED_MODEL = ROOT / "models" / "residual" / "rotary.zip"
 #: Audit events that mean code ran or a pickle was read while a model loaded.
-FORBIDDEN_EVENTS = ("pickle.find_class", "os.system", "subprocess.Popen", "os.exec",
-                    "os.posix_spawn", "os.spawn", "os.fork")  # fmt: skip
+FORBIDDEN_EVENTS = (
+    "pickle.find_class",
+    "os.system",
+    "subprocess.Popen",
+    "os.exec",
+    "os.posix_spawn",
+    "os.spawn",
+    "os.fork",
+)
 
 
 class Touch:
@@ -59,16 +66,28 @@ class AuditWatch:
 
 def _hostile_zip(rng: random.Random, marker: Path, target: Path) -> str:
     """Write a copy of the shipped model made hostile in one or more ways; say how."""
-    ways = rng.sample(["added entry", "SB3 entries", "policy_kwargs", "weights", "variables",
-                       "torch pickle", "bytes", "json"], rng.randint(1, 3))  # fmt: skip
+    ways = rng.sample(
+        [
+            "added entry",
+            "SB3 entries",
+            "policy_kwargs",
+            "weights",
+            "variables",
+            "torch pickle",
+            "bytes",
+            "json",
+        ],
+        rng.randint(1, 3),
+    )
     with zipfile.ZipFile(SHIPPED_MODEL) as source:
         members = {name: source.read(name) for name in source.namelist()}
     data = json.loads(members["data"])
     if "added entry" in ways:
         data[f"evil{rng.randrange(100)}"] = _pickled(marker)
     if "SB3 entries" in ways:
-        for key in rng.sample(["policy_class", "observation_space", "action_space",
-                               "lr_schedule", "clip_range"], 2):  # fmt: skip
+        for key in rng.sample(
+            ["policy_class", "observation_space", "action_space", "lr_schedule", "clip_range"], 2
+        ):
             data[key] = _pickled(marker)
     if "policy_kwargs" in ways:
         data["policy_kwargs"] = _pickled(marker)
@@ -134,8 +153,10 @@ def fuzz_models(cases: range, seed: int, say: Progress) -> Part:
             target.unlink()
             progress(say, part, cases, case, "files")
     part.cases = len(cases)
-    part.notes.append(f"models: {outcomes['loaded']} loaded (pickles ignored), "
-                      f"{outcomes['refused']} refused with ValueError")  # fmt: skip
+    part.notes.append(
+        f"models: {outcomes['loaded']} loaded (pickles ignored), "
+        f"{outcomes['refused']} refused with ValueError"
+    )
     return part
 
 
@@ -145,23 +166,45 @@ PARAMS_FILES = [
     ROOT / "docs" / "identification" / d / "friction.json" for d in ("rotary", "altino")
 ]
 ODD_VALUES: list[Callable[[random.Random], str]] = [
-    lambda r: "NaN", lambda r: "Infinity", lambda r: "-Infinity", lambda r: "1e308",
-    lambda r: "-1", lambda r: "0", lambda r: '"1.5"', lambda r: "null", lambda r: "true",
-    lambda r: "[]", lambda r: "{}", lambda r: str(10**400), lambda r: "1e-320",
+    lambda r: "NaN",
+    lambda r: "Infinity",
+    lambda r: "-Infinity",
+    lambda r: "1e308",
+    lambda r: "-1",
+    lambda r: "0",
+    lambda r: '"1.5"',
+    lambda r: "null",
+    lambda r: "true",
+    lambda r: "[]",
+    lambda r: "{}",
+    lambda r: str(10**400),
+    lambda r: "1e-320",
     lambda r: "[" * r.choice([10, 1000, 100_000]) + "]" * r.choice([0, 10]),
-    lambda r: str(r.uniform(-1e7, 1e7)), lambda r: '"\\ud800"',
-]  # fmt: skip
+    lambda r: str(r.uniform(-1e7, 1e7)),
+    lambda r: '"\\ud800"',
+]
 
 
 def _mutated_params(rng: random.Random, text: str) -> tuple[str, bytes]:
-    how = rng.choice(["value", "value", "key dropped", "bytes", "truncated", "not utf-8",
-                      "top level", "duplicate key"])  # fmt: skip
+    how = rng.choice(
+        [
+            "value",
+            "value",
+            "key dropped",
+            "bytes",
+            "truncated",
+            "not utf-8",
+            "top level",
+            "duplicate key",
+        ]
+    )
     data = json.loads(text)
     keys = [k for k in data if k not in ("units", "uncertainty", "metadata")]
     key = rng.choice(keys)
     if how == "value":
-        new = json.dumps(data).replace(f'"{key}": {json.dumps(data[key])}',
-                                       f'"{key}": {rng.choice(ODD_VALUES)(rng)}', 1)  # fmt: skip
+        new = json.dumps(data).replace(
+            f'"{key}": {json.dumps(data[key])}', f'"{key}": {rng.choice(ODD_VALUES)(rng)}', 1
+        )
         return f"{key} = odd value", new.encode()
     if how == "key dropped":
         del data[key]
@@ -195,8 +238,10 @@ def fuzz_params(cases: range, seed: int, say: Progress) -> Part:
             loaded += _load_params(part, f"params case {case} ({how})", target)
             progress(say, part, cases, case, "files")
     part.cases = len(cases)
-    part.notes.append(f"params: {loaded} of {len(cases)} mutated files loaded (all in range), the "
-                      "rest refused with ParamsFileError")  # fmt: skip
+    part.notes.append(
+        f"params: {loaded} of {len(cases)} mutated files loaded (all in range), the "
+        "rest refused with ParamsFileError"
+    )
     return part
 
 

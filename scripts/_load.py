@@ -107,9 +107,11 @@ def section(
     """Time ``make``'s runners on each kernel under each load; print and return the markdown."""
     if sizes is None:
         sizes = args.thread_sizes or ([512, 4096] if args.quick else [64, 512, 4096, 65536])
-    print(f"\nthreads: {title}; on the serial kernel, the default and the threaded kernel; "
-          f"{unit}/s, ratios per round to the serial kernel, {args.repeats} rounds of "
-          f"{args.seconds} s")  # fmt: skip
+    print(
+        f"\nthreads: {title}; on the serial kernel, the default and the threaded kernel; "
+        f"{unit}/s, ratios per round to the serial kernel, {args.repeats} rounds of "
+        f"{args.seconds} s"
+    )
     cases = run_cases(
         make,
         sizes,
@@ -257,11 +259,13 @@ def run_cases(
                 measure(variants, repeats, seconds, burn_in)
                 case = LoadCase(load, size, variants)
                 cases.append(case)
-                print(f"  {load:8s} N = {size:>6d}  serial {stats(variants[0].rates):22s} "
-                      f"default/serial {ratio_stats(case.ratios('default')):22s} "
-                      f"threaded/serial {ratio_stats(case.ratios('threaded')):22s} "
-                      f"copy/serial {ratio_stats(case.ratios('serial copy')):22s} "
-                      f"default ran threaded: {variants[1].threaded_share()}")  # fmt: skip
+                print(
+                    f"  {load:8s} N = {size:>6d}  serial {stats(variants[0].rates):22s} "
+                    f"default/serial {ratio_stats(case.ratios('default')):22s} "
+                    f"threaded/serial {ratio_stats(case.ratios('threaded')):22s} "
+                    f"copy/serial {ratio_stats(case.ratios('serial copy')):22s} "
+                    f"default ran threaded: {variants[1].threaded_share()}"
+                )
     return cases
 
 

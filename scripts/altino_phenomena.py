@@ -81,13 +81,20 @@ class Scenario:
 
 
 SCENARIOS = (
-    Scenario("ki10", "PID Ki=10", PIDGains(**ALTINO_PAPER_GAINS_KI10), False,
-             "overshoots, stays ~3 cm"),
-    Scenario("ki20", "PID Ki=20", PIDGains(**ALTINO_PAPER_GAINS_KI20), False,
-             "oscillates around 5 cm"),
-    Scenario("comp", "compensated", PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED), True,
-             "rise, settling < 1 s"),
-)  # fmt: skip
+    Scenario(
+        "ki10", "PID Ki=10", PIDGains(**ALTINO_PAPER_GAINS_KI10), False, "overshoots, stays ~3 cm"
+    ),
+    Scenario(
+        "ki20", "PID Ki=20", PIDGains(**ALTINO_PAPER_GAINS_KI20), False, "oscillates around 5 cm"
+    ),
+    Scenario(
+        "comp",
+        "compensated",
+        PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED),
+        True,
+        "rise, settling < 1 s",
+    ),
+)
 
 
 @dataclass(frozen=True)
@@ -171,8 +178,9 @@ def summarize(run: Rollout) -> Summary:
     longest = max(((j - i) * dt for i, j in spans), default=0.0)
     lowest = int(np.argmin(y))
     after = [(i, j) for i, j in spans if j > lowest]
-    rest, dwell = (float(y[after[0][0]]), (after[0][1] - after[0][0]) * dt) if after else (
-        math.nan, 0.0)  # fmt: skip
+    rest, dwell = (
+        (float(y[after[0][0]]), (after[0][1] - after[0][0]) * dt) if after else (math.nan, 0.0)
+    )
     tail = t >= t[-1] / 2.0
     off = y[tail] != target  # samples exactly on the target belong to neither side
     side, when = np.sign(y[tail][off] - target), t[tail][off]
@@ -233,8 +241,10 @@ def print_table(setup: Setup, runs: dict[str, Rollout]) -> None:
         f"  {'paper':<24}{'seen'}"
     )
     print(header)
-    print(f"{'':<13}{'cm':>7}{'cm':>8}{'cm':>6}{'s':>7}{'s':>6}{'s':>7}{'cm':>6}{'s':>7}"
-          f"{'':>6}{'cm':>6}{'s':>7}")  # fmt: skip
+    print(
+        f"{'':<13}{'cm':>7}{'cm':>8}{'cm':>6}{'s':>7}{'s':>6}{'s':>7}{'cm':>6}{'s':>7}"
+        f"{'':>6}{'cm':>6}{'s':>7}"
+    )
     print("-" * len(header))
     for sc in SCENARIOS:
         s = summarize(runs[sc.key])
@@ -425,15 +435,19 @@ def plot(runs: dict[str, Rollout], setup: Setup, path: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax_y, ax_u) = plt.subplots(2, 1, figsize=(8, 6), sharex=True,
-                                     gridspec_kw={"height_ratios": [2, 1]})  # fmt: skip
+    fig, (ax_y, ax_u) = plt.subplots(
+        2, 1, figsize=(8, 6), sharex=True, gridspec_kw={"height_ratios": [2, 1]}
+    )
     for sc in SCENARIOS:
         run = runs[sc.key]
         ax_y.plot(run.t, run.signal("position"), label=f"{sc.label} (paper: {sc.paper})")
         ax_u.plot(run.t, run.signal("command"), lw=0.9)
     ax_y.axhline(ALTINO_TARGET_CM, color="k", lw=0.8, ls="--", label="target")
-    ax_y.set(ylabel="distance to wall [cm]", ylim=(0.0, None),
-             title="Altino model: the paper's three experiments")  # fmt: skip
+    ax_y.set(
+        ylabel="distance to wall [cm]",
+        ylim=(0.0, None),
+        title="Altino model: the paper's three experiments",
+    )
     ax_y.legend(fontsize=8)
     for level in (200.0, -200.0):
         ax_u.axhline(level, color="grey", lw=0.6, ls=":")
@@ -456,24 +470,48 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--dt", type=float, default=ALTINO_DT, help=f"control period, s ({ALTINO_DT:g})"
     )
-    parser.add_argument("--mass", type=float, default=p.inertia,
-                        help=f"effective mass, units·s²/cm ({p.inertia:g})")  # fmt: skip
+    parser.add_argument(
+        "--mass", type=float, default=p.inertia, help=f"effective mass, units·s²/cm ({p.inertia:g})"
+    )
     parser.add_argument("--lag", type=float, default=p.lag, help=f"actuator lag, s ({p.lag:g})")
-    parser.add_argument("--dead-time", type=float, default=None,
-                        help="dead time, s, whole periods (default: one period)")  # fmt: skip
-    parser.add_argument("--start", type=float, default=ALTINO_START_CM,
-                        help=f"start distance, cm ({ALTINO_START_CM:g})")  # fmt: skip
-    parser.add_argument("--friction", choices=FRICTION_NAMES, default="paper",
-                        help="friction law of the car (paper)")  # fmt: skip
-    parser.add_argument("--shape", choices=SHAPES, default=None,
-                        help="decay shape of the paper law from u_s to u_c (linear, as "
-                        "ALTINO_PAPER)")  # fmt: skip
-    parser.add_argument("--derivative", choices=("measurement", "error"), default="measurement",
-                        help="where the D term acts (measurement)")  # fmt: skip
-    parser.add_argument("--sensitivity", action="store_true",
-                        help="also vary one model choice at a time and scan Ki")  # fmt: skip
-    parser.add_argument("--box", action="store_true",
-                        help="also sweep the plausible box of model choices")  # fmt: skip
+    parser.add_argument(
+        "--dead-time",
+        type=float,
+        default=None,
+        help="dead time, s, whole periods (default: one period)",
+    )
+    parser.add_argument(
+        "--start",
+        type=float,
+        default=ALTINO_START_CM,
+        help=f"start distance, cm ({ALTINO_START_CM:g})",
+    )
+    parser.add_argument(
+        "--friction",
+        choices=FRICTION_NAMES,
+        default="paper",
+        help="friction law of the car (paper)",
+    )
+    parser.add_argument(
+        "--shape",
+        choices=SHAPES,
+        default=None,
+        help="decay shape of the paper law from u_s to u_c (linear, as ALTINO_PAPER)",
+    )
+    parser.add_argument(
+        "--derivative",
+        choices=("measurement", "error"),
+        default="measurement",
+        help="where the D term acts (measurement)",
+    )
+    parser.add_argument(
+        "--sensitivity",
+        action="store_true",
+        help="also vary one model choice at a time and scan Ki",
+    )
+    parser.add_argument(
+        "--box", action="store_true", help="also sweep the plausible box of model choices"
+    )
     parser.add_argument("--plot", metavar="PATH", help="write the three responses to this PNG")
     return parser
 
@@ -493,8 +531,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         friction = friction.replace(shape=args.shape)
     dead_time = args.dt if args.dead_time is None else args.dead_time
     try:
-        plant = dataclasses.replace(ALTINO_PLANT, inertia=args.mass, lag=args.lag,
-                                    dead_time=dead_time)  # fmt: skip
+        plant = dataclasses.replace(
+            ALTINO_PLANT, inertia=args.mass, lag=args.lag, dead_time=dead_time
+        )
         plant.delay_steps(args.dt)
     except ValueError as err:
         parser.error(str(err))

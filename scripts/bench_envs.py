@@ -506,10 +506,12 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     """The single and vector comparisons with CartPole; returns the markdown."""
     n = args.num_envs
     single_first, vector_first = first_calls(n, args.seed)
-    print(f"first servo gym.make + reset + step in this process (env modules, numba compile or "
-          f"cache load): {single_first:.3f} s; first make_vec + step at N = {n}: "
-          f"{vector_first:.3f} s; threading layer {numba.threading_layer()}, "
-          f"{numba.get_num_threads()} threads")  # fmt: skip
+    print(
+        f"first servo gym.make + reset + step in this process (env modules, numba compile or "
+        f"cache load): {single_first:.3f} s; first make_vec + step at N = {n}: "
+        f"{vector_first:.3f} s; threading layer {numba.threading_layer()}, "
+        f"{numba.get_num_threads()} threads"
+    )
 
     single = [single_variant(CARTPOLE, DEFAULT, {}, args.seed)]
     for env_id in OURS:
@@ -519,12 +521,16 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     single.append(single_variant(CARTPOLE, "env.unwrapped (no wrappers)", {}, args.seed, True))
     measure(single, args.repeats, args.seconds, burn_in=1000)
     ref = single[0]
-    print(f"\nsingle env, gym.make (µs per step, median [min, max] of {args.repeats} rounds; "
-          "ratio = ours / CartPole-v1 in time per step)")  # fmt: skip
+    print(
+        f"\nsingle env, gym.make (µs per step, median [min, max] of {args.repeats} rounds; "
+        "ratio = ours / CartPole-v1 in time per step)"
+    )
     for variant in single:
-        line = (f"  {variant.name:18s} {variant.setting:37s} {us_stats(variant.rates):24s}"
-                f"{'  x CartPole ' + ratio_stats(single_ratios(variant, ref)):34s}"
-                f"  episodes: {variant.episodes.note()}")  # fmt: skip
+        line = (
+            f"  {variant.name:18s} {variant.setting:37s} {us_stats(variant.rates):24s}"
+            f"{'  x CartPole ' + ratio_stats(single_ratios(variant, ref)):34s}"
+            f"  episodes: {variant.episodes.note()}"
+        )
         print(line)
 
     vector = [vector_variant(CARTPOLE, "gymnasium CartPoleVectorEnv", {}, n, args.seed)]
@@ -549,14 +555,18 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
             variant.episodes = find(vector, variant.env).episodes
     measure(vector, args.repeats, args.seconds, burn_in=2 * VECTOR_ROWS)
     ref = vector[0]
-    print(f"\nvector env, N = {n}, gym.make_vec vector_entry_point (env-steps/s, median "
-          f"[min, max] of {args.repeats} rounds; ratio = ours / CartPoleVectorEnv)")  # fmt: skip
+    print(
+        f"\nvector env, N = {n}, gym.make_vec vector_entry_point (env-steps/s, median "
+        f"[min, max] of {args.repeats} rounds; ratio = ours / CartPoleVectorEnv)"
+    )
     for variant in vector:
         ns = 1e9 / statistics.median(variant.rates)
-        line = (f"  {variant.name:18s} {variant.setting:28s} {variant.kernel:21s} "
-                f"{stats(variant.rates):24s} {ns:7.1f} ns/env-step"
-                f"{'  x CartPole ' + ratio_stats(paired_ratios(variant, ref)):34s}"
-                f"  {mix_note(variant.episodes)}")  # fmt: skip
+        line = (
+            f"  {variant.name:18s} {variant.setting:28s} {variant.kernel:21s} "
+            f"{stats(variant.rates):24s} {ns:7.1f} ns/env-step"
+            f"{'  x CartPole ' + ratio_stats(paired_ratios(variant, ref)):34s}"
+            f"  {mix_note(variant.episodes)}"
+        )
         print(line)
 
     heads = headlines(single, vector)

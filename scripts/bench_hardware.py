@@ -108,16 +108,22 @@ def loop_timing(seconds: float, busy: str, realtime: bool) -> dict[str, object]:
     with busy_core(busy), tempfile.TemporaryFile("w+") as status:
         emulator = subprocess.Popen(
             command + ([] if realtime else ["--no-realtime"]),
-            stdout=subprocess.PIPE, stderr=status, text=True, start_new_session=True,
-        )  # fmt: skip
+            stdout=subprocess.PIPE,
+            stderr=status,
+            text=True,
+            start_new_session=True,
+        )
         trips = 0
         try:
             assert emulator.stdout is not None
             port = emulator.stdout.readline().strip()
             env = gym.make(
-                "frictiongym/RotaryServo-v0", backend=port, log=False, max_episode_steps=-1,
+                "frictiongym/RotaryServo-v0",
+                backend=port,
+                log=False,
+                max_episode_steps=-1,
                 reference="step_sequence",
-            )  # fmt: skip
+            )
             pid = PID.for_env(env, PIDGains(**ROTARY_PAPER_GAINS))
             steps = round(seconds / env.unwrapped.dt)
             with maybe_priority(realtime) as host:
@@ -139,12 +145,19 @@ def loop_timing(seconds: float, busy: str, realtime: bool) -> dict[str, object]:
     last = next((line for line in reversed(lines) if line.startswith("ticks")), "")
     missed = last.split("(missed ")[1].split(")")[0] if "(missed " in last else "?"
     return {
-        "steps": timing.steps, "duration_s": timing.duration, "rate_hz": timing.rate_hz,
-        "p50_ms": 1e3 * timing.period_p50, "p99_ms": 1e3 * timing.period_p99,
-        "max_ms": 1e3 * timing.period_max, "late": timing.late, "skipped": timing.skipped,
-        "trips": trips, "host": host, "device": device.split(": ", 1)[-1],
+        "steps": timing.steps,
+        "duration_s": timing.duration,
+        "rate_hz": timing.rate_hz,
+        "p50_ms": 1e3 * timing.period_p50,
+        "p99_ms": 1e3 * timing.period_p99,
+        "max_ms": 1e3 * timing.period_max,
+        "late": timing.late,
+        "skipped": timing.skipped,
+        "trips": trips,
+        "host": host,
+        "device": device.split(": ", 1)[-1],
         "emulator_missed": missed,
-    }  # fmt: skip
+    }
 
 
 #: Timing of a full collection, run in a fresh process after importing ``{imports}``.
@@ -188,16 +201,28 @@ def example(runs: int, priority: bool) -> None:
             out = os.path.join(scratch, f"s2r-{k}")
             emulator = subprocess.Popen(
                 [*cli, "emulate", "--device", "rotary", "--quiet"],
-                stdout=subprocess.PIPE, text=True, start_new_session=True,
-            )  # fmt: skip
+                stdout=subprocess.PIPE,
+                text=True,
+                start_new_session=True,
+            )
             try:
                 assert emulator.stdout is not None
                 port = emulator.stdout.readline().strip()
                 done = subprocess.run(
-                    [*cli, "sim2real", "--env", "frictiongym/RotaryServo-v0", "--backend",
-                     f"serial://{port}", "--out", out],
-                    capture_output=True, text=True, start_new_session=True,
-                )  # fmt: skip
+                    [
+                        *cli,
+                        "sim2real",
+                        "--env",
+                        "frictiongym/RotaryServo-v0",
+                        "--backend",
+                        f"serial://{port}",
+                        "--out",
+                        out,
+                    ],
+                    capture_output=True,
+                    text=True,
+                    start_new_session=True,
+                )
             finally:
                 emulator.send_signal(signal.SIGTERM)
                 emulator.wait(timeout=10)
@@ -244,10 +269,17 @@ def dead_host(watchdog_s: float) -> tuple[float, float]:
 def decoder_throughput(frames: int) -> dict[str, float]:
     rng = np.random.default_rng(0)
     states = [
-        protocol.State(protocol.Status(0), k & 0xFFFF, (2000 * k) & 0xFFFFFFFF, k & 0xFFFF,
-                int(rng.integers(-10000, 10000)), int(rng.integers(-(2**23), 2**23)), 0)
+        protocol.State(
+            protocol.Status(0),
+            k & 0xFFFF,
+            (2000 * k) & 0xFFFFFFFF,
+            k & 0xFFFF,
+            int(rng.integers(-10000, 10000)),
+            int(rng.integers(-(2**23), 2**23)),
+            0,
+        )
         for k in range(frames)
-    ]  # fmt: skip
+    ]
     stream = b"".join(protocol.encode(s) for s in states)
     chunks = [stream[i : i + 4096] for i in range(0, len(stream), 4096)]
     payloads = [protocol.pack(s) for s in states]
@@ -285,9 +317,11 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=50_000)
     parser.add_argument("--example", type=int, metavar="N", help="the README example N times")
     parser.add_argument(
-        "--no-priority", dest="priority", action="store_false",
+        "--no-priority",
+        dest="priority",
+        action="store_false",
         help="with --example: without the right to real-time priority",
-    )  # fmt: skip
+    )
     args = parser.parse_args()
     if args.example:
         print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, load {os.getloadavg()}")

@@ -258,9 +258,9 @@ def check_reference(seed: int, steps: int = 500, batch: int = 64) -> float:
     )
 
 
-def stick_slip_mix(friction: FrictionModel, seed: int, steps: int, batch: int = 4096) -> tuple[
-    float, float
-]:  # fmt: skip
+def stick_slip_mix(
+    friction: FrictionModel, seed: int, steps: int, batch: int = 4096
+) -> tuple[float, float]:
     """Mean stuck fraction and stick<->slip switches per plant-step under the bench commands.
 
     Measured after a burn-in of one table length (at least 200 steps), untimed.
@@ -515,15 +515,19 @@ def plants_part(args: argparse.Namespace) -> str | None:
     start = time.perf_counter()
     probe = Plant(PARAMS, ROTARY_PAPER, dt=DT)
     probe.step(0.0)
-    print(f"first Plant.step in this process (numba compile or cache load): "
-          f"{time.perf_counter() - start:.3f} s")  # fmt: skip
+    print(
+        f"first Plant.step in this process (numba compile or cache load): "
+        f"{time.perf_counter() - start:.3f} s"
+    )
     start_parallel = time.perf_counter()
     probe = Plant(PARAMS, ROTARY_PAPER, dt=DT, num_plants=PARALLEL_MIN_PLANTS, parallel=True)
     probe.step(0.0)
-    print(f"first parallel step (compile or cache load, thread pool start): "
-          f"{time.perf_counter() - start_parallel:.3f} s; threading layer "
-          f"{numba.threading_layer()}, {numba.get_num_threads()} threads; Plant's default is "
-          f"adaptive for N >= {PARALLEL_MIN_PLANTS}")  # fmt: skip
+    print(
+        f"first parallel step (compile or cache load, thread pool start): "
+        f"{time.perf_counter() - start_parallel:.3f} s; threading layer "
+        f"{numba.threading_layer()}, {numba.get_num_threads()} threads; Plant's default is "
+        f"adaptive for N >= {PARALLEL_MIN_PLANTS}"
+    )
     error = check_reference(args.seed)
     print(f"numpy ref vs Plant(NoFriction), 500 steps: max relative state difference {error:.1e}")
     if error > 1e-9:
@@ -541,8 +545,10 @@ def plants_part(args: argparse.Namespace) -> str | None:
     for label, law in laws:
         mixes[label] = stick_slip_mix(law, args.seed, mix_steps)
         stuck, switches = mixes[label]
-        print(f"  {label:28s} stuck {stuck:6.1%}   stick<->slip switches {switches:6.1%} "
-              "of plant-steps")  # fmt: skip
+        print(
+            f"  {label:28s} stuck {stuck:6.1%}   stick<->slip switches {switches:6.1%} "
+            "of plant-steps"
+        )
 
     results: dict[int, list[Variant]] = {}
     for batch in args.batches:
@@ -561,13 +567,17 @@ def plants_part(args: argparse.Namespace) -> str | None:
         burn_in = max(100, table.shape[0])
         measure(variants, args.repeats, args.seconds, burn_in)
         results[batch] = variants
-        print(f"\nN = {batch}  ({table.shape[0]}-row command table; plant-steps/s, median "
-              f"[min, max] of {args.repeats} rounds)")  # fmt: skip
+        print(
+            f"\nN = {batch}  ({table.shape[0]}-row command table; plant-steps/s, median "
+            f"[min, max] of {args.repeats} rounds)"
+        )
         ref = variants[0]
         for variant in variants:
             ns = 1e9 / statistics.median(variant.rates)
-            line = (f"  {variant.label:28s} {variant.kernel_note:27s} {stats(variant.rates):28s} "
-                    f"{ns:9.1f} ns/plant-step")  # fmt: skip
+            line = (
+                f"  {variant.label:28s} {variant.kernel_note:27s} {stats(variant.rates):28s} "
+                f"{ns:9.1f} ns/plant-step"
+            )
             if variant is not ref:
                 line += f"   x ref {ratio_stats(paired_ratios(variant, ref))}"
             print(line)
@@ -578,17 +588,20 @@ def plants_part(args: argparse.Namespace) -> str | None:
         table = command_table(CONTEXT_ENVS, args.seed)
         ref_run, _, _ = make_reference(table)
         context = [
-            Variant("gymnasium CartPoleVectorEnv", make_cartpole(CONTEXT_ENVS, args.seed),
-                    CONTEXT_ENVS),
+            Variant(
+                "gymnasium CartPoleVectorEnv", make_cartpole(CONTEXT_ENVS, args.seed), CONTEXT_ENVS
+            ),
             plant_variant(PAPER, ROTARY_PAPER, table),
             plant_variant(PAPER, ROTARY_PAPER, table, parallel=False),
             Variant(REF, ref_run, CONTEXT_ENVS),
-        ]  # fmt: skip
+        ]
         if context[1].kernel == "parallel" and numba.get_num_threads() > 1:
             context.insert(3, plant_variant(PAPER, ROTARY_PAPER, table, one_thread=True))
         measure(context, args.repeats, args.seconds, burn_in=max(100, table.shape[0]))
-        print(f"\ncontext only, N = {CONTEXT_ENVS}: env-steps/s of a full CartPole env step vs "
-              "plant-steps/s of a bare plant step")  # fmt: skip
+        print(
+            f"\ncontext only, N = {CONTEXT_ENVS}: env-steps/s of a full CartPole env step vs "
+            "plant-steps/s of a bare plant step"
+        )
         for variant in context:
             line = f"  {variant.label:28s} {variant.kernel_note:27s} {stats(variant.rates):28s}"
             if variant is not context[0]:

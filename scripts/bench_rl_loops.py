@@ -297,8 +297,10 @@ def report(load: str, variants: Sequence[Variant]) -> list[str]:
                 if v.env == ref
                 else ratio_stats(paired_ratios(v, find(variants, v.loop, ref)))
             )
-        print(f"  {load:8s} {v.loop:14s} {v.env:30s} {stats(v.rates):24s} "
-              f"x CartPole {cells[0]:22s} x Pendulum {cells[1]}")  # fmt: skip
+        print(
+            f"  {load:8s} {v.loop:14s} {v.env:30s} {stats(v.rates):24s} "
+            f"x CartPole {cells[0]:22s} x Pendulum {cells[1]}"
+        )
         rows.append(
             f"| {load} | {v.loop} | `{v.env}` | {stats(v.rates)} | {cells[0]} | {cells[1]} |"
         )
@@ -323,9 +325,11 @@ def main(argv: list[str] | None = None) -> int:
     import stable_baselines3
     import torch
 
-    print(f"torch {torch.__version__} ({args.torch_threads} threads), stable-baselines3 "
-          f"{stable_baselines3.__version__}; {repeats} rounds of one {rollout}-step cycle per "
-          "variant; env-steps/s, median [min, max]")  # fmt: skip
+    print(
+        f"torch {torch.__version__} ({args.torch_threads} threads), stable-baselines3 "
+        f"{stable_baselines3.__version__}; {repeats} rounds of one {rollout}-step cycle per "
+        "variant; env-steps/s, median [min, max]"
+    )
     warnings.filterwarnings("ignore", category=UserWarning)  # SB3's and gymnasium's advice
     start = time.perf_counter()
     rows = []
@@ -337,8 +341,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"\nwall time of the benchmark: {time.perf_counter() - start:.0f} s")
     if args.markdown:
         print()
-        print(f"| load | loop | env | env-steps/s, median [min, max] of {repeats} | "
-              "ratio to CartPole-v1 | ratio to Pendulum-v1 |")  # fmt: skip
+        print(
+            f"| load | loop | env | env-steps/s, median [min, max] of {repeats} | "
+            "ratio to CartPole-v1 | ratio to Pendulum-v1 |"
+        )
         print("|---|---|---|---|---|---|")
         print("\n".join(rows))
     return 0

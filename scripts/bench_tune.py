@@ -55,8 +55,9 @@ class Variant:
 def tuner(gains: np.ndarray, model: TuningModel, specs: StepSpecs, early_stop: bool):
     def run() -> None:
         for lo in range(0, gains.shape[0], DEFAULT_CHUNK):
-            simulate(gains[lo : lo + DEFAULT_CHUNK], model, specs, DEFAULT_HORIZON,
-                     early_stop=early_stop)  # fmt: skip
+            simulate(
+                gains[lo : lo + DEFAULT_CHUNK], model, specs, DEFAULT_HORIZON, early_stop=early_stop
+            )
 
     return run
 
@@ -81,10 +82,13 @@ def agreement(gains: np.ndarray, specs: StepSpecs) -> str:
     linear = ours.peak_command < model.plant.command_limit  # the reference has no saturation
     both = (ours.feasible | feasible) & linear
     diffs = {
-        name: float(np.max(np.abs(getattr(ours.metrics, name)[both] - getattr(theirs, name)[both]),
-                           initial=0.0))
+        name: float(
+            np.max(
+                np.abs(getattr(ours.metrics, name)[both] - getattr(theirs, name)[both]), initial=0.0
+            )
+        )
         for name in ("rise_time", "peak_time", "settling_time", "overshoot_pct")
-    }  # fmt: skip
+    }
     return (
         f"{int(np.sum((ours.feasible == feasible) & linear))} of {int(linear.sum())} verdicts "
         f"agree (feasible: tuner {int(ours.feasible[linear].sum())}, python-control "
@@ -102,31 +106,52 @@ def continuous(n: int, seed: int, specs: StepSpecs) -> list[str]:
     lines += ["| loop | feasible | fraction |", "|---|---:|---:|"]
     for label, velocity in (("the tuner's default", "ideal"), ("the env's loop", "filtered")):
         ours = simulate(gains, model.replace(velocity=velocity), specs, DEFAULT_HORIZON).feasible
-        lines.append(f"| sampled-data, D on {velocity} velocity ({label}) | {int(ours.sum())} | "
-                     f"{ours.mean():.2%} |")  # fmt: skip
-    for label, build in (("continuous, D on velocity", ref.continuous_loop),
-                         ("continuous, D on error (MATLAB pid)",
-                          ref.continuous_error_derivative_loop)):  # fmt: skip
-        ok = specs.feasible(ref.step_info_metrics([build(tuple(g), model.plant) for g in gains],
-                                                  t, specs))  # fmt: skip
+        lines.append(
+            f"| sampled-data, D on {velocity} velocity ({label}) | {int(ours.sum())} | "
+            f"{ours.mean():.2%} |"
+        )
+    for label, build in (
+        ("continuous, D on velocity", ref.continuous_loop),
+        ("continuous, D on error (MATLAB pid)", ref.continuous_error_derivative_loop),
+    ):
+        ok = specs.feasible(
+            ref.step_info_metrics([build(tuple(g), model.plant) for g in gains], t, specs)
+        )
         lines.append(f"| {label} | {int(ok.sum())} | {ok.mean():.2%} |")
     return lines
 
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--samples", type=int, default=100_000,
-                        help="candidates for the tuner (default: 100000, as tune)")  # fmt: skip
-    parser.add_argument("--reference-samples", type=int, default=200,
-                        help="of them, candidates for python-control (default: 200)")  # fmt: skip
+    parser.add_argument(
+        "--samples",
+        type=int,
+        default=100_000,
+        help="candidates for the tuner (default: 100000, as tune)",
+    )
+    parser.add_argument(
+        "--reference-samples",
+        type=int,
+        default=200,
+        help="of them, candidates for python-control (default: 200)",
+    )
     parser.add_argument("--repeats", type=int, default=5, help="rounds (default: 5)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the candidates (default: 0)")
-    parser.add_argument("--continuous", type=int, default=0, metavar="N",
-                        help="also judge N candidates on the continuous loops (slow: ~5 ms "
-                        "each)")  # fmt: skip
-    parser.add_argument("--agreement", type=int, default=500, metavar="N",
-                        help="also compare verdicts on N candidates drawn near the feasible "
-                        "set (default: 500; 0: skip)")  # fmt: skip
+    parser.add_argument(
+        "--continuous",
+        type=int,
+        default=0,
+        metavar="N",
+        help="also judge N candidates on the continuous loops (slow: ~5 ms each)",
+    )
+    parser.add_argument(
+        "--agreement",
+        type=int,
+        default=500,
+        metavar="N",
+        help="also compare verdicts on N candidates drawn near the feasible "
+        "set (default: 500; 0: skip)",
+    )
     parser.add_argument("--json", type=Path, metavar="PATH", help="also write the rates here")
     args = parser.parse_args()
     if min(args.samples, args.reference_samples, args.repeats) < 1:
@@ -141,14 +166,20 @@ def main() -> int:
     nominal, friction = TuningModel(), TuningModel.paper(with_friction=True)
     full = gains[: max(1, args.samples // 10)]
     variants = [
-        Variant("python-control step_info (sampled-data loop)", len(sub),
-                python_control(sub, nominal, specs)),
+        Variant(
+            "python-control step_info (sampled-data loop)",
+            len(sub),
+            python_control(sub, nominal, specs),
+        ),
         Variant("tune, nominal", len(gains), tuner(gains, nominal, specs, True)),
         Variant("tune, friction", len(gains), tuner(gains, friction, specs, True)),
-        Variant("tune, nominal, filtered velocity", len(gains),
-                tuner(gains, nominal.replace(velocity="filtered"), specs, True)),
+        Variant(
+            "tune, nominal, filtered velocity",
+            len(gains),
+            tuner(gains, nominal.replace(velocity="filtered"), specs, True),
+        ),
         Variant("tune, nominal, no early stop", len(full), tuner(full, nominal, specs, False)),
-    ]  # fmt: skip
+    ]
     start = time.perf_counter()
     for v in variants:  # warm-up: numba's cache, thread pool, python-control imports
         v.run()  # type: ignore[operator]
@@ -164,25 +195,35 @@ def main() -> int:
     print(f"- **Date:** {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
     print(f"- **Machine:** {_bench.machine_line()}")
     print(f"- **Source:** frictiongym {_bench.source_revision()}")
-    print(f"- **Candidates:** {args.samples} (seed {args.seed}), python-control on "
-          f"{len(sub)} of them; horizon {DEFAULT_HORIZON:g} s, dt 2 ms, chunks of "
-          f"{DEFAULT_CHUNK}")  # fmt: skip
+    print(
+        f"- **Candidates:** {args.samples} (seed {args.seed}), python-control on "
+        f"{len(sub)} of them; horizon {DEFAULT_HORIZON:g} s, dt 2 ms, chunks of "
+        f"{DEFAULT_CHUNK}"
+    )
     print(f"- **Agreement on the python-control subsample:** {agreement(sub, specs)}")
     if args.agreement:
         near = NEAR.sample(np.random.default_rng(args.seed + 2), args.agreement)
-        print(f"- **Agreement on {args.agreement} candidates near the feasible set** "
-              f"(Kp {NEAR.kp}, Ki {NEAR.ki}, Kd {NEAR.kd}): {agreement(near, specs)}")  # fmt: skip
+        print(
+            f"- **Agreement on {args.agreement} candidates near the feasible set** "
+            f"(Kp {NEAR.kp}, Ki {NEAR.ki}, Kd {NEAR.kd}): {agreement(near, specs)}"
+        )
     print("")
-    print(f"| variant | candidates | candidates/s, median [min, max] of {args.repeats} | "
-          "ratio to python-control, median [min, max] |")  # fmt: skip
+    print(
+        f"| variant | candidates | candidates/s, median [min, max] of {args.repeats} | "
+        "ratio to python-control, median [min, max] |"
+    )
     print("|---|---:|---|---|")
     out = {}
     for v in variants:
         ratios = _bench.paired_ratios(v, reference)
         rr = "1 (reference)" if v is reference else _bench.ratio_stats(ratios)
         print(f"| {v.name} | {_bench.thousands(v.batch)} | {_bench.stats(v.rates)} | {rr} |")
-        out[v.name] = {"candidates": v.batch, "rates": v.rates, "ratios": ratios,
-                       "median_ratio": statistics.median(ratios)}  # fmt: skip
+        out[v.name] = {
+            "candidates": v.batch,
+            "rates": v.rates,
+            "ratios": ratios,
+            "median_ratio": statistics.median(ratios),
+        }
     if args.continuous:
         print("")
         print("\n".join(continuous(args.continuous, args.seed, specs)))
@@ -190,8 +231,10 @@ def main() -> int:
     if args.json:
         args.json.write_text(json.dumps(out, indent=1) + "\n", encoding="utf-8")
     headline = statistics.median(_bench.paired_ratios(variants[1], reference))
-    print(f"\ntune / python-control, nominal: {headline:.3g}x (goal >= 100x: "
-          f"{'meets' if headline >= 100 else 'misses'})")  # fmt: skip
+    print(
+        f"\ntune / python-control, nominal: {headline:.3g}x (goal >= 100x: "
+        f"{'meets' if headline >= 100 else 'misses'})"
+    )
     return 0
 
 

@@ -67,28 +67,42 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "firmware watchdog, device-env actions, link faults, model files and params files; "
         "print a summary table and exit 1 if anything failed.",
     )
-    parser.add_argument("--cases", type=int, default=20_000,
-                        help="frame streams and Altino replies (default 20000); the other parts "
-                        "scale with it: watchdog timelines and actions N/20, stock Altino "
-                        "commands and model files N/200, params files N/10")  # fmt: skip
+    parser.add_argument(
+        "--cases",
+        type=int,
+        default=20_000,
+        help="frame streams and Altino replies (default 20000); the other parts "
+        "scale with it: watchdog timelines and actions N/20, stock Altino "
+        "commands and model files N/200, params files N/10",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of every case (default 0)")
     parser.add_argument(
         "--part",
         default=",".join(PARTS),
         help=f"comma-separated parts to run (default all: {','.join(PARTS)})",
     )
-    parser.add_argument("--first", type=int, default=None,
-                        help="replay: run exactly --cases cases of each chosen part, numbered "
-                        "from this one (e.g. --part frames --first 3131 --cases 1); the "
-                        "actions and stock parts carry state from case to case, so their "
-                        "cases replay only from the start")  # fmt: skip
-    parser.add_argument("--fault-rounds", type=int, default=5,
-                        help="rounds of the three real-time faults (default 5)")  # fmt: skip
-    parser.add_argument("--no-c", action="store_true",
-                        help="skip the C side (no compiler needed)")  # fmt: skip
-    parser.add_argument("--firmware", type=Path, default=common.FIRMWARE,
-                        help="firmware tree to build the C harness from (default: the "
-                        "repository's firmware/)")  # fmt: skip
+    parser.add_argument(
+        "--first",
+        type=int,
+        default=None,
+        help="replay: run exactly --cases cases of each chosen part, numbered "
+        "from this one (e.g. --part frames --first 3131 --cases 1); the "
+        "actions and stock parts carry state from case to case, so their "
+        "cases replay only from the start",
+    )
+    parser.add_argument(
+        "--fault-rounds",
+        type=int,
+        default=5,
+        help="rounds of the three real-time faults (default 5)",
+    )
+    parser.add_argument("--no-c", action="store_true", help="skip the C side (no compiler needed)")
+    parser.add_argument(
+        "--firmware",
+        type=Path,
+        default=common.FIRMWARE,
+        help="firmware tree to build the C harness from (default: the repository's firmware/)",
+    )
     args = parser.parse_args(argv)
     parts = [name.strip() for name in args.part.split(",") if name.strip()]
     unknown = sorted(set(parts) - set(PARTS))
@@ -97,8 +111,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     if args.cases < 1 or args.fault_rounds < 1 or (args.first is not None and args.first < 0):
         parser.error("--cases and --fault-rounds must be at least 1, --first at least 0")
     if not args.no_c and not (args.firmware / "common" / "fg_protocol.c").is_file():
-        parser.error(f"--firmware {args.firmware} holds no common/fg_protocol.c; give the "
-                     "firmware folder of a frictiongym checkout")  # fmt: skip
+        parser.error(
+            f"--firmware {args.firmware} holds no common/fg_protocol.c; give the "
+            "firmware folder of a frictiongym checkout"
+        )
     args.parts = parts
     return args
 
@@ -145,11 +161,15 @@ def run_parts(args: argparse.Namespace) -> list[tuple[common.Part, float]]:
 
 def summary(results: list[tuple[common.Part, float]]) -> str:
     """The Markdown table of the parts, their notes, and the first failures of each."""
-    lines = ["| part | cases | what was tried | what had to hold | failures | time |",
-             "|---|---:|---|---|---:|---:|"]  # fmt: skip
+    lines = [
+        "| part | cases | what was tried | what had to hold | failures | time |",
+        "|---|---:|---|---|---:|---:|",
+    ]
     for part, seconds in results:
-        lines.append(f"| {part.name} | {part.cases} | {part.tried} | {part.held} | "
-                     f"{len(part.failures)} | {seconds:.0f} s |")  # fmt: skip
+        lines.append(
+            f"| {part.name} | {part.cases} | {part.tried} | {part.held} | "
+            f"{len(part.failures)} | {seconds:.0f} s |"
+        )
     lines.append("")
     lines += [f"* {note}" for part, _ in results for note in part.notes]
     for part, _ in results:

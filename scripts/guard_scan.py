@@ -50,8 +50,33 @@ MASSES = (1.1, 2.2, 3.3, 4.4, 5.5)  #: units·s²/cm: the plausible range and th
 LAWS = ("paper", "none", "coulomb", "stribeck", "lugre")
 #: cm: near the wall, across the IR range (21.2 cm) and run-ups of up to 260 cm (the issue's
 #: failing starts 176.5, 192 and 207.5 among them).
-STARTS = (2, 3, 4, 5, 6, 8, 10, 12, 15, 18, 21, 22, 25, 30, 40, 60, 80, 100, 130, 160,
-          176.5, 192, 207.5, 230, 260)  # fmt: skip
+STARTS = (
+    2,
+    3,
+    4,
+    5,
+    6,
+    8,
+    10,
+    12,
+    15,
+    18,
+    21,
+    22,
+    25,
+    30,
+    40,
+    60,
+    80,
+    100,
+    130,
+    160,
+    176.5,
+    192,
+    207.5,
+    230,
+    260,
+)
 COMMANDS = (200, 400, 600, 800, 1000)  #: forward commands, units, up to the limit
 NOMINAL_MASS = 2.2  #: presets.ALTINO_PLANT.inertia: the masses are factors on it
 MAX_SECONDS = 60.0  #: longest drive (the slowest car that moves reaches the wall sooner)
@@ -93,24 +118,38 @@ def cases(
     commands: Iterable[int] = COMMANDS,
 ) -> list[Case]:
     """Every combination, law-major."""
-    return [Case(m, law, float(s), int(u))
-            for law in laws for m in masses for s in starts for u in commands]  # fmt: skip
+    return [
+        Case(m, law, float(s), int(u))
+        for law in laws
+        for m in masses
+        for s in starts
+        for u in commands
+    ]
 
 
 def noise_cases(seeds: int = NOISE_SEEDS) -> list[Case]:
     """The noise pass: light cars near the IR range's edge, +1000, each with its own seed."""
-    return [Case(m, law, float(s), 1000, seed)
-            for seed in range(seeds) for law in NOISE_LAWS for m in NOISE_MASSES
-            for s in NOISE_STARTS]  # fmt: skip
+    return [
+        Case(m, law, float(s), 1000, seed)
+        for seed in range(seeds)
+        for law in NOISE_LAWS
+        for m in NOISE_MASSES
+        for s in NOISE_STARTS
+    ]
 
 
 def plant(case: Case) -> Firmware:
     """The emulated car of ``case`` (its mass a fixed factor on the model's)."""
     factor = case.mass / NOMINAL_MASS
     return Firmware(
-        "altino", friction=case.law, randomize={"inertia": (factor, factor)}, start=case.start,
-        watchdog_ms=0, sensor_noise=case.noise_seed is not None, seed=case.noise_seed or 0,
-    )  # fmt: skip
+        "altino",
+        friction=case.law,
+        randomize={"inertia": (factor, factor)},
+        start=case.start,
+        watchdog_ms=0,
+        sensor_noise=case.noise_seed is not None,
+        seed=case.noise_seed or 0,
+    )
 
 
 class _Run:
@@ -177,8 +216,10 @@ class CFirmware:
             raise RuntimeError("gcc is not installed: the C firmware cannot be built")
         self._dir = tempfile.TemporaryDirectory(prefix="guard_scan_")
         exe = Path(self._dir.name) / "host_harness"
-        sources = [*sorted((root / "firmware" / "common").glob("*.c")),
-                   root / "firmware" / "test" / "host_harness.c"]  # fmt: skip
+        sources = [
+            *sorted((root / "firmware" / "common").glob("*.c")),
+            root / "firmware" / "test" / "host_harness.c",
+        ]
         flags = ["-Wall", "-Wextra", "-Werror", "-std=c99", "-pedantic", "-O2"]
         subprocess.run([gcc, *flags, *map(str, sources), "-o", str(exe)], check=True)
         self.proc = subprocess.Popen(
@@ -326,8 +367,10 @@ def scan(implementation: str, todo: list[Case], root: Path = ROOT) -> list[Outco
 
 def summary(outcomes: list[Outcome]) -> Iterator[str]:
     """Table rows per law (markdown), then the total."""
-    yield ("| law | runs | contacts | tripped | closest cm | at (mass, start cm, command) "
-           "| closest from beyond the IR range, cm |")  # fmt: skip
+    yield (
+        "| law | runs | contacts | tripped | closest cm | at (mass, start cm, command) "
+        "| closest from beyond the IR range, cm |"
+    )
     yield "|---|---:|---:|---:|---:|---|---:|"
     for law in dict.fromkeys(o.case.law for o in outcomes):
         mine = [o for o in outcomes if o.case.law == law]
@@ -335,9 +378,11 @@ def summary(outcomes: list[Outcome]) -> Iterator[str]:
         contacts = sum(o.closest <= 0.0 for o in mine)
         far = [o.closest for o in mine if o.case.start > EDGE_CM]
         c = worst.case
-        yield (f"| {law} | {len(mine)} | {contacts} | {sum(o.tripped for o in mine)} | "
-               f"{worst.closest:.2f} | {c.mass:g}, {c.start:g}, +{c.command} | "
-               f"{min(far, default=math.nan):.2f} |")  # fmt: skip
+        yield (
+            f"| {law} | {len(mine)} | {contacts} | {sum(o.tripped for o in mine)} | "
+            f"{worst.closest:.2f} | {c.mass:g}, {c.start:g}, +{c.command} | "
+            f"{min(far, default=math.nan):.2f} |"
+        )
 
 
 #: What each implementation is, for the printout.

@@ -133,10 +133,19 @@ def _field_names(message: protocol.Message) -> list[str]:
         Command: ["flags", "seq", "command", "aux"],
         HelloRequest: ["version"],
         Place: ["position"],
-        Hello: ["version", "kind", "capabilities", "rate_hz", "counts_per_rev",
-                "command_scale", "command_limit", "watchdog_ms", "firmware"],
+        Hello: [
+            "version",
+            "kind",
+            "capabilities",
+            "rate_hz",
+            "counts_per_rev",
+            "command_scale",
+            "command_limit",
+            "watchdog_ms",
+            "firmware",
+        ],
         State: ["status", "seq", "tick_us", "seq_applied", "applied", "sensor", "aux"],
-    }  # fmt: skip
+    }
     return names[type(message)]
 
 
@@ -248,13 +257,15 @@ def stream_vectors() -> list[dict[str, Any]]:
     for name, stream in cases:
         decoder = protocol.FrameDecoder()
         messages = decoder.feed(stream)
-        out.append({
-            "name": name,
-            "bytes": stream.hex(),
-            "messages": [{"type": int(m.TYPE), "values": values(m)} for m in messages],
-            "frames": decoder.frames,
-            "errors": decoder.errors,
-        })  # fmt: skip
+        out.append(
+            {
+                "name": name,
+                "bytes": stream.hex(),
+                "messages": [{"type": int(m.TYPE), "values": values(m)} for m in messages],
+                "frames": decoder.frames,
+                "errors": decoder.errors,
+            }
+        )
     return out
 
 
@@ -265,8 +276,11 @@ def stream_vectors() -> list[dict[str, Any]]:
 
 def cmd(at: int, seq: int, command: int, *flags: str, **expect: Any) -> dict[str, Any]:
     """The host's Command arriving at ``at`` µs, with expectations (``motor=...``)."""
-    return {"at_us": at, "send": {"type": "command", "seq": seq, "command": command,
-                                  "flags": list(flags)}, **expect}  # fmt: skip
+    return {
+        "at_us": at,
+        "send": {"type": "command", "seq": seq, "command": command, "flags": list(flags)},
+        **expect,
+    }
 
 
 def tick(at: int, reading: int = 0, *, hw: Sequence[str] = (), **state: Any) -> dict[str, Any]:
@@ -612,8 +626,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.check:
         current = args.out.read_text(encoding="utf-8") if args.out.exists() else ""
         if current != text:
-            print(f"{args.out} is out of date: run python scripts/protocol_vectors.py",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"{args.out} is out of date: run python scripts/protocol_vectors.py",
+                file=sys.stderr,
+            )
             return 1
         print(f"{args.out} is up to date")
         return 0

@@ -117,16 +117,32 @@ def test_sensor_request_is_a_go_frame() -> None:
     [
         StockSensors(group=1, ir=(1, 2, 800, 4, 5, 6), torque=(7, 8), temperature=30, cds=900),
         StockSensors(
-            group=2, accel=(-1, 2, -32768), mag=(5, -6, 7), steering=512, steering_torque=3,
-            battery=780, remote=9, motor_temperature=41,
+            group=2,
+            accel=(-1, 2, -32768),
+            mag=(5, -6, 7),
+            steering=512,
+            steering_torque=3,
+            battery=780,
+            remote=9,
+            motor_temperature=41,
         ),
         StockSensors(
-            group=10, ir=(9, 8, 7, 6, 5, 4), torque=(1, 2), steering_torque=3, accel=(-4, 5, 6),
-            mag=(7, 8, -9), gyro=(-10, 11, 12), cds=13, steering=14, battery=15,
-            temperature=16, remote=17, motor_temperature=18,
+            group=10,
+            ir=(9, 8, 7, 6, 5, 4),
+            torque=(1, 2),
+            steering_torque=3,
+            accel=(-4, 5, 6),
+            mag=(7, 8, -9),
+            gyro=(-10, 11, 12),
+            cds=13,
+            steering=14,
+            battery=15,
+            temperature=16,
+            remote=17,
+            motor_temperature=18,
         ),
     ],
-)  # fmt: skip
+)
 def test_sensor_reply_round_trip(sensors: StockSensors) -> None:
     assert parse_sensor_reply(sensor_reply(sensors)) == sensors
 

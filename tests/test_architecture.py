@@ -147,8 +147,11 @@ def upward(edges: dict[tuple[str, str], list[str]]) -> list[str]:
     places = []
     for (source, target), where in sorted(edges.items()):
         if LAYERS[target] > LAYERS[source] or (source, target) in SAME_LAYER_FORBIDDEN:
-            places += [f"{place}: {source} (layer {LAYERS[source]}) imports {target} "
-                       f"(layer {LAYERS[target]})" for place in where]  # fmt: skip
+            places += [
+                f"{place}: {source} (layer {LAYERS[source]}) imports {target} "
+                f"(layer {LAYERS[target]})"
+                for place in where
+            ]
     return places
 
 
@@ -172,5 +175,6 @@ def test_the_checks_find_a_cycle_and_an_upward_import():
     assert find_cycle({("a", "b"), ("b", "c"), ("c", "a")}) == ["a", "b", "c", "a"]
     assert find_cycle({("a", "b"), ("b", "c")}) is None
     places = upward({("frictiongym.friction", "frictiongym.cli"): ["friction/x.py:3"]})
-    assert places == ["friction/x.py:3: frictiongym.friction (layer 0) imports frictiongym.cli "
-                      "(layer 5)"]  # fmt: skip
+    assert places == [
+        "friction/x.py:3: frictiongym.friction (layer 0) imports frictiongym.cli (layer 5)"
+    ]

@@ -133,19 +133,42 @@ def residual_model(tmp_path_factory):
     """A tiny PPO servo model, trained through ``frictiongym train``."""
     pytest.importorskip("stable_baselines3")
     path = tmp_path_factory.mktemp("train") / "run"
-    status = main(["train", "--env", "frictiongym/RotaryServo-v0", "--quick", "--steps", "512",
-                   "--out", str(path), "--quiet"])  # fmt: skip
+    status = main(
+        [
+            "train",
+            "--env",
+            "frictiongym/RotaryServo-v0",
+            "--quick",
+            "--steps",
+            "512",
+            "--out",
+            str(path),
+            "--quiet",
+        ]
+    )
     assert status == 0
     return path / "model.zip"
 
 
 def test_a_residual_model_runs_next_to_the_compensated_pid(residual_model, tmp_path, capsys):
-    args = ["benchmark", "--quick", "--no-figures", "--heldout", "3", "--out", str(tmp_path),
-            "--residual", f"rotary={residual_model}"]  # fmt: skip
+    args = [
+        "benchmark",
+        "--quick",
+        "--no-figures",
+        "--heldout",
+        "3",
+        "--out",
+        str(tmp_path),
+        "--residual",
+        f"rotary={residual_model}",
+    ]
     assert main([*args, "--list", "--group", "residual"]) == 0
     listed = [line.split()[0] for line in capsys.readouterr().out.splitlines()]
-    assert listed == [f"residual-rotary-{plants}-{kind}" for plants in ("nominal", "heldout")
-                      for kind in ("compensated", "residual")]  # fmt: skip
+    assert listed == [
+        f"residual-rotary-{plants}-{kind}"
+        for plants in ("nominal", "heldout")
+        for kind in ("compensated", "residual")
+    ]
     assert main([*args, "--quiet"]) == 0
     records = json.loads((tmp_path / "results.json").read_text())
     assert "paper-rotary-compensated" in {r["scenario"] for r in records}  # the rest still runs
@@ -207,8 +230,20 @@ def test_residual_options_are_checked(residual_model, tmp_path, capsys):
 
 
 def test_residual_runs_get_their_figures(residual_model, tmp_path):
-    status = main(["benchmark", "--group", "residual", "--heldout", "3", "--quiet",
-                   "--residual", f"rotary={residual_model}", "--out", str(tmp_path)])  # fmt: skip
+    status = main(
+        [
+            "benchmark",
+            "--group",
+            "residual",
+            "--heldout",
+            "3",
+            "--quiet",
+            "--residual",
+            f"rotary={residual_model}",
+            "--out",
+            str(tmp_path),
+        ]
+    )
     assert status == 0
     pngs = {p.name for p in tmp_path.glob("*.png")}
     assert {"residual_rotary_response.png", "residual_plants.png"} <= pngs

@@ -31,16 +31,28 @@ EMULATOR = "emulator://rotary?lockstep=1"
 
 #: tool -> (its arguments besides --out, (module, attribute) doing the work, its OUTPUTS)
 TOOLS = {
-    "benchmark": (["--quick", "--quiet"], (benchmark_command, "run_benchmark"),
-                  benchmark_command.OUTPUTS),
-    "identify": (["--env", SERVO, "--quiet"], (identify_command, "make_env"),
-                 identify_command.OUTPUTS),
+    "benchmark": (
+        ["--quick", "--quiet"],
+        (benchmark_command, "run_benchmark"),
+        benchmark_command.OUTPUTS,
+    ),
+    "identify": (
+        ["--env", SERVO, "--quiet"],
+        (identify_command, "make_env"),
+        identify_command.OUTPUTS,
+    ),
     "tune": (["--quiet"], (tune_command, "random_search"), tune_command.OUTPUTS),
-    "sim2real": (["--env", SERVO, "--backend", EMULATOR, "--quiet"],
-                 (sim2real_command, "run_sim2real"), sim2real_command.OUTPUTS),
-    "train": (["--env", SERVO, "--quick", "--quiet"], (train_module, "_train"),
-              train_module.OUTPUTS),
-}  # fmt: skip
+    "sim2real": (
+        ["--env", SERVO, "--backend", EMULATOR, "--quiet"],
+        (sim2real_command, "run_sim2real"),
+        sim2real_command.OUTPUTS,
+    ),
+    "train": (
+        ["--env", SERVO, "--quick", "--quiet"],
+        (train_module, "_train"),
+        train_module.OUTPUTS,
+    ),
+}
 
 
 def _no_work(monkeypatch, tool, effect=None):
@@ -88,8 +100,9 @@ def test_a_read_only_file_system_is_refused_before_the_work(tool, tmp_path, monk
     out = tmp_path / "new" / "results"
     assert main([tool, *TOOLS[tool][0], "--out", str(out)]) == 2
     line = _one_line(capsys.readouterr().err)
-    assert line == (f"error: cannot write to --out {out}: Read-only file system; give a "
-                    "writable --out")  # fmt: skip
+    assert line == (
+        f"error: cannot write to --out {out}: Read-only file system; give a writable --out"
+    )
     assert not (tmp_path / "new").exists()
 
 
@@ -161,8 +174,21 @@ def test_identify_writes_only_its_declared_outputs_and_replaces_them_whole(tmp_p
     out = tmp_path / "id"
     assert main(["identify", "--env", SERVO, "--out", str(out), "--quiet"]) == 0
     assert sorted(p.name for p in out.iterdir()) == sorted(identify_command.OUTPUTS)
-    assert main(["identify", "--env", SERVO, "--out", str(out), "--quiet", "--no-figures",
-                 "--overwrite"]) == 0  # fmt: skip
+    assert (
+        main(
+            [
+                "identify",
+                "--env",
+                SERVO,
+                "--out",
+                str(out),
+                "--quiet",
+                "--no-figures",
+                "--overwrite",
+            ]
+        )
+        == 0
+    )
     assert sorted(p.name for p in out.iterdir()) == ["friction.json", "summary.md"]
     assert f"wrote {out / 'friction.json'}" in capsys.readouterr().out
 
@@ -174,8 +200,19 @@ def test_train_overwrite_drops_the_earlier_validation_and_best_model(tmp_path, c
     (tmp_path / "tb" / "ppo_1").mkdir(parents=True)
     (tmp_path / "tb" / "ppo_1" / "earlier").write_text("")
     (tmp_path / "notes.txt").write_text("mine")
-    argv = ["train", "--env", SERVO, "--quick", "--steps", "64", "--validate-every", "0",
-            "--out", str(tmp_path), "--quiet"]  # fmt: skip
+    argv = [
+        "train",
+        "--env",
+        SERVO,
+        "--quick",
+        "--steps",
+        "64",
+        "--validate-every",
+        "0",
+        "--out",
+        str(tmp_path),
+        "--quiet",
+    ]
     assert main(argv) == 2
     assert "give --overwrite" in capsys.readouterr().err
     assert main([*argv, "--overwrite"]) == 0
@@ -304,10 +341,25 @@ def test_ctrl_c_on_training_saves_a_checkpoint_that_resume_continues(tmp_path, c
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "run"
     proc = subprocess.Popen(
-        ["frictiongym", "train", "--env", SERVO, "--quick", "--steps", "100000", "--out",
-         str(out), "--validate-every", "0", "--threads", "1"],
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
+        [
+            "frictiongym",
+            "train",
+            "--env",
+            SERVO,
+            "--quick",
+            "--steps",
+            "100000",
+            "--out",
+            str(out),
+            "--validate-every",
+            "0",
+            "--threads",
+            "1",
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         chunks = _read_stderr(proc)
         _wait_for(chunks, r"\b[1-9]\d{2,}/100000 \[", proc)  # some hundred steps trained
@@ -317,16 +369,30 @@ def test_ctrl_c_on_training_saves_a_checkpoint_that_resume_continues(tmp_path, c
     assert status == 130
     assert "Traceback" not in err
     last = err.splitlines()[-1]
-    found = re.fullmatch(r"frictiongym train: interrupted; checkpoint of (\d+) steps saved as "
-                         r"(\S+); continue with --resume", last)  # fmt: skip
+    found = re.fullmatch(
+        r"frictiongym train: interrupted; checkpoint of (\d+) steps saved as "
+        r"(\S+); continue with --resume",
+        last,
+    )
     assert found, last
     steps, checkpoint = int(found.group(1)), pathlib.Path(found.group(2))
     assert steps > 0
     assert checkpoint == out / "checkpoints" / f"model_{steps}_steps.zip"
     assert train_module.saved_steps(checkpoint) == steps
     assert not [p for p in out.rglob(".*") if p.is_file()]  # no temporary file left
-    argv = ["train", "--env", SERVO, "--steps", str(steps + 1), "--out", str(out), "--resume",
-            "--validate-every", "0", "--quiet"]  # fmt: skip
+    argv = [
+        "train",
+        "--env",
+        SERVO,
+        "--steps",
+        str(steps + 1),
+        "--out",
+        str(out),
+        "--resume",
+        "--validate-every",
+        "0",
+        "--quiet",
+    ]
     assert main(argv) == 0
     summary = json.loads((out / "train.json").read_text())
     assert summary["resumed_from"] == str(checkpoint)

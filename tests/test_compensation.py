@@ -25,9 +25,14 @@ ALTINO = "frictiongym/AltinoDistance-v0"
 #: Asymmetric levels and decay speeds, and a viscous slope the compensator must leave out.
 US_POS, US_NEG, UC_POS, UC_NEG, V0_POS, V0_NEG = 0.3, 0.2, 0.1, 0.05, 2.0, 4.0
 MODEL = StictionCoulomb(
-    us_pos=US_POS, us_neg=US_NEG, uc_pos=UC_POS, uc_neg=UC_NEG, v0_pos=V0_POS, v0_neg=V0_NEG,
+    us_pos=US_POS,
+    us_neg=US_NEG,
+    uc_pos=UC_POS,
+    uc_neg=UC_NEG,
+    v0_pos=V0_POS,
+    v0_neg=V0_NEG,
     viscous=0.7,
-)  # fmt: skip
+)
 REST = 0.1
 SLIDING_MODES = ("command", "error", "deadband")
 
@@ -50,9 +55,15 @@ class Constant(Controller):
 
 def spec(direction=1.0, limit=10.0, rest_speed=REST, friction=None, velocity=1):
     return LoopSpec(
-        dt=0.01, limit=limit, position=0, velocity=velocity, reference=2,
-        direction=direction, rest_speed=rest_speed, friction=friction,
-    )  # fmt: skip
+        dt=0.01,
+        limit=limit,
+        position=0,
+        velocity=velocity,
+        reference=2,
+        direction=direction,
+        rest_speed=rest_speed,
+        friction=friction,
+    )
 
 
 def compensator(base=0.5, direction=1.0, model=MODEL, **kwargs):

@@ -241,9 +241,11 @@ def test_a_terminated_process_stops_the_motor_first(kind: str, sig: int) -> None
     with device:
         port = device.serve_pty() if kind == "firmware" else device.port
         child = subprocess.Popen(
-            [sys.executable, "-c", DRIVER, kind, port], stdout=subprocess.PIPE, text=True,
+            [sys.executable, "-c", DRIVER, kind, port],
+            stdout=subprocess.PIPE,
+            text=True,
             cwd=Path(frictiongym.__file__).parents[1],  # this checkout's frictiongym
-        )  # fmt: skip
+        )
         try:
             assert child.stdout is not None
             assert child.stdout.readline() == "driving\n"
@@ -341,9 +343,11 @@ def test_a_device_opened_in_a_worker_thread_stops_on_sigterm() -> None:
     could be installed there); the main thread can now install one for good beforehand."""
     with FakeStockAltino() as car:
         child = subprocess.Popen(
-            [sys.executable, "-c", THREAD_DRIVER, car.port], stdout=subprocess.PIPE, text=True,
+            [sys.executable, "-c", THREAD_DRIVER, car.port],
+            stdout=subprocess.PIPE,
+            text=True,
             cwd=Path(frictiongym.__file__).parents[1],
-        )  # fmt: skip
+        )
         try:
             assert child.stdout is not None
             assert child.stdout.readline() == "driving\n"

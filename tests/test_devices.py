@@ -127,15 +127,21 @@ def test_the_tools_read_their_settings_from_the_description(device):
     assert plan == plan_for(device.env_id)
     assert dict(plan.env_kwargs) == dict(device.identification.get("env_kwargs", {}))
     # Params files: the units; the firmware: the command scale.
-    params = DeviceParams.from_model(device.paper_friction, inertia=1.0, damping=0.0,
-                                     device=device.name)  # fmt: skip
+    params = DeviceParams.from_model(
+        device.paper_friction, inertia=1.0, damping=0.0, device=device.name
+    )
     assert dict(params.units) == device.units
     assert Firmware(device.kind).scale == device.command_scale
 
 
 def test_the_values_the_tables_held():
-    assert ROTARY.units == {"force": "V", "velocity": "rad/s", "viscous": "V·s/rad",
-                            "J": "V·s²/rad", "B": "V·s/rad"}  # fmt: skip
+    assert ROTARY.units == {
+        "force": "V",
+        "velocity": "rad/s",
+        "viscous": "V·s/rad",
+        "J": "V·s²/rad",
+        "B": "V·s/rad",
+    }
     assert ALTINO.units["J"] == "units·s²/cm"
     assert ROTARY.randomization["sensor_gain"] == (0.99, 1.01)
     assert ALTINO.randomization["sensor_gain"] == (0.9, 1.1)

@@ -165,11 +165,21 @@ def test_boots_disabled_and_streams_states_at_its_rate(serve):
     assert emu.motor == 0.0
 
 
-@pytest.mark.parametrize(("kind", "env_id", "commands"), [
-    ("rotary", "frictiongym/RotaryServo-v0",
-     [1500] * 150 + [-800] * 100 + [300] * 50 + list(range(-3000, 3000, 60))),
-    ("altino", "frictiongym/AltinoDistance-v0", [400] * 15 + [-200] * 10 + [300] * 15 + [0] * 5),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("kind", "env_id", "commands"),
+    [
+        (
+            "rotary",
+            "frictiongym/RotaryServo-v0",
+            [1500] * 150 + [-800] * 100 + [300] * 50 + list(range(-3000, 3000, 60)),
+        ),
+        (
+            "altino",
+            "frictiongym/AltinoDistance-v0",
+            [400] * 15 + [-200] * 10 + [300] * 15 + [0] * 5,
+        ),
+    ],
+)
 def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands):
     env = gym.make(env_id).unwrapped
     obs, _ = env.reset(seed=0)  # first: compiling the env's kernel must not trip the watchdog
@@ -223,8 +233,15 @@ def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
     start = 15.0 if kind == "altino" else 0.5  # the IR sensor reads 0 beyond 21 cm
     fw = Firmware(kind, sensor_noise=True, randomize=spread, seed=7, start=start)
     limit = 0.0 if kind == "altino" else 1e9  # the firmware ends nothing; the car stays ahead
-    sim = Simulation(fw.device, 1, sensor_noise=True, randomize=spread, reference=0.0,
-                     safety_limit=limit, parallel=False)  # fmt: skip
+    sim = Simulation(
+        fw.device,
+        1,
+        sensor_noise=True,
+        randomize=spread,
+        reference=0.0,
+        safety_limit=limit,
+        parallel=False,
+    )
     rng, fresh = np.random.default_rng(7), np.ones(1, dtype=bool)
     obs = np.zeros((1, sim.observation_size), dtype=np.float32)
     out, flags = np.zeros((env_kernel.OUT_SIZE, 1)), np.zeros((env_kernel.FLAG_SIZE, 1), dtype=bool)
@@ -254,15 +271,18 @@ def test_the_firmware_and_emulator_do_not_import_the_envs():
         "import sys, frictiongym.hardware.emulator, frictiongym.hardware.firmware; "
         "print(sorted(m for m in sys.modules if m.startswith('frictiongym.envs.')))"
     )
-    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                            check=True).stdout.strip()  # fmt: skip
+    loaded = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.strip()
     assert loaded == "[]"
 
 
 _COMMANDS = st.builds(
     lambda flags, counts, seq: protocol.encode(protocol.Command(seq, counts, protocol.Flag(flags))),
-    st.integers(0, 15), st.integers(-32768, 32767), st.integers(0, 0xFFFF),
-)  # fmt: skip
+    st.integers(0, 15),
+    st.integers(-32768, 32767),
+    st.integers(0, 0xFFFF),
+)
 _PLACES = st.builds(lambda x: protocol.encode(protocol.Place(x)), st.floats(width=32))
 _CHUNKS = st.lists(st.one_of(st.binary(max_size=40), _COMMANDS, _PLACES), max_size=40)
 
@@ -375,9 +395,11 @@ def test_a_late_emulator_thread_does_not_blame_the_host(serve, monkeypatch):
     received = emu.firmware.commands
     seq = host.command(2000)
     stalling = _hold_up_once(
-        emu, monkeypatch, 2.5 * emu.firmware.watchdog_s,
+        emu,
+        monkeypatch,
+        2.5 * emu.firmware.watchdog_s,
         lambda ready: emu.firmware.commands > received,
-    )  # fmt: skip
+    )
     state = host.wait(protocol.State, lambda s: s.seq_applied == seq, timeout=2.0)
     states = [state] + [host.step(2000) for _ in range(20)]
     assert stalling.is_set()
@@ -467,11 +489,14 @@ def test_altino_guard_brakes_through_an_estop(serve, counts):
     assert host.step(300).applied == 0  # disarmed: ENABLE without REARM
 
 
-@pytest.mark.parametrize(("gains", "compensated"), [
-    (ALTINO_PAPER_GAINS_KI10, False),
-    (ALTINO_PAPER_GAINS_KI20, False),  # overshoots to 1.9 cm in our model
-    (ALTINO_PAPER_GAINS_COMPENSATED, True),
-])  # fmt: skip
+@pytest.mark.parametrize(
+    ("gains", "compensated"),
+    [
+        (ALTINO_PAPER_GAINS_KI10, False),
+        (ALTINO_PAPER_GAINS_KI20, False),  # overshoots to 1.9 cm in our model
+        (ALTINO_PAPER_GAINS_COMPENSATED, True),
+    ],
+)
 def test_the_paper_gains_never_trip_the_guard(gains, compensated):
     env = gym.make(
         "frictiongym/AltinoDistance-v0", backend="emulator://altino?lockstep=1", log=False
@@ -638,8 +663,12 @@ def _first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
 
 
 def test_cli_prints_a_connectable_port_and_stops_on_sigint():
-    proc = subprocess.Popen([sys.executable, str(SCRIPT), "--device", "rotary", "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    proc = subprocess.Popen(
+        [sys.executable, str(SCRIPT), "--device", "rotary", "--quiet"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         url = _first_line(proc)
         assert url.startswith("/dev/")
@@ -672,10 +701,17 @@ def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
     bad = tmp_path / "friction.json"
     bad.write_text("{not json")
     other = Path(__file__).resolve().parents[1] / "docs" / "identification" / "altino"
-    for extra in (["--drop", "-0.5"], ["--corrupt", "2"], ["--params", str(bad)],
-                  ["--params", str(tmp_path / "x")], ["--duration", "-1"],
-                  ["--friction", "glue"], ["--watchdog", "-3"], ["--tcp", "1.2.3.4.5:99"],
-                  *([["--params", str(other)]] if other.exists() else [])):  # fmt: skip
+    for extra in (
+        ["--drop", "-0.5"],
+        ["--corrupt", "2"],
+        ["--params", str(bad)],
+        ["--params", str(tmp_path / "x")],
+        ["--duration", "-1"],
+        ["--friction", "glue"],
+        ["--watchdog", "-3"],
+        ["--tcp", "1.2.3.4.5:99"],
+        *([["--params", str(other)]] if other.exists() else []),
+    ):
         assert main(["--device", "rotary", *extra]) == 2, extra
         out, err = capsys.readouterr()
         assert err.startswith("error:"), (extra, err)

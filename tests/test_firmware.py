@@ -374,19 +374,38 @@ def sketches(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Har
     objects = []
     for source in COMMON:
         obj = workdir / f"{source.stem}.o"
-        done = subprocess.run([gcc, *CFLAGS, "-c", str(source), "-o", str(obj)],
-                              capture_output=True, text=True, check=False)  # fmt: skip
+        done = subprocess.run(
+            [gcc, *CFLAGS, "-c", str(source), "-o", str(obj)],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         assert done.returncode == 0, done.stderr
         objects.append(str(obj))
     servers = {}
     for name in ("qube_bridge", "altino"):
         exe = workdir / name
         done = subprocess.run(
-            [gxx, "-std=c++11", "-Wall", "-Wextra", "-Werror", f'-DSKETCH="../{name}/{name}.ino"',
-             "-I", str(FIRMWARE / "test" / "arduino_stub"), "-I", str(FIRMWARE / "common"),
-             str(FIRMWARE / "test" / "sketch_sim.cpp"), *objects, "-o", str(exe)],
-            capture_output=True, text=True, check=False,
-        )  # fmt: skip
+            [
+                gxx,
+                "-std=c++11",
+                "-Wall",
+                "-Wextra",
+                "-Werror",
+                f'-DSKETCH="../{name}/{name}.ino"',
+                "-I",
+                str(FIRMWARE / "test" / "arduino_stub"),
+                "-I",
+                str(FIRMWARE / "common"),
+                str(FIRMWARE / "test" / "sketch_sim.cpp"),
+                *objects,
+                "-o",
+                str(exe),
+            ],
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         assert done.returncode == 0, f"{name}.ino does not build on the host:\n{done.stderr}"
         servers[name] = Harness(exe)
     yield servers
@@ -503,8 +522,10 @@ def _car_frames(data: bytes) -> list[bytes]:
 
 def _wheels(frame: bytes) -> tuple[tuple[int, int], tuple[int, int]]:
     """(mode, sign-magnitude value) of the right and the left wheel."""
-    return ((frame[6], int.from_bytes(frame[7:9], "big")),
-            (frame[9], int.from_bytes(frame[10:12], "big")))  # fmt: skip
+    return (
+        (frame[6], int.from_bytes(frame[7:9], "big")),
+        (frame[9], int.from_bytes(frame[10:12], "big")),
+    )
 
 
 def test_altino_sketch(sketches: dict[str, Harness]) -> None:
@@ -573,8 +594,10 @@ def test_common_code_builds_for_avr(mcu: str, tmp_path: Path) -> None:
         obj = tmp_path / f"{source.stem}.o"
         done = subprocess.run(
             [avr_gcc, f"-mmcu={mcu}", "-Os", *CFLAGS, "-c", str(source), "-o", str(obj)],
-            capture_output=True, text=True, check=False,
-        )  # fmt: skip
+            capture_output=True,
+            text=True,
+            check=False,
+        )
         assert done.returncode == 0, done.stderr
         objects.append(str(obj))
     sizes = subprocess.run(
@@ -584,11 +607,23 @@ def test_common_code_builds_for_avr(mcu: str, tmp_path: Path) -> None:
     data = sum(int(line.split()[1]) + int(line.split()[2]) for line in sizes)
     elf = tmp_path / "avr_size.elf"
     done = subprocess.run(
-        [avr_gcc, f"-mmcu={mcu}", "-Os", *CFLAGS, "-ffunction-sections", "-fdata-sections",
-         "-Wl,--gc-sections", str(FIRMWARE / "test" / "avr_size.c"), *map(str, COMMON),
-         "-o", str(elf)],
-        capture_output=True, text=True, check=False,
-    )  # fmt: skip
+        [
+            avr_gcc,
+            f"-mmcu={mcu}",
+            "-Os",
+            *CFLAGS,
+            "-ffunction-sections",
+            "-fdata-sections",
+            "-Wl,--gc-sections",
+            str(FIRMWARE / "test" / "avr_size.c"),
+            *map(str, COMMON),
+            "-o",
+            str(elf),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr
     linked = subprocess.run([avr_size, str(elf)], capture_output=True, text=True, check=True)
     flash = int(linked.stdout.splitlines()[1].split()[0])

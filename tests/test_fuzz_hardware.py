@@ -11,8 +11,16 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 SCRIPT = ROOT / "scripts" / "fuzz_hardware.py"
-PARTS = ("frames", "altino replies", "watchdog", "actions", "stock altino", "faults",
-         "model files", "params files")  # fmt: skip
+PARTS = (
+    "frames",
+    "altino replies",
+    "watchdog",
+    "actions",
+    "stock altino",
+    "faults",
+    "model files",
+    "params files",
+)
 CRC_CHECK = "if (fg_crc16(data, (size_t)n - 2u) != get_u16(data + n - 2)) {"
 BOUND_CHECK = "if (dec->len < FG_MAX_FRAME) {"
 WATCHDOG_CHECK = "(uint32_t)(now_us - dev->last_command_us) >= dev->watchdog_us"
@@ -102,6 +110,13 @@ def test_usage_errors_exit_2_with_one_line():
 def test_help_names_every_option():
     done = fuzz("--help")
     assert done.returncode == 0, done.stderr
-    for option in ("--cases", "--seed", "--part", "--first", "--fault-rounds", "--no-c",
-                   "--firmware"):  # fmt: skip
+    for option in (
+        "--cases",
+        "--seed",
+        "--part",
+        "--first",
+        "--fault-rounds",
+        "--no-c",
+        "--firmware",
+    ):
         assert option in done.stdout

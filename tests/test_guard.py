@@ -72,8 +72,9 @@ def _stop_exactly(car: CarBounds, mass: float, speed: float, command: float, t: 
     return travel + brake
 
 
-@pytest.mark.parametrize("car", [CarBounds(), CarBounds(friction=0.0, viscous=0.0)],
-                         ids=["paper", "none"])  # fmt: skip
+@pytest.mark.parametrize(
+    "car", [CarBounds(), CarBounds(friction=0.0, viscous=0.0)], ids=["paper", "none"]
+)
 def test_bounds_hold_for_every_plausible_mass(car: CarBounds) -> None:
     for speed in (0.0, 10.0, 40.0, 75.0):
         for command in (-1000.0, 0.0, 200.0, 600.0, 1000.0):
@@ -168,8 +169,10 @@ def test_reduced_scan_stock_link_with_friction() -> None:
 
 
 #: Noisy runs that came within 0.02-0.5 cm of the wall before the guard allowed for the noise.
-NOISY = [scan.Case(1.1, "none", start, 1000, seed)
-         for start, seed in ((11, 0), (16, 0), (9, 1), (13, 2), (19, 2), (19, 3))]  # fmt: skip
+NOISY = [
+    scan.Case(1.1, "none", start, 1000, seed)
+    for start, seed in ((11, 0), (16, 0), (9, 1), (13, 2), (19, 2), (19, 3))
+]
 
 
 @pytest.mark.parametrize("implementation", ["python", "c"])

@@ -108,8 +108,19 @@ def test_the_base_class_refuses_non_finite_commands_and_saturates():
     for bad in (math.nan, math.inf, -math.inf, 10**400, np.float32("nan")):
         with pytest.raises(ValueError, match="not a finite number"):
             backend.step(bad)
-    for bad in ("1 V", "1.5", None, np.datetime64("2020-01-01"), np.timedelta64(3, "s"),
-                True, np.True_, np.array([1.0]), np.array(1.0), [1.0], 1 + 0j):  # fmt: skip
+    for bad in (
+        "1 V",
+        "1.5",
+        None,
+        np.datetime64("2020-01-01"),
+        np.timedelta64(3, "s"),
+        True,
+        np.True_,
+        np.array([1.0]),
+        np.array(1.0),
+        [1.0],
+        1 + 0j,
+    ):
         with pytest.raises(ValueError, match=r"must be a real number.*got .*\(\w+\)"):
             backend.step(bad)
     assert backend.sent == [3.0, 10.0, -10.0]  # nothing more reached the device

@@ -81,8 +81,11 @@ def test_altino_start_is_in_the_papers_range_beyond_the_eq1_saturation():
 def test_altino_lugre_preset_mirrors_the_paper_levels_and_the_plant_mass():
     lugre, paper = ALTINO_LUGRE, ALTINO_PAPER
     assert (lugre.us_pos, lugre.us_neg, lugre.uc_pos, lugre.uc_neg) == (
-        paper.us_pos, paper.us_neg, paper.uc_pos, paper.uc_neg,
-    )  # fmt: skip
+        paper.us_pos,
+        paper.us_neg,
+        paper.uc_pos,
+        paper.uc_neg,
+    )
     assert lugre.viscous == paper.viscous
     # The Gaussian Stribeck curve is within 1 % of u_s - u_c of u_c at the paper's v0.
     for vs, v0 in ((lugre.vs_pos, paper.v0_pos), (lugre.vs_neg, paper.v0_neg)):

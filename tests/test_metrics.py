@@ -55,8 +55,9 @@ def test_offset_response_measured_against_reference():
     assert m.steady_state_error_pct == pytest.approx(3.0, abs=0.01)
     assert math.isinf(m.settling_time)  # never inside the 2 % band of the reference
     assert m.overshoot_pct == 0.0
-    assert m.rise_time == pytest.approx(0.1 * math.log(0.97 / 0.07) - 0.1 * math.log(0.97 / 0.87),
-                                        abs=2e-3)  # fmt: skip
+    assert m.rise_time == pytest.approx(
+        0.1 * math.log(0.97 / 0.07) - 0.1 * math.log(0.97 / 0.87), abs=2e-3
+    )
 
 
 def test_downward_step_and_nonzero_start():

@@ -35,8 +35,14 @@ ALTINO = "frictiongym/AltinoDistance-v0"
 
 #: A servo "identified" a little off the paper's preset, so that file and preset differ.
 SERVO_LAW = StictionCoulomb(
-    us_pos=0.25, us_neg=0.18, uc_pos=0.13, uc_neg=0.09, v0_pos=2.5, v0_neg=2.0, viscous=0.04,
-)  # fmt: skip
+    us_pos=0.25,
+    us_neg=0.18,
+    uc_pos=0.13,
+    uc_neg=0.09,
+    v0_pos=2.5,
+    v0_neg=2.0,
+    viscous=0.04,
+)
 SERVO_J, SERVO_B = 8.0e-3, 0.05
 
 
@@ -71,13 +77,22 @@ LAWS = [
 @pytest.mark.parametrize(("law", "friction"), LAWS)
 def test_round_trip_keeps_law_shape_uncertainty_and_metadata(tmp_path, law, friction):
     params = DeviceParams.from_model(
-        friction, inertia=SERVO_J, damping=SERVO_B, law=law, device="RotaryServo",
-        env_id=SERVO, uncertainty={"us_pos": 0.004, "J": 2e-4},
+        friction,
+        inertia=SERVO_J,
+        damping=SERVO_B,
+        law=law,
+        device="RotaryServo",
+        env_id=SERVO,
+        uncertainty={"us_pos": 0.004, "J": 2e-4},
         metadata={
-            "experiments": ["ramp", {"n": 3}], "residual": np.float32(0.5), "ok": True,
-            "map": np.array([[1.0, 2.0]]), "tau": math.nan, "aic": -math.inf,
+            "experiments": ["ramp", {"n": 3}],
+            "residual": np.float32(0.5),
+            "ok": True,
+            "map": np.array([[1.0, 2.0]]),
+            "tau": math.nan,
+            "aic": -math.inf,
         },
-    )  # fmt: skip
+    )
     path = save_params(tmp_path / "servo.json", params)
     loaded = load_params(path)
     assert loaded.law == law
@@ -300,8 +315,10 @@ def test_altino_preset_as_a_file_gives_identical_trajectories(tmp_path):
         obs_d, reward_d, terminated_d, _, info_d = default.step(np.array([u]))
         np.testing.assert_array_equal(obs, obs_d)
         assert (reward, info["position"], info["velocity"]) == (
-            reward_d, info_d["position"], info_d["velocity"]
-        )  # fmt: skip
+            reward_d,
+            info_d["position"],
+            info_d["velocity"],
+        )
         if terminated or terminated_d:
             assert terminated == terminated_d
             break

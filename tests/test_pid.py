@@ -64,8 +64,12 @@ def test_clamping_anti_windup():
 
 def test_back_calculation_bleeds_the_excess_into_the_integral():
     dt, tt = 0.01, 0.1
-    pid = PID(spec(dt, limit=2.0), PIDGains(kp=1.0, ki=10.0), anti_windup="back-calculation",
-              tracking_time=tt)  # fmt: skip
+    pid = PID(
+        spec(dt, limit=2.0),
+        PIDGains(kp=1.0, ki=10.0),
+        anti_windup="back-calculation",
+        tracking_time=tt,
+    )
     integral = 0.0
     for _ in range(50):
         u = float(pid.update(10.0, 0.0))

@@ -132,8 +132,10 @@ class System:
 def test_a_poisoned_sb3_entry_is_named_though_nothing_runs(tmp_path: Path) -> None:
     """``policy_class`` is an entry SB3 itself writes; one replaced by a call of
     ``os.system`` loaded with no word (SB3's own load would run it)."""
-    payload = {":type:": "<class 'abc.ABCMeta'>",
-               ":serialized:": base64.b64encode(pickle.dumps(System())).decode()}  # fmt: skip
+    payload = {
+        ":type:": "<class 'abc.ABCMeta'>",
+        ":serialized:": base64.b64encode(pickle.dumps(System())).decode(),
+    }
     hostile = rewrite(SHIPPED, tmp_path / "m.zip", lambda d: d.update(policy_class=payload))
     with pytest.warns(UserWarning, match=r"name what runs commands or code \(policy_class: .*sy"):
         ResidualController.load(hostile, gym.make(SERVO))

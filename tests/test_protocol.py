@@ -32,10 +32,17 @@ commands = st.builds(protocol.Command, U16, I16, st.builds(protocol.Flag, st.int
 hello_requests = st.builds(protocol.HelloRequest, st.integers(0, 255))
 places = st.builds(protocol.Place, st.floats(width=32, allow_nan=False))
 hellos = st.builds(
-    protocol.Hello, st.integers(0, 255), st.sampled_from(protocol.DeviceKind),
-    st.builds(protocol.Capability, st.integers(0, 255)), U16, U16, U16, I16, U16,
+    protocol.Hello,
+    st.integers(0, 255),
+    st.sampled_from(protocol.DeviceKind),
+    st.builds(protocol.Capability, st.integers(0, 255)),
+    U16,
+    U16,
+    U16,
+    I16,
+    U16,
     st.integers(0, 2**32 - 1),
-)  # fmt: skip
+)
 states = st.builds(
     protocol.State,
     st.builds(protocol.Status, st.integers(0, 255)),
@@ -338,10 +345,14 @@ def test_fuzz_random_bytes(stream: bytes, cuts: list[int]) -> None:
 
 @given(
     st.lists(messages, max_size=12),
-    st.lists(st.tuples(st.sampled_from(["flip", "drop", "insert"]), st.integers(0, 10**6),
-                       st.integers(0, 255)), max_size=8),
+    st.lists(
+        st.tuples(
+            st.sampled_from(["flip", "drop", "insert"]), st.integers(0, 10**6), st.integers(0, 255)
+        ),
+        max_size=8,
+    ),
     st.lists(st.integers(0, 400), max_size=10),
-)  # fmt: skip
+)
 def test_fuzz_damaged_streams(
     batch: list[protocol.Message], damage: list[tuple[str, int, int]], cuts: list[int]
 ) -> None:

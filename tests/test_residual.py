@@ -151,8 +151,12 @@ def test_the_controller_computes_the_observation_the_env_trains_on(env_id):
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_an_adversarial_controller_stays_within_the_bound_on_a_vector_env(env_id):
-    vec = gym.make_vec(env_id, num_envs=3, vectorization_mode="vector_entry_point",
-                       randomize={"friction": (0.5, 1.5)})  # fmt: skip
+    vec = gym.make_vec(
+        env_id,
+        num_envs=3,
+        vectorization_mode="vector_entry_point",
+        randomize={"friction": (0.5, 1.5)},
+    )
     config = ResidualConfig.for_env(vec)
     for value in (1e6, -1e6, np.nan):
         controller = ResidualController(make_base(vec), ConstantPolicy(value), config)
@@ -193,8 +197,23 @@ def trained(tmp_path_factory):
     out = {}
     for env_id in IDS:
         path = tmp_path_factory.mktemp("train") / "run"
-        status = main(["train", "--env", env_id, "--quick", "--steps", "512", "--out", str(path),
-                       "--seed", "1", "--checkpoint-every", "256", "--quiet"])  # fmt: skip
+        status = main(
+            [
+                "train",
+                "--env",
+                env_id,
+                "--quick",
+                "--steps",
+                "512",
+                "--out",
+                str(path),
+                "--seed",
+                "1",
+                "--checkpoint-every",
+                "256",
+                "--quiet",
+            ]
+        )
         assert status == 0
         out[env_id] = path
     return out
@@ -219,8 +238,9 @@ def test_training_writes_the_model_logs_checkpoints_and_summary(trained):
 
 def test_resume_continues_to_the_total_steps(trained, capsys):
     path = trained[ALTINO]
-    status = main(["train", "--env", ALTINO, "--steps", "1024", "--out", str(path), "--resume",
-                   "--quiet"])  # fmt: skip
+    status = main(
+        ["train", "--env", ALTINO, "--steps", "1024", "--out", str(path), "--resume", "--quiet"]
+    )
     assert status == 0
     summary = json.loads((path / "train.json").read_text())
     assert (summary["steps"], summary["steps_this_run"]) == (1024, 512)
@@ -228,8 +248,19 @@ def test_resume_continues_to_the_total_steps(trained, capsys):
     # Nothing left to do, and another algorithm than the model's: exit 2 with a message.
     assert main(["train", "--env", ALTINO, "--steps", "1024", "--out", str(path), "--resume"]) == 2
     assert "give a larger --steps" in capsys.readouterr().err
-    status = main(["train", "--env", ALTINO, "--algo", "sac", "--out", str(path), "--resume",
-                   str(path / "checkpoints" / "model_256_steps.zip")])  # fmt: skip
+    status = main(
+        [
+            "train",
+            "--env",
+            ALTINO,
+            "--algo",
+            "sac",
+            "--out",
+            str(path),
+            "--resume",
+            str(path / "checkpoints" / "model_256_steps.zip"),
+        ]
+    )
     assert status == 2
     assert "--algo ppo" in capsys.readouterr().err
 
@@ -267,8 +298,12 @@ def test_save_load_round_trip_gives_the_same_actions(tmp_path):
     env = ResidualEnv(gym.make(SERVO, reference="random_steps"))
     model = sb3.SAC("MlpPolicy", env, seed=0, learning_starts=10, buffer_size=100, device="cpu")
     model.learn(20)
-    meta = {"env_id": SERVO, "algo": "sac", "config": env.config.to_dict(),
-            "base": {"kind": "compensated"}}  # fmt: skip
+    meta = {
+        "env_id": SERVO,
+        "algo": "sac",
+        "config": env.config.to_dict(),
+        "base": {"kind": "compensated"},
+    }
     model.frictiongym_residual = meta
     model.save(tmp_path / "model.zip")
     loaded = ResidualController.load(tmp_path / "model.zip", gym.make(SERVO))
@@ -312,8 +347,20 @@ def test_help_explains_the_options(capsys):
         main(["train", "--help"])
     assert info.value.code == 0
     out = capsys.readouterr().out
-    for option in ("--env", "--algo", "--steps", "--seed", "--out", "--randomize", "--quick",
-                   "--resume", "--n-envs", "--checkpoint-every", "--quiet", "--scale"):  # fmt: skip
+    for option in (
+        "--env",
+        "--algo",
+        "--steps",
+        "--seed",
+        "--out",
+        "--randomize",
+        "--quick",
+        "--resume",
+        "--n-envs",
+        "--checkpoint-every",
+        "--quiet",
+        "--scale",
+    ):
         assert option in out
 
 

@@ -76,9 +76,29 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     torch = pytest.importorskip("torch")
     torch.set_num_threads(2)  # numba's OpenMP layer would also leave it at 2 (bench_training.py)
     out = tmp_path / "run"
-    status = main(["train", "--env", ALTINO, "--quick", "--steps", "1024", "--out", str(out),
-                   "--validate-every", "256", "--validation-plants", "1", "--reward", "precision",
-                   "--sb3", "gamma=0.98", "--sb3", "n_epochs=2", "--quiet"])  # fmt: skip
+    status = main(
+        [
+            "train",
+            "--env",
+            ALTINO,
+            "--quick",
+            "--steps",
+            "1024",
+            "--out",
+            str(out),
+            "--validate-every",
+            "256",
+            "--validation-plants",
+            "1",
+            "--reward",
+            "precision",
+            "--sb3",
+            "gamma=0.98",
+            "--sb3",
+            "n_epochs=2",
+            "--quiet",
+        ]
+    )
     assert status == 0
     with (out / "validation.csv").open() as file:
         rows = list(csv.DictReader(file))
@@ -99,8 +119,21 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     assert validation(controller.model).score == pytest.approx(best, rel=1e-5)
     assert not list(out.glob(".*partial*"))
     # Continuing it with another objective would change what the policy optimises.
-    status = main(["train", "--env", ALTINO, "--steps", "2048", "--out", str(out), "--resume",
-                   "--reward", "env", "--quiet"])  # fmt: skip
+    status = main(
+        [
+            "train",
+            "--env",
+            ALTINO,
+            "--steps",
+            "2048",
+            "--out",
+            str(out),
+            "--resume",
+            "--reward",
+            "env",
+            "--quiet",
+        ]
+    )
     assert status == 2
     assert "trained with --reward precision" in capsys.readouterr().err
 

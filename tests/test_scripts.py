@@ -23,25 +23,84 @@ def test_plot_friction_writes_a_png(tmp_path):
 @pytest.mark.parametrize(
     ("script", "options"),
     [
-        ("bench_plants.py", ("--batches", "--repeats", "--quick", "--markdown", "--part",
-                             "--thread-sizes", "--loads", "--tuner-chunk")),
-        ("bench_envs.py", ("--repeats", "--seconds", "--num-envs", "--quick", "--markdown",
-                           "--seed", "--part", "--thread-sizes", "--loads")),
-        ("bench_rl_loops.py", ("--repeats", "--rollout", "--loads", "--loops", "--quick",
-                               "--torch-threads", "--markdown")),
-        ("benchmark.py", ("--out", "--quick", "--group", "--scenario", "--seeds",
-                          "--no-figures")),
+        (
+            "bench_plants.py",
+            (
+                "--batches",
+                "--repeats",
+                "--quick",
+                "--markdown",
+                "--part",
+                "--thread-sizes",
+                "--loads",
+                "--tuner-chunk",
+            ),
+        ),
+        (
+            "bench_envs.py",
+            (
+                "--repeats",
+                "--seconds",
+                "--num-envs",
+                "--quick",
+                "--markdown",
+                "--seed",
+                "--part",
+                "--thread-sizes",
+                "--loads",
+            ),
+        ),
+        (
+            "bench_rl_loops.py",
+            (
+                "--repeats",
+                "--rollout",
+                "--loads",
+                "--loops",
+                "--quick",
+                "--torch-threads",
+                "--markdown",
+            ),
+        ),
+        ("benchmark.py", ("--out", "--quick", "--group", "--scenario", "--seeds", "--no-figures")),
         ("identify.py", ("--env", "--out", "--backend", "--law", "--noise", "--seed")),
         ("tune.py", ("--samples", "--seed", "--out", "--model", "--params", "--rule")),
-        ("emulate.py", ("--device", "--tcp", "--params", "--lockstep", "--drop", "--corrupt",
-                        "--delay", "--unplug-after")),
-        ("sim2real.py", ("--env", "--backend", "--controller", "--gains", "--params",
-                         "--repeats", "--out")),
+        (
+            "emulate.py",
+            (
+                "--device",
+                "--tcp",
+                "--params",
+                "--lockstep",
+                "--drop",
+                "--corrupt",
+                "--delay",
+                "--unplug-after",
+            ),
+        ),
+        (
+            "sim2real.py",
+            ("--env", "--backend", "--controller", "--gains", "--params", "--repeats", "--out"),
+        ),
         ("bench_hardware.py", ("--seconds", "--frames")),
-        ("train_residual.py", ("--env", "--algo", "--steps", "--seed", "--out", "--randomize",
-                               "--quick", "--resume", "--n-envs", "--checkpoint-every", "--quiet")),
+        (
+            "train_residual.py",
+            (
+                "--env",
+                "--algo",
+                "--steps",
+                "--seed",
+                "--out",
+                "--randomize",
+                "--quick",
+                "--resume",
+                "--n-envs",
+                "--checkpoint-every",
+                "--quiet",
+            ),
+        ),
     ],
-)  # fmt: skip
+)
 def test_script_help_explains_its_options(script, options):
     done = subprocess.run(
         [sys.executable, str(SCRIPTS / script), "--help"],
@@ -83,14 +142,29 @@ def test_bench_envs_quick_reports_both_headline_ratios():
 )
 def test_threads_part_compares_the_default_with_both_kernels(script, extra):
     done = subprocess.run(
-        [sys.executable, str(SCRIPTS / script), "--part", "threads", "--quick", "--markdown",
-         "--loads", "quiet", "busy", "--thread-sizes", "512", "--repeats", "1", "--seconds",
-         "0.02", *extra],
+        [
+            sys.executable,
+            str(SCRIPTS / script),
+            "--part",
+            "threads",
+            "--quick",
+            "--markdown",
+            "--loads",
+            "quiet",
+            "busy",
+            "--thread-sizes",
+            "512",
+            "--repeats",
+            "1",
+            "--seconds",
+            "0.02",
+            *extra,
+        ],
         capture_output=True,
         text=True,
         check=False,
         timeout=120,
-    )  # fmt: skip
+    )
     assert done.returncode == 0, done.stderr
     assert "| load | N | serial kernel" in done.stdout
     for load in ("quiet", "busy"):

@@ -33,9 +33,13 @@ def test_rmse_and_fit_are_exact_on_known_signals():
 @pytest.mark.parametrize("controller", ["pid", "compensated"])
 def test_the_friction_model_closes_most_of_the_gap_on_the_emulated_servo(tmp_path, controller):
     result = run_sim2real(
-        SERVO, "emulator://rotary?lockstep=1&noise=1", controller=controller, repeats=3,
-        steps=750, log=tmp_path / "log",
-    )  # fmt: skip
+        SERVO,
+        "emulator://rotary?lockstep=1&noise=1",
+        controller=controller,
+        repeats=3,
+        steps=750,
+        log=tmp_path / "log",
+    )
     assert len(result.device) == 3
     # The emulated device is the paper's plant: its friction model is far closer than the
     # frictionless nominal one, down to the device's own spread (its sensor noise).
@@ -70,14 +74,25 @@ def test_an_identified_model_and_explicit_gains_are_used(tmp_path):
 
     params = tmp_path / "friction.json"
     total_damping = ALTINO_PLANT.damping + ALTINO_PAPER.viscous  # B of a file is the total
-    save_params(params, DeviceParams.from_model(
-        ALTINO_PAPER, inertia=ALTINO_PLANT.inertia, damping=total_damping, law="paper",
-        device="AltinoDistance",
-    ))  # fmt: skip
+    save_params(
+        params,
+        DeviceParams.from_model(
+            ALTINO_PAPER,
+            inertia=ALTINO_PLANT.inertia,
+            damping=total_damping,
+            law="paper",
+            device="AltinoDistance",
+        ),
+    )
     result = run_sim2real(
-        ALTINO, "emulator://altino?lockstep=1", params=str(params), repeats=1, steps=200,
-        gains=PIDGains(25.0, 10.0, 12.0), log=False,
-    )  # fmt: skip
+        ALTINO,
+        "emulator://altino?lockstep=1",
+        params=str(params),
+        repeats=1,
+        steps=200,
+        gains=PIDGains(25.0, 10.0, 12.0),
+        log=False,
+    )
     assert set(result.models) == {"nominal", "friction", "identified"}
     assert result.gains == {"kp": 25.0, "ki": 10.0, "kd": 12.0}
     assert result.gap("identified", "output") < result.gap("nominal", "output")
@@ -85,17 +100,41 @@ def test_an_identified_model_and_explicit_gains_are_used(tmp_path):
 
 def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     out = tmp_path / "report"
-    status = main([
-        "sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-        "--repeats", "2", "--steps", "300", "--out", str(out), "--no-figures",
-    ])  # fmt: skip
+    status = main(
+        [
+            "sim2real",
+            "--env",
+            SERVO,
+            "--backend",
+            "emulator://rotary?lockstep=1",
+            "--repeats",
+            "2",
+            "--steps",
+            "300",
+            "--out",
+            str(out),
+            "--no-figures",
+        ]
+    )
     assert status == 0
     assert "friction" in capsys.readouterr().out
     assert (out / "report.md").exists()
     (log,) = (out / "device-logs").iterdir()
     assert (log / "steps.csv").exists()
-    rerun = ["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-             "--repeats", "1", "--steps", "10", "--out", str(out), "--quiet"]  # fmt: skip
+    rerun = [
+        "sim2real",
+        "--env",
+        SERVO,
+        "--backend",
+        "emulator://rotary?lockstep=1",
+        "--repeats",
+        "1",
+        "--steps",
+        "10",
+        "--out",
+        str(out),
+        "--quiet",
+    ]
     assert main(rerun) == 2  # the earlier report is not replaced without --overwrite
     assert "give --overwrite" in capsys.readouterr().err
     assert main([*rerun, "--overwrite"]) == 0
@@ -103,18 +142,56 @@ def test_the_command_writes_the_report_and_refuses_bad_input(tmp_path, capsys):
     file = tmp_path / "a-file"
     file.write_text("x")
     assert main(["sim2real", "--env", SERVO, "--backend", "emulator://", "--out", str(file)]) == 2
-    assert main(["sim2real", "--env", SERVO, "--backend", "/dev/frictiongym-none",
-                 "--out", str(tmp_path / "x")]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "sim2real",
+                "--env",
+                SERVO,
+                "--backend",
+                "/dev/frictiongym-none",
+                "--out",
+                str(tmp_path / "x"),
+            ]
+        )
+        == 2
+    )
     assert "could not open" in capsys.readouterr().err
-    assert main(["sim2real", "--env", "frictiongym/Nope-v0", "--backend", "emulator://",
-                 "--out", str(tmp_path / "y")]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "sim2real",
+                "--env",
+                "frictiongym/Nope-v0",
+                "--backend",
+                "emulator://",
+                "--out",
+                str(tmp_path / "y"),
+            ]
+        )
+        == 2
+    )
     assert "unknown env id 'frictiongym/Nope-v0'" in capsys.readouterr().err
 
 
 def test_a_reference_beyond_the_safety_limit_is_refused_up_front(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-                 "--reference", "100", "--out", str(out)]) == 2  # fmt: skip
+    assert (
+        main(
+            [
+                "sim2real",
+                "--env",
+                SERVO,
+                "--backend",
+                "emulator://rotary?lockstep=1",
+                "--reference",
+                "100",
+                "--out",
+                str(out),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert err.count("\n") == 1
     assert "reference 100 rad lies beyond the servo's safety limit of 12.57 rad" in err
@@ -131,9 +208,24 @@ def test_runs_the_safety_limit_ends_are_reported_not_compared(tmp_path, capsys):
     """12.5 rad is inside the 4π limit, but the paper's PID overshoots past it after ~90 steps:
     every run ends there, so there is nothing to compare, and the report says why."""
     out = tmp_path / "out"
-    status = main(["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1",
-                   "--reference", "12.5", "--repeats", "2", "--steps", "300", "--out", str(out),
-                   "--no-figures"])  # fmt: skip
+    status = main(
+        [
+            "sim2real",
+            "--env",
+            SERVO,
+            "--backend",
+            "emulator://rotary?lockstep=1",
+            "--reference",
+            "12.5",
+            "--repeats",
+            "2",
+            "--steps",
+            "300",
+            "--out",
+            str(out),
+            "--no-figures",
+        ]
+    )
     err = capsys.readouterr().err
     assert status == 1
     assert "error: no device run completed (2 by the safety limit)" in err
@@ -177,13 +269,17 @@ def test_a_watchdog_trip_marks_its_run_and_the_others_go_on(tmp_path, monkeypatc
 
     original = run_module.build_controller
     monkeypatch.setattr(
-        run_module, "build_controller",
+        run_module,
+        "build_controller",
         lambda env, kind, gains: _StallingController(original(env, kind, gains), 2, 100, 0.3),
-    )  # fmt: skip
+    )
     result = run_sim2real(
-        SERVO, "emulator://rotary?lockstep=1&watchdog_ms=100", repeats=3, steps=300,
+        SERVO,
+        "emulator://rotary?lockstep=1&watchdog_ms=100",
+        repeats=3,
+        steps=300,
         log=tmp_path / "log",
-    )  # fmt: skip
+    )
     assert [run.ended for run in result.runs] == ["complete", "watchdog", "complete"]
     assert result.runs[1].steps == 99
     assert "watchdog tripped" in result.runs[1].detail
@@ -233,9 +329,10 @@ def test_a_link_fault_marks_its_run_and_the_others_go_on(tmp_path, monkeypatch, 
 
     original = run_module.build_controller
     monkeypatch.setattr(
-        run_module, "build_controller",
+        run_module,
+        "build_controller",
         lambda env, kind, gains: _FreezingController(original(env, kind, gains), env, 2, 50),
-    )  # fmt: skip
+    )
     out = tmp_path / "out"
     argv = ["sim2real", "--env", SERVO, "--backend", "emulator://rotary?lockstep=1"]
     status = main([*argv, "--repeats", "3", "--steps", "200", "--out", str(out), "--no-figures"])
@@ -299,15 +396,18 @@ def test_the_device_example_holds_up_with_a_core_busy(tmp_path, monkeypatch):
     heap = [[] for _ in range(1_000_000)]  # a large process, as one that has imported torch
     original = run_module.build_controller
     monkeypatch.setattr(
-        run_module, "build_controller",
+        run_module,
+        "build_controller",
         lambda env, kind, gains: _CollectingController(original(env, kind, gains), 0, 300, 0.0),
-    )  # fmt: skip
+    )
     # Each in a session of its own, as from other shells (Linux shares a session's CPU time).
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
     emulator = subprocess.Popen(
         [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", "rotary", "--quiet"],
-        stdout=subprocess.PIPE, text=True, start_new_session=True,
-    )  # fmt: skip
+        stdout=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
     try:
         ready, _, _ = select.select([emulator.stdout], [], [], 60.0)
         assert ready, "the emulator printed no port"
@@ -336,10 +436,12 @@ def test_a_run_the_altino_guard_stops_is_told_from_one_the_safety_limit_ends():
     trace = Rollout.of_one_run(np.arange(80) * 0.05, terminated=True, measured=zeros)
     guard = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0, status=int(Status.LIMIT)))
     assert _ended_early(guard, trace, 0.0, encoder=False) == (
-        DEVICE_LIMIT, "the device's distance guard stopped it after 79 steps"
-    )  # fmt: skip
+        DEVICE_LIMIT,
+        "the device's distance guard stopped it after 79 steps",
+    )
     wall = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0))
     assert _ended_early(wall, trace, 0.0, encoder=False) == (
-        SAFETY_LIMIT, "the safety limit ended it after 79 steps (the car reached 0 cm)"
-    )  # fmt: skip
+        SAFETY_LIMIT,
+        "the safety limit ended it after 79 steps (the car reached 0 cm)",
+    )
     assert _ended_early(wall, trace, 12.566, encoder=True)[1].endswith("(|angle| passed 12.57 rad)")

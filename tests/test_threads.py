@@ -218,8 +218,9 @@ def test_keep_drops_plants_and_the_others_go_on_exactly() -> None:
     """``Plant.keep`` (the tuner's early stop): per-plant laws, dead time, kernel carried over."""
     n = PARALLEL_MIN_PLANTS + 100
     rng = np.random.default_rng(1)
-    params = [PlantParams(7.143e-3 * f, 0.0446, 10.0, dead_time=0.004) for f in rng.uniform(
-        0.8, 1.2, n)]  # fmt: skip
+    params = [
+        PlantParams(7.143e-3 * f, 0.0446, 10.0, dead_time=0.004) for f in rng.uniform(0.8, 1.2, n)
+    ]
     laws = [ROTARY_PAPER.replace(shape=s) for s in ("linear", "exponential")] * (n // 2)
     u = rng.normal(0.0, 0.3, (150, n))
     full = Plant(params, laws, 0.002, num_plants=n)

@@ -44,8 +44,12 @@ def test_batch_metrics_equal_step_metrics_column_by_column():
     rng = np.random.default_rng(0)
     t = np.arange(0.0, 2.0 + 1e-9, 0.01)
     columns = []
-    for zeta, wn, gain in zip(rng.uniform(0.1, 1.5, 40), rng.uniform(2.0, 30.0, 40),
-                              rng.uniform(0.5, 1.1, 40), strict=True):  # fmt: skip
+    for zeta, wn, gain in zip(
+        rng.uniform(0.1, 1.5, 40),
+        rng.uniform(2.0, 30.0, 40),
+        rng.uniform(0.5, 1.1, 40),
+        strict=True,
+    ):
         wd = wn * math.sqrt(abs(1.0 - zeta**2)) + 1e-9
         y = gain * (1.0 - np.exp(-zeta * wn * t) * np.cos(wd * t))
         columns.append(y + rng.normal(0.0, 0.004, t.size) * (len(columns) % 2))
@@ -79,8 +83,9 @@ def test_array_gains_drive_a_batch_exactly_like_scalar_pids():
         # take() continues the selected entries exactly
         part = batch.take(np.array([True, False, True, False, True]))
         y, v = rng.normal(size=5), rng.normal(size=5)
-        np.testing.assert_array_equal(part.update(1.0, y[::2], v[::2]),
-                                      batch.update(1.0, y, v)[::2])  # fmt: skip
+        np.testing.assert_array_equal(
+            part.update(1.0, y[::2], v[::2]), batch.update(1.0, y, v)[::2]
+        )
 
 
 def test_array_gains_are_validated():
@@ -108,11 +113,14 @@ LOOSE = StepSpecs(rise_time=0.1, peak_time=0.3, settling_time=0.3, overshoot_pct
 
 @pytest.mark.parametrize(
     ("model", "specs"),
-    [(TuningModel(), SPECS), (TuningModel.paper(with_friction=True), SPECS),
-     (TuningModel(), LOOSE),
-     (TuningModel.paper(with_friction=True).replace(velocity="filtered"), SPECS)],
+    [
+        (TuningModel(), SPECS),
+        (TuningModel.paper(with_friction=True), SPECS),
+        (TuningModel(), LOOSE),
+        (TuningModel.paper(with_friction=True).replace(velocity="filtered"), SPECS),
+    ],
     ids=["nominal", "friction", "nominal-loose-specs", "friction-filtered-velocity"],
-)  # fmt: skip
+)
 def test_early_stop_gives_exactly_the_full_evaluation(model, specs):
     gains = _mixed(2, 400, 400)
     fast = simulate(gains, model, specs, 3.0, early_stop=True)
@@ -125,10 +133,10 @@ def test_early_stop_gives_exactly_the_full_evaluation(model, specs):
     np.testing.assert_array_equal(fast.feasible, full.feasible)
     assert not full.feasible[~fast.complete].any()  # every stopped candidate is infeasible
     done = fast.complete
-    for name in ("rise_time", "peak_time", "settling_time", "overshoot_pct",
-                 "steady_state_error"):  # fmt: skip
-        np.testing.assert_array_equal(getattr(fast.metrics, name)[done],
-                                      getattr(full.metrics, name)[done])  # fmt: skip
+    for name in ("rise_time", "peak_time", "settling_time", "overshoot_pct", "steady_state_error"):
+        np.testing.assert_array_equal(
+            getattr(fast.metrics, name)[done], getattr(full.metrics, name)[done]
+        )
     np.testing.assert_array_equal(fast.itae, full.itae)
     np.testing.assert_array_equal(fast.peak_command[done], full.peak_command[done])
 
@@ -136,9 +144,13 @@ def test_early_stop_gives_exactly_the_full_evaluation(model, specs):
 def _near_boundary(metrics, index: int) -> bool:
     """A metric within one sample (times) or 1e-6 % (overshoot) of its spec."""
     m = metrics[index]
-    return any(abs(getattr(m, name) - getattr(SPECS, name)) <= DT + 1e-12
-               for name in ("rise_time", "peak_time", "settling_time")) or abs(
-        m.overshoot_pct - SPECS.overshoot_pct) <= 1e-6  # fmt: skip
+    return (
+        any(
+            abs(getattr(m, name) - getattr(SPECS, name)) <= DT + 1e-12
+            for name in ("rise_time", "peak_time", "settling_time")
+        )
+        or abs(m.overshoot_pct - SPECS.overshoot_pct) <= 1e-6
+    )
 
 
 def test_feasibility_agrees_with_python_control_on_the_same_sampled_data_loop():
@@ -150,17 +162,18 @@ def test_feasibility_agrees_with_python_control_on_the_same_sampled_data_loop():
     theirs = reference.step_info_metrics(systems, ours.t, SPECS)
     feasible = SPECS.feasible(theirs)
     differ = np.flatnonzero(feasible != ours.feasible)
-    boundary = [i for i in differ if _near_boundary(ours.metrics, i)
-                or _near_boundary(theirs, i)]  # fmt: skip
+    boundary = [i for i in differ if _near_boundary(ours.metrics, i) or _near_boundary(theirs, i)]
     assert list(differ) == boundary  # disagreements only on a spec's boundary
     assert ours.feasible.sum() >= 10
     assert len(differ) <= 2
     both = ours.feasible | feasible
     for name in ("rise_time", "peak_time", "settling_time"):
-        np.testing.assert_allclose(getattr(ours.metrics, name)[both],
-                                   getattr(theirs, name)[both], atol=DT + 1e-12)  # fmt: skip
-    np.testing.assert_allclose(ours.metrics.overshoot_pct[both], theirs.overshoot_pct[both],
-                               atol=1e-8)  # fmt: skip
+        np.testing.assert_allclose(
+            getattr(ours.metrics, name)[both], getattr(theirs, name)[both], atol=DT + 1e-12
+        )
+    np.testing.assert_allclose(
+        ours.metrics.overshoot_pct[both], theirs.overshoot_pct[both], atol=1e-8
+    )
     # With the real ±10 V limit, candidates that never reach it give the same verdicts.
     real = simulate(gains, TuningModel(), SPECS, 3.0, early_stop=False)
     linear = real.peak_command < ROTARY_PLANT.command_limit
@@ -259,9 +272,23 @@ def test_cli_writes_tune_json_and_figure(tmp_path, capsys):
     assert status == 0
     assert (out / "tune.png").stat().st_size > 10_000
     rec = json.loads((out / "tune.json").read_text())
-    for key in ("n_samples", "n_feasible", "feasible", "chosen", "rule", "paper_gains", "specs",
-                "bounds", "model", "seed", "dt", "horizon", "software", "wall_time_s",
-                "command"):  # fmt: skip
+    for key in (
+        "n_samples",
+        "n_feasible",
+        "feasible",
+        "chosen",
+        "rule",
+        "paper_gains",
+        "specs",
+        "bounds",
+        "model",
+        "seed",
+        "dt",
+        "horizon",
+        "software",
+        "wall_time_s",
+        "command",
+    ):
         assert key in rec
     assert rec["n_samples"] == 300
     assert rec["n_feasible"] == len(rec["feasible"])
@@ -282,16 +309,33 @@ def test_cli_writes_tune_json_and_figure(tmp_path, capsys):
 def test_cli_friction_model_and_params_file(tmp_path, capsys):
     from frictiongym.params import DeviceParams, save_params
 
-    status = tool_main("tune", ["--samples", "200", "--model", "friction", "--out",
-                           str(tmp_path / "f"), "--no-figures"])  # fmt: skip
+    status = tool_main(
+        "tune",
+        ["--samples", "200", "--model", "friction", "--out", str(tmp_path / "f"), "--no-figures"],
+    )
     assert status == 0
     assert "of 200 candidates feasible" in capsys.readouterr().out
     assert json.loads((tmp_path / "f" / "tune.json").read_text())["model"]["name"] == "friction"
-    params = DeviceParams.from_model(ROTARY_PAPER.replace(viscous=0.0411), inertia=7.143e-3,
-                                     damping=0.0446, device="RotaryServo")  # fmt: skip
+    params = DeviceParams.from_model(
+        ROTARY_PAPER.replace(viscous=0.0411), inertia=7.143e-3, damping=0.0446, device="RotaryServo"
+    )
     file = save_params(tmp_path / "id", params)
-    assert tool_main("tune", ["--samples", "200", "--params", str(file), "--out",
-                         str(tmp_path / "p"), "--no-figures", "--quiet"]) == 0  # fmt: skip
+    assert (
+        tool_main(
+            "tune",
+            [
+                "--samples",
+                "200",
+                "--params",
+                str(file),
+                "--out",
+                str(tmp_path / "p"),
+                "--no-figures",
+                "--quiet",
+            ],
+        )
+        == 0
+    )
     model = json.loads((tmp_path / "p" / "tune.json").read_text())["model"]
     assert model["name"] == "params"
     assert model["friction"]["law"] == "paper"
@@ -329,17 +373,33 @@ def test_cli_rejects_a_file_as_out_and_bad_params_files(tmp_path, capsys):
     from frictiongym.friction import ALTINO_PAPER
     from frictiongym.params import DeviceParams, save_params
 
-    car = save_params(tmp_path / "car", DeviceParams.from_model(
-        ALTINO_PAPER, inertia=2.2, damping=10.93, device="AltinoDistance"))  # fmt: skip
+    car = save_params(
+        tmp_path / "car",
+        DeviceParams.from_model(ALTINO_PAPER, inertia=2.2, damping=10.93, device="AltinoDistance"),
+    )
     assert tool_main("tune", ["--params", str(car), "--out", str(tmp_path / "o")]) == 2
     assert "RotaryServo" in capsys.readouterr().err
 
 
 def test_scripts_explain_their_options():
     scripts = Path(__file__).resolve().parents[1] / "scripts"
-    done = subprocess.run([sys.executable, str(scripts / "tune.py"), "--help"],
-                          capture_output=True, text=True, check=False)  # fmt: skip
+    done = subprocess.run(
+        [sys.executable, str(scripts / "tune.py"), "--help"],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
     assert done.returncode == 0, done.stderr
-    for option in ("--samples", "--seed", "--out", "--model", "--params", "--rule", "--horizon",
-                   "--no-figures", "--quiet", "--full"):  # fmt: skip
+    for option in (
+        "--samples",
+        "--seed",
+        "--out",
+        "--model",
+        "--params",
+        "--rule",
+        "--horizon",
+        "--no-figures",
+        "--quiet",
+        "--full",
+    ):
         assert option in done.stdout

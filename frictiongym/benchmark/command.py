@@ -170,8 +170,10 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
     for device, path in models.items():
         meta = read_metadata(path)  # FileNotFoundError / ValueError with a message
         if meta["config"]["device"] != devices.get(device).name:
-            raise ValueError(f"--residual {device}={path}: the model is for "
-                             f"{meta['config']['device']}, not for {device}")  # fmt: skip
+            raise ValueError(
+                f"--residual {device}={path}: the model is for "
+                f"{meta['config']['device']}, not for {device}"
+            )
         randomize = meta.get("env_kwargs", {}).get("randomize")
         check_seed(args.heldout_seed, "--heldout-seed")
         out += residual_scenarios(device, path, plants, randomize, args.heldout_seed)
@@ -181,16 +183,19 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
 def _summary(results: Sequence[Result]) -> None:
     runs = [r for r in results if r.scenario.group == "paper"]
     if runs:
-        print(f"\n{'scenario':<28}{'rise s':>8}{'settle s':>10}{'OS %':>8}{'SSE %':>8}"
-              f"{'cycle':>8}")  # fmt: skip
+        print(f"\n{'scenario':<28}{'rise s':>8}{'settle s':>10}{'OS %':>8}{'SSE %':>8}{'cycle':>8}")
         for r in runs:
             m = r.metrics
-            print(f"{r.scenario.name:<28}{format_metric(m.rise_time, '.3f'):>8}"
-                  f"{format_metric(m.settling_time, '.3f'):>10}{m.overshoot_pct:>8.2f}"
-                  f"{m.steady_state_error_pct:>8.2f}{m.limit_cycle_amplitude:>8.3g}")  # fmt: skip
+            print(
+                f"{r.scenario.name:<28}{format_metric(m.rise_time, '.3f'):>8}"
+                f"{format_metric(m.settling_time, '.3f'):>10}{m.overshoot_pct:>8.2f}"
+                f"{m.steady_state_error_pct:>8.2f}{m.limit_cycle_amplitude:>8.3g}"
+            )
     for c in paper_claims(results):
-        print(f"\n[{'agrees' if c.agrees else 'differs'}] {c.claim}\n  paper: {c.paper}"
-              f"\n  ours:  {c.ours}")  # fmt: skip
+        print(
+            f"\n[{'agrees' if c.agrees else 'differs'}] {c.claim}\n  paper: {c.paper}"
+            f"\n  ours:  {c.ours}"
+        )
     table = residual_markdown(results)
     if table:
         print("\n" + "\n".join(table[4:]))
@@ -212,14 +217,21 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
 
     start = time.perf_counter()
     with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
-        with tqdm(total=len(scenarios), desc="benchmark", unit="scenario",
-                  disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
+        with tqdm(
+            total=len(scenarios),
+            desc="benchmark",
+            unit="scenario",
+            disable=args.quiet,
+            file=sys.stderr,
+        ) as bar:
             results = run_benchmark(scenarios, progress=lambda s: bar.update())
         write_reports(results, out.path, command, None if args.no_figures else write_figures)
         written = out.commit()
     if not args.quiet:
         _summary(results)
-        print(f"\n{len(results)} runs of {len(scenarios)} scenarios in "
-              f"{time.perf_counter() - start:.1f} s; written to {args.out}/:")  # fmt: skip
+        print(
+            f"\n{len(results)} runs of {len(scenarios)} scenarios in "
+            f"{time.perf_counter() - start:.1f} s; written to {args.out}/:"
+        )
         print("  " + "  ".join(p.name for p in written))
     return 0

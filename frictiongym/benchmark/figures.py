@@ -28,8 +28,14 @@ def _friction_panel(
     for name, law in laws.items():
         ax.plot(v, law.force(v), label=name, lw=1.6 if name == "paper" else 1.1)
     us_pos, us_neg = laws["paper"].breakaway
-    ax.plot([0.0, 0.0], [-us_neg, us_pos], color="k", lw=3, solid_capstyle="butt",
-            label="at rest: holds inside")  # fmt: skip
+    ax.plot(
+        [0.0, 0.0],
+        [-us_neg, us_pos],
+        color="k",
+        lw=3,
+        solid_capstyle="butt",
+        label="at rest: holds inside",
+    )
     viscous = getattr(laws["paper"], "viscous", 0.0)
     if viscous:
         ax.plot(v, viscous * v, color="grey", ls="-.", lw=0.9, label="viscous part")
@@ -66,8 +72,9 @@ def _responses(
     device = get(chosen[0][1].scenario.env_id)
     units = (device.position_unit, device.command_unit)
     plt = pyplot()
-    fig, (ax, ax_err, ax_u) = plt.subplots(3, 1, figsize=(8, 8), sharex=True,
-                                           gridspec_kw={"height_ratios": [3, 2, 2]})  # fmt: skip
+    fig, (ax, ax_err, ax_u) = plt.subplots(
+        3, 1, figsize=(8, 8), sharex=True, gridspec_kw={"height_ratios": [3, 2, 2]}
+    )
     for label, r in chosen:
         t = r.rollout.t[: r.rollout.length[r.env]]
         y = r.rollout.signal("position", r.env)
@@ -76,8 +83,9 @@ def _responses(
         ax_err.plot(t, ref - y, color=line.get_color(), lw=1.1)
         ax_u.plot(t, r.rollout.signal("command", r.env), color=line.get_color(), lw=0.9)
     first = chosen[0][1]
-    ax.plot(first.rollout.t, first.rollout.reference[:, first.env], "k--", lw=0.8,
-            label="reference")  # fmt: skip
+    ax.plot(
+        first.rollout.t, first.rollout.reference[:, first.env], "k--", lw=0.8, label="reference"
+    )
     ax.set(title=title, ylabel=f"output [{units[0]}]")
     ax.legend(loc="best", fontsize="small")
     ax_err.axhline(0.0, color="k", lw=0.6)
@@ -101,14 +109,12 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
         for mode in dict.fromkeys(r.scenario.mode for r in mine):
             pts = sorted((r.scenario.scale, r.metrics) for r in mine if r.scenario.mode == mode)
             scales = [s for s, _ in pts]
-            axes[0, col].plot(scales, [m.steady_state_error_pct for _, m in pts], "o-",
-                              label=mode)  # fmt: skip
-            axes[1, col].plot(scales, [m.limit_cycle_amplitude for _, m in pts], "o-",
-                              label=mode)  # fmt: skip
-        axes[0, col].set(title=f"{device}: compensator model mismatch",
-                         ylabel="SSE [% of step]")  # fmt: skip
-        axes[1, col].set(xlabel="compensator friction / plant friction",
-                         ylabel=f"limit-cycle amplitude [{unit}]")  # fmt: skip
+            axes[0, col].plot(scales, [m.steady_state_error_pct for _, m in pts], "o-", label=mode)
+            axes[1, col].plot(scales, [m.limit_cycle_amplitude for _, m in pts], "o-", label=mode)
+        axes[0, col].set(title=f"{device}: compensator model mismatch", ylabel="SSE [% of step]")
+        axes[1, col].set(
+            xlabel="compensator friction / plant friction", ylabel=f"limit-cycle amplitude [{unit}]"
+        )
         for ax in axes[:, col]:
             ax.axvline(1.0, color="k", lw=0.6, ls=":")
             ax.legend(fontsize="small")
@@ -122,8 +128,11 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
     One point per plant, log-log, with the diagonal: below it the residual is better. The
     means hide how a stuck body's resting place scatters from plant to plant; this shows it.
     """
-    heldout = {device: pairs for (device, plants), pairs in residual_pairs(results).items()
-               if plants == "heldout"}  # fmt: skip
+    heldout = {
+        device: pairs
+        for (device, plants), pairs in residual_pairs(results).items()
+        if plants == "heldout"
+    }
     devices = [d.kind for d in DEVICES if d.kind in heldout]
     if not devices:
         return None
@@ -144,8 +153,11 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
             ax.loglog(x, y, "o", ms=4, alpha=0.7, label=f"residual better on {wins}/{len(x)}")
             span = [min(x.min(), y.min()) / 1.5, max(x.max(), y.max()) * 1.5]
             ax.loglog(span, span, "k--", lw=0.8, label="equal")
-            ax.set(title=f"{device}: {len(pairs)} held-out plants",
-                   xlabel=f"compensated PID {label}", ylabel=f"residual {label}")  # fmt: skip
+            ax.set(
+                title=f"{device}: {len(pairs)} held-out plants",
+                xlabel=f"compensated PID {label}",
+                ylabel=f"residual {label}",
+            )
             ax.legend(fontsize="small", loc="upper left")
     fig.tight_layout()
     return save_figure(fig, path, dpi=120)
@@ -154,26 +166,50 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
 def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
     """Write every figure the results allow into ``out``; return the paths written."""
     written = [
-        _responses(results, {"paper-rotary-nominal": "PID, nominal (no friction)",
-                             "paper-rotary-pid": "PID, paper friction",
-                             "paper-rotary-compensated": "PID + compensator"},
-                   out / "rotary_response.png", "QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
-                   zoom=0.03),
-        _responses(results, {"paper-altino-pid-ki10": "PID Ki 10",
-                             "paper-altino-pid-ki20": "PID Ki 20",
-                             "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator"},
-                   out / "altino_response.png",
-                   "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)", zoom=2.0),
+        _responses(
+            results,
+            {
+                "paper-rotary-nominal": "PID, nominal (no friction)",
+                "paper-rotary-pid": "PID, paper friction",
+                "paper-rotary-compensated": "PID + compensator",
+            },
+            out / "rotary_response.png",
+            "QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
+            zoom=0.03,
+        ),
+        _responses(
+            results,
+            {
+                "paper-altino-pid-ki10": "PID Ki 10",
+                "paper-altino-pid-ki20": "PID Ki 20",
+                "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator",
+            },
+            out / "altino_response.png",
+            "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)",
+            zoom=2.0,
+        ),
         plot_mismatch(results, out / "compensator_mismatch.png"),
-        _responses(results, {"residual-rotary-nominal-compensated": "PID + compensator",
-                             "residual-rotary-nominal-residual": "PID + compensator + residual"},
-                   out / "residual_rotary_response.png",
-                   "QUBE-Servo 2, 1 rad step, nominal plant: residual policy", zoom=0.02),
-        _responses(results, {"residual-altino-nominal-compensated": "PID + compensator",
-                             "residual-altino-nominal-residual": "PID + compensator + residual"},
-                   out / "residual_altino_response.png",
-                   "Altino, 30 → 5 cm, nominal plant: residual policy", zoom=1.0),
+        _responses(
+            results,
+            {
+                "residual-rotary-nominal-compensated": "PID + compensator",
+                "residual-rotary-nominal-residual": "PID + compensator + residual",
+            },
+            out / "residual_rotary_response.png",
+            "QUBE-Servo 2, 1 rad step, nominal plant: residual policy",
+            zoom=0.02,
+        ),
+        _responses(
+            results,
+            {
+                "residual-altino-nominal-compensated": "PID + compensator",
+                "residual-altino-nominal-residual": "PID + compensator + residual",
+            },
+            out / "residual_altino_response.png",
+            "Altino, 30 → 5 cm, nominal plant: residual policy",
+            zoom=1.0,
+        ),
         plot_residual_plants(results, out / "residual_plants.png"),
         plot_friction_curves(out / "friction_curves.png"),
-    ]  # fmt: skip
+    ]
     return [p for p in written if p is not None]

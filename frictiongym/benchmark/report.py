@@ -46,11 +46,23 @@ def to_csv(results: Sequence[Result]) -> str:
     for r in results:
         rec, s = r.record(), r.scenario
         rows.append(
-            [s.name, s.group, s.env_id, s.controller_name, s.gains.kp, s.gains.ki, s.gains.kd,
-             s.mode or "", s.scale if s.mode else "", s.env_kwargs.get("friction", "paper"),
-             s.env_kwargs.get("sensor_noise", False), r.seed, r.terminated,
-             *("" if v is None else repr(v) for v in rec["metrics"].values())]
-        )  # fmt: skip
+            [
+                s.name,
+                s.group,
+                s.env_id,
+                s.controller_name,
+                s.gains.kp,
+                s.gains.ki,
+                s.gains.kd,
+                s.mode or "",
+                s.scale if s.mode else "",
+                s.env_kwargs.get("friction", "paper"),
+                s.env_kwargs.get("sensor_noise", False),
+                r.seed,
+                r.terminated,
+                *("" if v is None else repr(v) for v in rec["metrics"].values()),
+            ]
+        )
     return csv_text(rows)
 
 
@@ -91,46 +103,63 @@ def paper_claims(results: Sequence[Result]) -> list[Claim]:
     nominal = by_name.get("paper-rotary-nominal")
     if nominal is not None:
         got = nominal.as_dict()
-        checks = [(f"{k} {got[k]:.3g} {'<' if got[k] < v else '≥'} {v:g}", got[k] < v)
-                  for k, v in SERVO_SPECS.items()]  # fmt: skip
-        claims.append(Claim("servo PID meets the four specs on the nominal model",
-                            "yes (random search)", "; ".join(text for text, _ in checks),
-                            all(ok for _, ok in checks)))  # fmt: skip
+        checks = [
+            (f"{k} {got[k]:.3g} {'<' if got[k] < v else '≥'} {v:g}", got[k] < v)
+            for k, v in SERVO_SPECS.items()
+        ]
+        claims.append(
+            Claim(
+                "servo PID meets the four specs on the nominal model",
+                "yes (random search)",
+                "; ".join(text for text, _ in checks),
+                all(ok for _, ok in checks),
+            )
+        )
     pid, comp = by_name.get("paper-rotary-pid"), by_name.get("paper-rotary-compensated")
     if pid is not None and comp is not None:
-        claims.append(Claim(
-            "servo SSE: PID with friction → compensated",
-            "2.78 % → 1.11 % (hardware); 0 % (simulation)",
-            f"{pid.steady_state_error_pct:.2f} % → {comp.steady_state_error_pct:.2f} %",
-            comp.steady_state_error_pct < pid.steady_state_error_pct,
-        ))  # fmt: skip
+        claims.append(
+            Claim(
+                "servo SSE: PID with friction → compensated",
+                "2.78 % → 1.11 % (hardware); 0 % (simulation)",
+                f"{pid.steady_state_error_pct:.2f} % → {comp.steady_state_error_pct:.2f} %",
+                comp.steady_state_error_pct < pid.steady_state_error_pct,
+            )
+        )
     ki10, ki20 = by_name.get("paper-altino-pid-ki10"), by_name.get("paper-altino-pid-ki20")
     if ki10 is not None:
-        claims.append(Claim(
-            "Altino Ki 10: overshoots and stays around 3 cm (offset ≈ 2 cm)",
-            "offset ≈ 2 cm",
-            f"overshoot {ki10.overshoot_pct:.2f} %, SSE {ki10.steady_state_error:.2f} cm",
-            ki10.steady_state_error > 1.0,
-        ))  # fmt: skip
+        claims.append(
+            Claim(
+                "Altino Ki 10: overshoots and stays around 3 cm (offset ≈ 2 cm)",
+                "offset ≈ 2 cm",
+                f"overshoot {ki10.overshoot_pct:.2f} %, SSE {ki10.steady_state_error:.2f} cm",
+                ki10.steady_state_error > 1.0,
+            )
+        )
     if ki20 is not None:
         cycle = ki20.limit_cycle_amplitude > 0.0
-        claims.append(Claim(
-            "Altino Ki 20: limit cycle around 5 cm", "sustained oscillation",
-            f"amplitude {ki20.limit_cycle_amplitude:.2f} cm, period "
-            f"{format_metric(ki20.limit_cycle_period, '.1f')} s; "
-            f"SSE {ki20.steady_state_error:.2f} cm",
-            cycle,
-        ))  # fmt: skip
+        claims.append(
+            Claim(
+                "Altino Ki 20: limit cycle around 5 cm",
+                "sustained oscillation",
+                f"amplitude {ki20.limit_cycle_amplitude:.2f} cm, period "
+                f"{format_metric(ki20.limit_cycle_period, '.1f')} s; "
+                f"SSE {ki20.steady_state_error:.2f} cm",
+                cycle,
+            )
+        )
     m = by_name.get("paper-altino-compensated")
     if m is not None:
-        claims.append(Claim(
-            "Altino compensated (Kp 25, Ki 0.5, Kd 7): rise and settling < 1 s, no SSE, "
-            "no oscillation", "yes",
-            f"rise {format_metric(m.rise_time, '.2f')} s, "
-            f"settling {format_metric(m.settling_time, '.2f')} s, "
-            f"SSE {m.steady_state_error:.2f} cm, cycle amplitude {m.limit_cycle_amplitude:.2f}",
-            m.rise_time < 1.0 and m.settling_time < 1.0 and m.limit_cycle_amplitude == 0.0,
-        ))  # fmt: skip
+        claims.append(
+            Claim(
+                "Altino compensated (Kp 25, Ki 0.5, Kd 7): rise and settling < 1 s, no SSE, "
+                "no oscillation",
+                "yes",
+                f"rise {format_metric(m.rise_time, '.2f')} s, "
+                f"settling {format_metric(m.settling_time, '.2f')} s, "
+                f"SSE {m.steady_state_error:.2f} cm, cycle amplitude {m.limit_cycle_amplitude:.2f}",
+                m.rise_time < 1.0 and m.settling_time < 1.0 and m.limit_cycle_amplitude == 0.0,
+            )
+        )
     return claims
 
 
@@ -186,15 +215,23 @@ def residual_comparisons(results: Sequence[Result]) -> list[Comparison]:
         def both(field: str) -> tuple[float, float]:
             return mean(field, 0), mean(field, 1)
 
-        out.append(Comparison(
-            device, plants, len(pairs), both("itae"), both("steady_state_error"),
-            both("steady_state_error_pct"),
-            sum(r.metrics.itae < c.metrics.itae for c, r in pairs),
-            sum(r.metrics.steady_state_error < c.metrics.steady_state_error for c, r in pairs),
-            (sum(c.terminated for c, _ in pairs), sum(r.terminated for _, r in pairs)),
-            (sum(c.metrics.limit_cycle_amplitude > 0 for c, _ in pairs),
-             sum(r.metrics.limit_cycle_amplitude > 0 for _, r in pairs)),
-        ))  # fmt: skip
+        out.append(
+            Comparison(
+                device,
+                plants,
+                len(pairs),
+                both("itae"),
+                both("steady_state_error"),
+                both("steady_state_error_pct"),
+                sum(r.metrics.itae < c.metrics.itae for c, r in pairs),
+                sum(r.metrics.steady_state_error < c.metrics.steady_state_error for c, r in pairs),
+                (sum(c.terminated for c, _ in pairs), sum(r.terminated for _, r in pairs)),
+                (
+                    sum(c.metrics.limit_cycle_amplitude > 0 for c, _ in pairs),
+                    sum(r.metrics.limit_cycle_amplitude > 0 for _, r in pairs),
+                ),
+            )
+        )
     return out
 
 
@@ -204,16 +241,18 @@ def residual_markdown(results: Sequence[Result]) -> list[str]:
     if not comparisons:
         return []
     lines = [
-        "## Residual policy vs compensated PID", "",
+        "## Residual policy vs compensated PID",
+        "",
         "Paired runs on the paper's step: the same plants (seeds) for both controllers. ITAE "
         "and SSE are means over the plants; `wins`: plants where the residual's is lower; "
         "`terminated`: runs ended by a safety limit (the servo's run-away guard, the Altino "
         "touching the wall) and `cycles`: runs with a sustained limit cycle, compensated / "
-        "residual.", "",
+        "residual.",
+        "",
         "| device | plants | runs | ITAE comp. | ITAE resid. | wins | SSE comp. | SSE resid. "
         "| SSE % comp. | SSE % resid. | wins | terminated | cycles |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]  # fmt: skip
+    ]
     for c in comparisons:
         lines.append(
             f"| {c.device} | {c.plants} | {c.runs} | {c.itae[0]:.4g} | {c.itae[1]:.4g} | "
@@ -231,10 +270,15 @@ def to_markdown(results: Sequence[Result], command: str = "") -> str:
         lines += [f"Produced by `{command}`.", ""]
     claims = paper_claims(results)
     if claims:
-        lines += ["## The paper's claims on our model", "",
-                  "| claim | paper | ours | agrees |", "|---|---|---|---|"]  # fmt: skip
-        lines += [f"| {c.claim} | {c.paper} | {c.ours} | {'yes' if c.agrees else 'no'} |"
-                  for c in claims]  # fmt: skip
+        lines += [
+            "## The paper's claims on our model",
+            "",
+            "| claim | paper | ours | agrees |",
+            "|---|---|---|---|",
+        ]
+        lines += [
+            f"| {c.claim} | {c.paper} | {c.ours} | {'yes' if c.agrees else 'no'} |" for c in claims
+        ]
         lines.append("")
     lines += residual_markdown(results)
     lines += [

@@ -106,23 +106,55 @@ def paper_scenarios() -> list[Scenario]:
     """Return the paper's experiments with its gains (§3.1, §3.2, §5), on the default models."""
     rotary = {"friction": "paper"}
     return [
-        Scenario("paper-rotary-nominal", "paper", ROTARY.env_id, ROTARY_GAINS,
-                 env_kwargs={"friction": "none"},
-                 description="the paper's PID on the nominal (frictionless) servo: the specs "
-                 "check"),
-        Scenario("paper-rotary-pid", "paper", ROTARY.env_id, ROTARY_GAINS, env_kwargs=rotary,
-                 description="PID on the servo with the paper's friction (Figs. 6, 7)"),
-        Scenario("paper-rotary-compensated", "paper", ROTARY.env_id, ROTARY_GAINS, mode="command",
-                 env_kwargs=rotary, description="the same PID plus the friction compensator"),
-        Scenario("paper-altino-pid-ki10", "paper", ALTINO.env_id, ALTINO_KI10,
-                 description="Altino PID Kp 25, Ki 10, Kd 12: the paper sees an offset "
-                 "(Fig. 11)"),
-        Scenario("paper-altino-pid-ki20", "paper", ALTINO.env_id, ALTINO_KI20,
-                 description="Altino PID with Ki 20: the paper sees a limit cycle (Fig. 11)"),
-        Scenario("paper-altino-compensated", "paper", ALTINO.env_id, ALTINO_COMPENSATED,
-                 mode="command", description="compensated PID Kp 25, Ki 0.5, Kd 7: the paper "
-                 "sees rise and settling under 1 s (Fig. 12)"),
-    ]  # fmt: skip
+        Scenario(
+            "paper-rotary-nominal",
+            "paper",
+            ROTARY.env_id,
+            ROTARY_GAINS,
+            env_kwargs={"friction": "none"},
+            description="the paper's PID on the nominal (frictionless) servo: the specs check",
+        ),
+        Scenario(
+            "paper-rotary-pid",
+            "paper",
+            ROTARY.env_id,
+            ROTARY_GAINS,
+            env_kwargs=rotary,
+            description="PID on the servo with the paper's friction (Figs. 6, 7)",
+        ),
+        Scenario(
+            "paper-rotary-compensated",
+            "paper",
+            ROTARY.env_id,
+            ROTARY_GAINS,
+            mode="command",
+            env_kwargs=rotary,
+            description="the same PID plus the friction compensator",
+        ),
+        Scenario(
+            "paper-altino-pid-ki10",
+            "paper",
+            ALTINO.env_id,
+            ALTINO_KI10,
+            description="Altino PID Kp 25, Ki 10, Kd 12: the paper sees an offset (Fig. 11)",
+        ),
+        Scenario(
+            "paper-altino-pid-ki20",
+            "paper",
+            ALTINO.env_id,
+            ALTINO_KI20,
+            description="Altino PID with Ki 20: the paper sees a limit cycle (Fig. 11)",
+        ),
+        Scenario(
+            "paper-altino-compensated",
+            "paper",
+            ALTINO.env_id,
+            ALTINO_COMPENSATED,
+            mode="command",
+            description="compensated PID Kp 25, Ki 0.5, Kd 7: the paper "
+            "sees rise and settling under 1 s (Fig. 12)",
+        ),
+    ]
 
 
 def _devices() -> Iterator[tuple[str, str, PIDGains, PIDGains]]:
@@ -137,12 +169,19 @@ def mismatch_scenarios(
 ) -> list[Scenario]:
     """Return every compensator variant with its model's friction levels scaled (paper friction)."""
     return [
-        Scenario(f"mismatch-{device}-{mode}-x{scale:g}", "mismatch", env_id, gains, mode=mode,
-                 scale=scale, description=f"{mode} variant, model friction x{scale:g}")
+        Scenario(
+            f"mismatch-{device}-{mode}-x{scale:g}",
+            "mismatch",
+            env_id,
+            gains,
+            mode=mode,
+            scale=scale,
+            description=f"{mode} variant, model friction x{scale:g}",
+        )
         for device, env_id, _, gains in _devices()
         for mode in modes
         for scale in scales
-    ]  # fmt: skip
+    ]
 
 
 def _pid_and_compensated(
@@ -157,9 +196,17 @@ def _pid_and_compensated(
         )
         for kind, gains, mode in variants:
             out.append(
-                Scenario(name.format(device=device, kind=kind), group, env_id, gains, mode=mode,
-                         env_kwargs=env_kwargs, seeds=seeds, description=f"{kind}, {what}")
-            )  # fmt: skip
+                Scenario(
+                    name.format(device=device, kind=kind),
+                    group,
+                    env_id,
+                    gains,
+                    mode=mode,
+                    env_kwargs=env_kwargs,
+                    seeds=seeds,
+                    description=f"{kind}, {what}",
+                )
+            )
     return out
 
 
@@ -173,10 +220,12 @@ def noise_scenarios(seeds: tuple[int, ...] = NOISE_SEEDS) -> list[Scenario]:
             "noise-{device}-{kind}-on", "noise", "sensor noise on", {"sensor_noise": True}, seeds
         )
         + _pid_and_compensated(
-            "noise-{device}-{kind}-ideal", "noise", "ideal sensor: no noise, no quantisation",
+            "noise-{device}-{kind}-ideal",
+            "noise",
+            "ideal sensor: no noise, no quantisation",
             {"quantize": False},
         )
-    )  # fmt: skip
+    )
 
 
 def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]:
@@ -220,10 +269,18 @@ def residual_scenarios(
     ):
         for kind, path in (("compensated", None), ("residual", model)):
             out.append(
-                Scenario(f"residual-{device}-{plant}-{kind}", "residual", env_id, gains,
-                         mode="command", env_kwargs=kwargs, seeds=plant_seeds,
-                         description=f"{kind}, {what}", residual=path)
-            )  # fmt: skip
+                Scenario(
+                    f"residual-{device}-{plant}-{kind}",
+                    "residual",
+                    env_id,
+                    gains,
+                    mode="command",
+                    env_kwargs=kwargs,
+                    seeds=plant_seeds,
+                    description=f"{kind}, {what}",
+                    residual=path,
+                )
+            )
     return out
 
 

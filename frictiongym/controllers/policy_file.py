@@ -27,14 +27,30 @@ import numpy as np
 #: foreign and reported (it is ignored either way).
 SB3_PICKLED = frozenset(
     {
-        "policy_class", "observation_space", "action_space", "lr_schedule", "learning_rate",
-        "clip_range", "clip_range_vf", "exploration_schedule", "action_noise", "train_freq",
-        "_last_obs", "_last_episode_starts", "_last_original_obs", "ep_info_buffer",
-        "ep_success_buffer", "rollout_buffer_class", "replay_buffer_class",
-        "rollout_buffer_kwargs", "replay_buffer_kwargs", "target_policy_noise",
-        "target_noise_clip", "policy_kwargs",
+        "policy_class",
+        "observation_space",
+        "action_space",
+        "lr_schedule",
+        "learning_rate",
+        "clip_range",
+        "clip_range_vf",
+        "exploration_schedule",
+        "action_noise",
+        "train_freq",
+        "_last_obs",
+        "_last_episode_starts",
+        "_last_original_obs",
+        "ep_info_buffer",
+        "ep_success_buffer",
+        "rollout_buffer_class",
+        "replay_buffer_class",
+        "rollout_buffer_kwargs",
+        "replay_buffer_kwargs",
+        "target_policy_noise",
+        "target_noise_clip",
+        "policy_kwargs",
     }
-)  # fmt: skip
+)
 
 
 class UnsafeModelError(ValueError):
@@ -46,12 +62,36 @@ class UnsafeModelError(ValueError):
 #: entry's strings (read, not run), they are named in the warning.
 SUSPECT_NAMES = frozenset(
     {
-        "os", "posix", "nt", "subprocess", "sys", "builtins", "__builtin__", "importlib",
-        "runpy", "shutil", "socket", "pty", "ctypes", "multiprocessing", "marshal", "pickle",
-        "system", "popen", "exec", "eval", "compile", "__import__", "execfile", "spawn",
-        "CodeType", "_make_function", "_builtin_type", "_make_skel_func",
+        "os",
+        "posix",
+        "nt",
+        "subprocess",
+        "sys",
+        "builtins",
+        "__builtin__",
+        "importlib",
+        "runpy",
+        "shutil",
+        "socket",
+        "pty",
+        "ctypes",
+        "multiprocessing",
+        "marshal",
+        "pickle",
+        "system",
+        "popen",
+        "exec",
+        "eval",
+        "compile",
+        "__import__",
+        "execfile",
+        "spawn",
+        "CodeType",
+        "_make_function",
+        "_builtin_type",
+        "_make_skel_func",
     }
-)  # fmt: skip
+)
 #: The ``policy_kwargs`` a policy is rebuilt with, and the JSON types each may have.
 POLICY_KWARGS: dict[str, tuple[type, ...]] = {
     "net_arch": (list, dict),

@@ -21,12 +21,18 @@ if TYPE_CHECKING:
 #: ``episode_steps`` (:mod:`frictiongym.devices`, checked by the tests).
 ENV_IDS: dict[str, tuple[str, str, str, int]] = {
     "frictiongym/RotaryServo-v0": (
-        "frictiongym.envs.rotary", "RotaryServoEnv", "RotaryServoVectorEnv", 2500
+        "frictiongym.envs.rotary",
+        "RotaryServoEnv",
+        "RotaryServoVectorEnv",
+        2500,
     ),
     "frictiongym/AltinoDistance-v0": (
-        "frictiongym.envs.altino", "AltinoDistanceEnv", "AltinoDistanceVectorEnv", 400
+        "frictiongym.envs.altino",
+        "AltinoDistanceEnv",
+        "AltinoDistanceVectorEnv",
+        400,
     ),
-}  # fmt: skip
+}
 
 _LAZY = {
     "RotaryServoEnv": "frictiongym.envs.rotary",

@@ -289,8 +289,23 @@ def observe_device(
     """
     if not fresh[0]:
         state[0, E_STEPS] += 1.0
-    _observe(0, measured, measured, 0.0, applied, umax, dt, state, rows, config, fresh, obs,
-             out, flags, True)  # fmt: skip
+    _observe(
+        0,
+        measured,
+        measured,
+        0.0,
+        applied,
+        umax,
+        dt,
+        state,
+        rows,
+        config,
+        fresh,
+        obs,
+        out,
+        flags,
+        True,
+    )
     flags[F_STUCK, 0] = False
 
 
@@ -345,8 +360,25 @@ def step_envs(
         return bad
     one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
     for i in range(state.shape[0]):
-        _env_element(i, state, delay_buffer, head, command, dt, n_sub, plant_rows, rows, rng,
-                     config, fresh, obs, out, flags, one_row, delayed)  # fmt: skip
+        _env_element(
+            i,
+            state,
+            delay_buffer,
+            head,
+            command,
+            dt,
+            n_sub,
+            plant_rows,
+            rows,
+            rng,
+            config,
+            fresh,
+            obs,
+            out,
+            flags,
+            one_row,
+            delayed,
+        )
     return -1
 
 
@@ -373,6 +405,23 @@ def step_envs_parallel(
         return bad
     one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
     for i in prange(state.shape[0]):
-        _env_element(np.int64(i), state, delay_buffer, head, command, dt, n_sub, plant_rows,
-                     rows, rng, config, fresh, obs, out, flags, one_row, delayed)  # fmt: skip
+        _env_element(
+            np.int64(i),
+            state,
+            delay_buffer,
+            head,
+            command,
+            dt,
+            n_sub,
+            plant_rows,
+            rows,
+            rng,
+            config,
+            fresh,
+            obs,
+            out,
+            flags,
+            one_row,
+            delayed,
+        )
     return -1

@@ -367,8 +367,13 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
 
     def step(
         self, actions: ActArray
-    ) -> tuple[ObsArray, npt.NDArray[np.float64], npt.NDArray[np.bool_], npt.NDArray[np.bool_],
-               dict[str, Any]]:  # fmt: skip
+    ) -> tuple[
+        ObsArray,
+        npt.NDArray[np.float64],
+        npt.NDArray[np.bool_],
+        npt.NDArray[np.bool_],
+        dict[str, Any],
+    ]:
         """Step every env; envs whose episode ended on the last step are reset instead."""
         if self._needs_reset:
             raise gym.error.ResetNeeded("Cannot call step() before calling reset()")

@@ -255,12 +255,26 @@ class DeviceSession:
             self._skipped += sample.skipped
         if self.log is None:
             return
-        self.log.record((
-            self.episode, self._steps(), out[env_kernel.O_TIME, 0], sample.host_ns,
-            sample.tick_us, sample.seq, sample.seq_applied, int(sample.late), sample.skipped,
-            sample.status, requested, sample.applied, sample.measured, *obs[0].tolist(),
-            out[env_kernel.O_REWARD, 0], int(flags[env_kernel.F_TERMINATED, 0]),
-        ))  # fmt: skip
+        self.log.record(
+            (
+                self.episode,
+                self._steps(),
+                out[env_kernel.O_TIME, 0],
+                sample.host_ns,
+                sample.tick_us,
+                sample.seq,
+                sample.seq_applied,
+                int(sample.late),
+                sample.skipped,
+                sample.status,
+                requested,
+                sample.applied,
+                sample.measured,
+                *obs[0].tolist(),
+                out[env_kernel.O_REWARD, 0],
+                int(flags[env_kernel.F_TERMINATED, 0]),
+            )
+        )
 
     def _steps(self) -> int:
         return int(env_kernel.task_state(self.task.state, "steps")[0])

@@ -42,21 +42,35 @@ STOP_REPEATS = 3
 _Field = tuple[int, int, str]
 _LAYOUT: dict[int, dict[str, _Field]] = {
     1: {
-        "ir": (7, 6, "u16"), "torque": (19, 2, "u16"), "temperature": (23, 1, "u16"),
+        "ir": (7, 6, "u16"),
+        "torque": (19, 2, "u16"),
+        "temperature": (23, 1, "u16"),
         "cds": (25, 1, "u16"),
     },
     2: {
-        "accel": (7, 3, "i16"), "mag": (13, 3, "i16"), "steering": (19, 1, "u16"),
-        "steering_torque": (21, 1, "u16"), "battery": (23, 1, "u16"), "remote": (25, 1, "u8"),
+        "accel": (7, 3, "i16"),
+        "mag": (13, 3, "i16"),
+        "steering": (19, 1, "u16"),
+        "steering_torque": (21, 1, "u16"),
+        "battery": (23, 1, "u16"),
+        "remote": (25, 1, "u8"),
         "motor_temperature": (26, 1, "u8"),
     },
     10: {
-        "ir": (7, 6, "u16"), "torque": (19, 2, "u16"), "steering_torque": (23, 1, "u16"),
-        "accel": (25, 3, "i16"), "mag": (31, 3, "i16"), "gyro": (37, 3, "i16"),
-        "cds": (43, 1, "u16"), "steering": (45, 1, "u16"), "battery": (47, 1, "u16"),
-        "temperature": (49, 1, "u16"), "remote": (51, 1, "u8"), "motor_temperature": (52, 1, "u8"),
+        "ir": (7, 6, "u16"),
+        "torque": (19, 2, "u16"),
+        "steering_torque": (23, 1, "u16"),
+        "accel": (25, 3, "i16"),
+        "mag": (31, 3, "i16"),
+        "gyro": (37, 3, "i16"),
+        "cds": (43, 1, "u16"),
+        "steering": (45, 1, "u16"),
+        "battery": (47, 1, "u16"),
+        "temperature": (49, 1, "u16"),
+        "remote": (51, 1, "u8"),
+        "motor_temperature": (52, 1, "u8"),
     },
-}  # fmt: skip
+}
 
 
 @dataclass(frozen=True)

@@ -214,10 +214,14 @@ class AltinoStockBackend(Backend):
         if not path:
             raise ValueError(f"{uri} names no port; e.g. altino-stock:///dev/rfcomm0?rate=20")
         parsers: dict[str, Callable[[str], Any]] = {
-            "baud": int, "rate": positive("rate"), "ir_index": int,
-            "timeout": positive("timeout"), "sensor_group": int, "limit_cm": positive("limit_cm"),
+            "baud": int,
+            "rate": positive("rate"),
+            "ir_index": int,
+            "timeout": positive("timeout"),
+            "sensor_group": int,
+            "limit_cm": positive("limit_cm"),
             "max_age": positive("max_age"),
-        }  # fmt: skip
+        }
         options = uri_options(query, parsers, uri)
         if "rate" in options:
             options["rate_hz"] = options.pop("rate")
@@ -328,9 +332,12 @@ class AltinoStockBackend(Backend):
         serial = self._serial_module = _import_serial()
         try:
             self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baud, timeout=min(self.timeout, _POLL_S),
-                write_timeout=self.timeout, exclusive=True,
-            )  # fmt: skip
+                self.port,
+                baudrate=self.baud,
+                timeout=min(self.timeout, _POLL_S),
+                write_timeout=self.timeout,
+                exclusive=True,
+            )
         except (serial.SerialException, ValueError, *_LINK_ERRORS) as exc:
             if is_lock_failure(exc):
                 raise port_busy_error(self.port) from None
@@ -346,10 +353,17 @@ class AltinoStockBackend(Backend):
             self._close()
             raise
         return DeviceInfo(
-            kind="altino", rate_hz=self.rate_hz, command_limit=float(GO_LIMIT), command_step=1.0,
-            counts_per_rev=0, watchdog_s=None, can_place=False, distance_limit=True,
-            firmware="stock (vendor protocol)", link=f"altino-stock {self.port} @ {self.baud} baud",
-        )  # fmt: skip
+            kind="altino",
+            rate_hz=self.rate_hz,
+            command_limit=float(GO_LIMIT),
+            command_step=1.0,
+            counts_per_rev=0,
+            watchdog_s=None,
+            can_place=False,
+            distance_limit=True,
+            firmware="stock (vendor protocol)",
+            link=f"altino-stock {self.port} @ {self.baud} baud",
+        )
 
     def _start(self, zero_position: bool) -> Sample:
         sent, sensors = self._transact(0)
@@ -359,9 +373,13 @@ class AltinoStockBackend(Backend):
         self._next = sent + self.period
         status = Status.LIMIT if self.guard.update(self._readout) else Status(0)
         return Sample(
-            measured=self._readout, applied=0.0, tick_us=self._tick_us(sent),
-            host_ns=time.perf_counter_ns(), status=int(status), age=self._answered_after,
-        )  # fmt: skip
+            measured=self._readout,
+            applied=0.0,
+            tick_us=self._tick_us(sent),
+            host_ns=time.perf_counter_ns(),
+            status=int(status),
+            age=self._answered_after,
+        )
 
     def _wait_tick(self) -> int:
         """Sleep until the next tick; return the whole periods missed if it has passed."""
@@ -392,12 +410,17 @@ class AltinoStockBackend(Backend):
                 self._transact(brake)
                 self._held = brake
         return Sample(
-            measured=self._readout, applied=float(held), tick_us=self._tick_us(sent),
-            host_ns=time.perf_counter_ns(), seq=self._seq, seq_applied=seq_applied,
+            measured=self._readout,
+            applied=float(held),
+            tick_us=self._tick_us(sent),
+            host_ns=time.perf_counter_ns(),
+            seq=self._seq,
+            seq_applied=seq_applied,
             age=self._answered_after,
-            status=int(Status.LIMIT if self.guard.tripped else Status(0)), late=skipped > 0,
+            status=int(Status.LIMIT if self.guard.tripped else Status(0)),
+            late=skipped > 0,
             skipped=skipped,
-        )  # fmt: skip
+        )
 
     def _brake_to_rest(self) -> None:
         """Keep a tripped guard at work until the car cannot approach, as the firmware does.

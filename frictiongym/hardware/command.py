@@ -87,30 +87,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument("--device", required=True, choices=KINDS, help="the device to emulate")
     parser.add_argument(
-        "--tcp", type=_endpoint, metavar="[HOST:]PORT",
+        "--tcp",
+        type=_endpoint,
+        metavar="[HOST:]PORT",
         help="serve on TCP (host default 127.0.0.1; port 0: any free one) instead of a pty",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--params", metavar="FILE",
+        "--params",
+        metavar="FILE",
         help="the plant's true parameters: a friction.json (frictiongym identify) of this device",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--friction", default="paper", metavar="LAW",
+        "--friction",
+        default="paper",
+        metavar="LAW",
         help="true friction law: paper (default), none, coulomb, stribeck or lugre",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--guard-mass", type=_mass_range, metavar="MIN:MAX",
+        "--guard-mass",
+        type=_mass_range,
+        metavar="MIN:MAX",
         help="Altino: the mass range the distance guard assumes, units·s²/cm (default 1.1:5.5, "
         "widened to the plant's own; its least friction is that of the true law)",
-    )  # fmt: skip
+    )
     parser.add_argument("--noise", action="store_true", help="add the env's default sensor noise")
     parser.add_argument(
         "--lockstep", action="store_true", help="one tick per command received (exact timing)"
     )
     parser.add_argument(
-        "--watchdog", type=int, metavar="MS",
+        "--watchdog",
+        type=int,
+        metavar="MS",
         help="watchdog time in ms (default: max(3 periods, 100 ms); 0 turns it off)",
-    )  # fmt: skip
+    )
     parser.add_argument(
         "--drop", type=float, default=0.0, metavar="P", help="byte drop probability"
     )
@@ -129,13 +138,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults (default 0)")
     parser.add_argument(
-        "--no-realtime", dest="realtime", action="store_false",
+        "--no-realtime",
+        dest="realtime",
+        action="store_false",
         help="keep the device thread an ordinary one (default: SCHED_FIFO where permitted)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--duration", dest="run_for", type=float, metavar="S",
+        "--duration",
+        dest="run_for",
+        type=float,
+        metavar="S",
         help="stop after S s of wall time (default: run until Ctrl-C or SIGTERM)",
-    )  # fmt: skip
+    )
     parser.add_argument("--quiet", action="store_true", help="no status lines on stderr")
 
 
@@ -152,20 +166,32 @@ def _status_line(emu: Any) -> str:
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
     if args.run_for is not None and not (math.isfinite(args.run_for) and args.run_for > 0):
-        print(f"error: --duration must be a positive number of seconds, got {args.run_for}",
-              file=sys.stderr)  # fmt: skip
+        print(
+            f"error: --duration must be a positive number of seconds, got {args.run_for}",
+            file=sys.stderr,
+        )
         return 2
     try:
         check_seed(args.seed)
         faults = Faults(
-            drop=args.drop, corrupt=args.corrupt, delay=args.delay, jitter=args.jitter,
-            unplug_after=args.unplug_after, freeze_after=args.freeze_after,
-        )  # fmt: skip
+            drop=args.drop,
+            corrupt=args.corrupt,
+            delay=args.delay,
+            jitter=args.jitter,
+            unplug_after=args.unplug_after,
+            freeze_after=args.freeze_after,
+        )
         emu = Emulator(
-            args.device, params=args.params, friction=args.friction,
-            sensor_noise=bool(args.noise), lockstep=args.lockstep, faults=faults,
-            watchdog_ms=args.watchdog, seed=args.seed, realtime=args.realtime,
-        )  # fmt: skip
+            args.device,
+            params=args.params,
+            friction=args.friction,
+            sensor_noise=bool(args.noise),
+            lockstep=args.lockstep,
+            faults=faults,
+            watchdog_ms=args.watchdog,
+            seed=args.seed,
+            realtime=args.realtime,
+        )
         if args.guard_mass is not None and emu.firmware.guard is not None:
             low, high = args.guard_mass
             emu.set_car_bounds(replace(emu.firmware.car_bounds, mass_min=low, mass_max=high))

@@ -62,10 +62,14 @@ class EmulatedBackend(SerialBackend):
     def from_uri(cls, path: str, query: dict[str, str]) -> EmulatedBackend:
         """Build from ``emulator://KIND?lockstep=1&params=PATH&friction=LAW&noise=1&seed=N&max_age=S``."""
         parsers: dict[str, Callable[[str], Any]] = {
-            "lockstep": flag("lockstep"), "params": os.fspath, "friction": str,
-            "noise": flag("noise"), "seed": integer("seed"), "watchdog_ms": integer("watchdog_ms"),
+            "lockstep": flag("lockstep"),
+            "params": os.fspath,
+            "friction": str,
+            "noise": flag("noise"),
+            "seed": integer("seed"),
+            "watchdog_ms": integer("watchdog_ms"),
             "max_age": positive("max_age"),
-        }  # fmt: skip
+        }
         settings = uri_options(query, parsers, f"emulator://{path}")
         if "noise" in settings:
             settings["sensor_noise"] = settings.pop("noise")

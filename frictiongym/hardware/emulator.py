@@ -203,8 +203,15 @@ class Emulator:
         with self._lock:
             fw = self.firmware
             link_dropped = self._link.dropped if self._link is not None else 0
-            counts = (fw.ticks, self._missed, fw.commands, fw.decoder.errors, fw.late,
-                      self._frames_sent, self._bytes_dropped + link_dropped)  # fmt: skip
+            counts = (
+                fw.ticks,
+                self._missed,
+                fw.commands,
+                fw.decoder.errors,
+                fw.late,
+                self._frames_sent,
+                self._bytes_dropped + link_dropped,
+            )
             times = list(self._tick_times) if timing else []
             late = list(self._wake_late) if timing else []
             tick_mean = self._tick_time_total / max(self._ticks_timed, 1)
@@ -212,9 +219,14 @@ class Emulator:
         p = np.quantile(times, 0.99) if times else (0.0 if timing else math.nan)
         q = np.quantile(late, [0.5, 0.99]) if late else np.full(2, 0.0 if timing else math.nan)
         return EmulatorStats(
-            *counts, tick_time_mean=tick_mean, tick_time_p99=float(p), tick_time_max=tick_max,
-            wake_late_p50=float(q[0]), wake_late_p99=float(q[1]), wake_late_max=late_max,
-        )  # fmt: skip
+            *counts,
+            tick_time_mean=tick_mean,
+            tick_time_p99=float(p),
+            tick_time_max=tick_max,
+            wake_late_p50=float(q[0]),
+            wake_late_p99=float(q[1]),
+            wake_late_max=late_max,
+        )
 
     # -- serving ------------------------------------------------------------------------------
 

@@ -259,11 +259,13 @@ class Firmware:
             return bounds
         masses = [plant.inertia * f for f in spread.inertia or (1.0, 1.0)]
         return CarBounds(
-            min(bounds.mass_min, masses[0]), max(bounds.mass_max, masses[1]),
+            min(bounds.mass_min, masses[0]),
+            max(bounds.mass_max, masses[1]),
             bounds.friction * (spread.friction or (1.0,))[0],
-            bounds.viscous * (spread.damping or (1.0,))[0], bounds.command_limit,
+            bounds.viscous * (spread.damping or (1.0,))[0],
+            bounds.command_limit,
             bounds.noise_counts,
-        )  # fmt: skip
+        )
 
     def set_car_bounds(self, car_bounds: CarBounds) -> None:
         """Change what the distance guard assumes of the car; its state is kept.
@@ -356,8 +358,10 @@ class Firmware:
 
     def ticks_history(self) -> list[Tick]:
         """Return :attr:`history` as :class:`Tick` records (newest last)."""
-        return [Tick(t, seq, applied, protocol.Status(status), sensor, x, v)
-                for t, seq, applied, status, sensor, x, v in self.history]  # fmt: skip
+        return [
+            Tick(t, seq, applied, protocol.Status(status), sensor, x, v)
+            for t, seq, applied, status, sensor, x, v in self.history
+        ]
 
     # -- tick -------------------------------------------------------------------------------
 
@@ -426,9 +430,16 @@ class Firmware:
             self._errors_seen = self.decoder.errors
         self.status = status
         self.history.append(
-            (self.ticks, self.seq_applied, counts, int(status), self.sensor, self.position,
-             self.velocity)
-        )  # fmt: skip
+            (
+                self.ticks,
+                self.seq_applied,
+                counts,
+                int(status),
+                self.sensor,
+                self.position,
+                self.velocity,
+            )
+        )
         return protocol.State(
             status=status,
             seq=self.ticks & 0xFFFF,

@@ -170,9 +170,10 @@ class QuanserHILBackend(Backend):
             return value
 
         parsers: dict[str, Callable[[str], Any]] = {
-            "rate": positive("rate"), "voltage_limit": positive("voltage_limit"),
+            "rate": positive("rate"),
+            "voltage_limit": positive("voltage_limit"),
             "watchdog": watchdog,
-        }  # fmt: skip
+        }
         options = uri_options(query, parsers, uri)
         renames = {"rate": "rate_hz", "watchdog": "watchdog_s"}
         kwargs = {renames.get(key, key): value for key, value in options.items()}
@@ -248,10 +249,15 @@ class QuanserHILBackend(Backend):
             self._close()
             raise
         return DeviceInfo(
-            kind="rotary", rate_hz=self.rate_hz, command_limit=self.voltage_limit,
-            command_step=0.0, counts_per_rev=QUBE_COUNTS_PER_REV, watchdog_s=self._watchdog,
-            firmware=self._sdk_version(), link=f"quanser-hil {self.board} {self.identifier}",
-        )  # fmt: skip
+            kind="rotary",
+            rate_hz=self.rate_hz,
+            command_limit=self.voltage_limit,
+            command_step=0.0,
+            counts_per_rev=QUBE_COUNTS_PER_REV,
+            watchdog_s=self._watchdog,
+            firmware=self._sdk_version(),
+            link=f"quanser-hil {self.board} {self.identifier}",
+        )
 
     def _sdk_version(self) -> str:
         try:
@@ -266,10 +272,16 @@ class QuanserHILBackend(Backend):
             return None
         low = getattr(getattr(self._hw, "DigitalState", None), "LOW", 0)
         supported = self._supported(
-            "watchdog_set_analog_expiration_state", self._ao, 1, array.array("d", [0.0]),
+            "watchdog_set_analog_expiration_state",
+            self._ao,
+            1,
+            array.array("d", [0.0]),
         ) and self._supported(
-            "watchdog_set_digital_expiration_state", self._do, 1, array.array("i", [int(low)]),
-        )  # fmt: skip
+            "watchdog_set_digital_expiration_state",
+            self._do,
+            1,
+            array.array("i", [int(low)]),
+        )
         if supported:
             return AUTO_WATCHDOG_S if self.watchdog_s is None else float(self.watchdog_s)
         if self.watchdog_s is not None:
@@ -299,9 +311,13 @@ class QuanserHILBackend(Backend):
         if mode is not None:
             self._supported("task_set_buffer_overflow_mode", self._task, mode)
         self._call(
-            "starting the encoder task", "task_start", self._task,
-            self._hw.Clock.HARDWARE_CLOCK_0, self.rate_hz, self._hw.HIL.INFINITE,
-        )  # fmt: skip
+            "starting the encoder task",
+            "task_start",
+            self._task,
+            self._hw.Clock.HARDWARE_CLOCK_0,
+            self.rate_hz,
+            self._hw.HIL.INFINITE,
+        )
         if self._watchdog is not None:
             self._call("starting the watchdog", "watchdog_start", self._watchdog)
             self._watching = True
@@ -328,11 +344,16 @@ class QuanserHILBackend(Backend):
         if self._faults_readable and self._since_poll >= self._poll_every:
             self._status, self._since_poll = self._faults(), 0
         return Sample(
-            measured=self._counts[0] * 2.0 * math.pi / QUBE_COUNTS_PER_REV, applied=applied,
-            tick_us=round(self._tick * 1e6 / self.rate_hz) % 2**32, host_ns=host_ns,
-            seq=self._tick, seq_applied=max(self._tick - 1, 0), status=int(self._status),
-            late=skipped > 0, skipped=skipped,
-        )  # fmt: skip
+            measured=self._counts[0] * 2.0 * math.pi / QUBE_COUNTS_PER_REV,
+            applied=applied,
+            tick_us=round(self._tick * 1e6 / self.rate_hz) % 2**32,
+            host_ns=host_ns,
+            seq=self._tick,
+            seq_applied=max(self._tick - 1, 0),
+            status=int(self._status),
+            late=skipped > 0,
+            skipped=skipped,
+        )
 
     def _faults(self) -> Status:
         """Read the amplifier-fault and stall inputs; raise on a fault that stops the motor."""

@@ -32,9 +32,20 @@ from frictiongym._io import NEW_FILE_FLAGS, json_value, write_json_atomic
 
 #: Columns of ``steps.csv`` before the observation's (which are named by the env).
 STEP_COLUMNS = (
-    "episode", "step", "time", "host_ns", "tick_us", "seq", "seq_applied", "late", "skipped",
-    "status", "requested", "applied", "measured",
-)  # fmt: skip
+    "episode",
+    "step",
+    "time",
+    "host_ns",
+    "tick_us",
+    "seq",
+    "seq_applied",
+    "late",
+    "skipped",
+    "status",
+    "requested",
+    "applied",
+    "measured",
+)
 #: Columns after the observation's.
 RESULT_COLUMNS = ("reward", "terminated")
 #: Where runs go when the env is not told: ``$FRICTIONGYM_RUNS`` or ``./frictiongym-runs``.

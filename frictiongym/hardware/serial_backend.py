@@ -87,8 +87,10 @@ class SerialBackend(Backend):
         max_age: float | None = None,
     ) -> None:
         for name, value in (
-            ("timeout", timeout), ("handshake_timeout", handshake_timeout), ("max_age", max_age)
-        ):  # fmt: skip
+            ("timeout", timeout),
+            ("handshake_timeout", handshake_timeout),
+            ("max_age", max_age),
+        ):
             if value is not None:
                 real_number(name, value, "> 0", unit=" s")
         if not (isinstance(baud, int) and baud > 0):
@@ -114,8 +116,10 @@ class SerialBackend(Backend):
     def from_uri(cls, path: str, query: dict[str, str]) -> SerialBackend:
         """Build from ``serial://PATH?baud=N&timeout=S&max_age=S`` (or a pyserial URL)."""
         parsers = {
-            "baud": integer("baud"), "timeout": positive("timeout"), "max_age": positive("max_age")
-        }  # fmt: skip
+            "baud": integer("baud"),
+            "timeout": positive("timeout"),
+            "max_age": positive("max_age"),
+        }
         uri = path if "://" in path else f"serial://{path}"  # a pyserial URL names itself
         return cls(path, **uri_options(query, parsers, uri))
 
@@ -125,9 +129,12 @@ class SerialBackend(Backend):
         serial = pyserial()
         try:
             self._serial = serial.serial_for_url(
-                self.port, baudrate=self.baud, timeout=READ_WAIT, write_timeout=0.5,
+                self.port,
+                baudrate=self.baud,
+                timeout=READ_WAIT,
+                write_timeout=0.5,
                 exclusive=True,
-            )  # fmt: skip
+            )
         except (serial.SerialException, OSError, ValueError) as exc:
             if is_lock_failure(exc):
                 raise port_busy_error(self.port) from None

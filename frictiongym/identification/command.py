@@ -46,28 +46,38 @@ OUTPUTS = ("friction.json", "friction_map.png", "summary.md")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument(
-        "--env", required=True, metavar="ID",
+        "--env",
+        required=True,
+        metavar="ID",
         help="env id of the device, e.g. frictiongym/RotaryServo-v0 or "
         "frictiongym/AltinoDistance-v0",
-    )  # fmt: skip
-    add_output_arguments(parser, "identify-results", "friction.json, friction_map.png and "
-                         "summary.md")  # fmt: skip
+    )
+    add_output_arguments(
+        parser, "identify-results", "friction.json, friction_map.png and summary.md"
+    )
     parser.add_argument(
-        "--backend", default="sim", metavar="URI",
+        "--backend",
+        default="sim",
+        metavar="URI",
         help="where the env runs: sim (default) or a device backend URI",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--law", default="paper", choices=[*LAWS, "best"],
+        "--law",
+        default="paper",
+        choices=[*LAWS, "best"],
         help="law written to friction.json: the paper's (default) or the lowest-AIC one",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--friction", default="paper", metavar="LAW",
+        "--friction",
+        default="paper",
+        metavar="LAW",
         help="simulator only: the true friction law of the simulated device (default: paper)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--noise", action="store_true",
+        "--noise",
+        action="store_true",
         help="simulator only: add the device's default sensor noise",
-    )  # fmt: skip
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulator (default: 0)")
     parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -234,11 +234,16 @@ class Runner:
             duration,
             "relay",
             1.0,
-            {"level_up": float(level_up), "level_down": float(level_down),
-             "low": float(min(band)), "high": float(max(band)), "lead": float(lead)},
+            {
+                "level_up": float(level_up),
+                "level_down": float(level_down),
+                "low": float(min(band)),
+                "high": float(max(band)),
+                "lead": float(lead),
+            },
             start_at=0.5 * (band[0] + band[1]) if start_at is None else start_at,
             feedback=feedback,
-        )  # fmt: skip
+        )
 
     def step(self, first: float, second: float, step_time: float, duration: float) -> Rollout:
         """Hold ``first`` until ``step_time``, then ``second`` (signed levels, same sign)."""

@@ -40,9 +40,13 @@ def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -
     ax.plot([], [], "kx", label="break-away of a slow ramp")
     if stuck:
         ax.plot(
-            np.zeros(len(stuck)), [p.sign * p.level for p in stuck], "o", mfc="none", mec="0.5",
+            np.zeros(len(stuck)),
+            [p.sign * p.level for p in stuck],
+            "o",
+            mfc="none",
+            mec="0.5",
             label="held level that did not move",
-        )  # fmt: skip
+        )
     for law, each in result.fits.items():
         label = (
             f"{law} law (RMS {each.rms:.3g} {cmd_unit})"
@@ -76,8 +80,11 @@ def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -
         ax_nl.text(0.02, 0.04, text, transform=ax_nl.transAxes, fontsize="small")
         ax_nl.axhline(0, color="0.7", lw=0.6)
         ax_nl.axvline(0, color="0.7", lw=0.6)
-        ax_nl.set(xlabel=f"velocity [{vel_unit}]", ylabel=f"command [{cmd_unit}]",
-                  title="the paper's law (cf. Fig. 8(b)/10(b))")  # fmt: skip
+        ax_nl.set(
+            xlabel=f"velocity [{vel_unit}]",
+            ylabel=f"command [{cmd_unit}]",
+            title="the paper's law (cf. Fig. 8(b)/10(b))",
+        )
         ax_nl.legend(fontsize="small", loc="upper left")
 
     order = np.argsort(v)
@@ -85,8 +92,11 @@ def plot_map(result: Identification, path: str | Path, units: tuple[str, str]) -
     for law, f in result.fits.items():
         ax_res.plot(v, u - f.predict(v), "o-", ms=3, lw=0.8, color=_COLORS.get(law), label=law)
     ax_res.axhline(0, color="k", lw=0.6)
-    ax_res.set(xlabel=f"velocity [{vel_unit}]", ylabel=f"residual [{cmd_unit}]",
-               title="goodness of fit: measured minus fitted level")  # fmt: skip
+    ax_res.set(
+        xlabel=f"velocity [{vel_unit}]",
+        ylabel=f"residual [{cmd_unit}]",
+        title="goodness of fit: measured minus fitted level",
+    )
     ax_res.legend(fontsize="small", ncol=4)
     fig.tight_layout()
     return save_figure(fig, path, dpi=110)

@@ -135,9 +135,15 @@ def fit_law(
 
         def build(x: FloatArray) -> FrictionModel:
             return StictionCoulomb(
-                us_pos, us_neg, float(x[0]), float(x[2]), float(x[1]), float(x[3]),
-                float(x[4]), shape,  # type: ignore[arg-type]
-            )  # fmt: skip
+                us_pos,
+                us_neg,
+                float(x[0]),
+                float(x[2]),
+                float(x[1]),
+                float(x[3]),
+                float(x[4]),
+                shape,  # type: ignore[arg-type]
+            )
 
     x0 = np.clip(x0, lower, upper)  # least_squares moves it strictly inside
 

@@ -87,8 +87,21 @@ class Plan:
     """
 
     levels: tuple[float, ...] = (
-        1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5, 3.2, 4.0, 5.0, 6.0,
-    )  # fmt: skip
+        1.03,
+        1.06,
+        1.1,
+        1.15,
+        1.2,
+        1.3,
+        1.45,
+        1.65,
+        2.0,
+        2.5,
+        3.2,
+        4.0,
+        5.0,
+        6.0,
+    )
     constant_duration: float = 4.5
     ramp_repeats: int = 3
     ramp_from: float = 0.6
@@ -364,14 +377,25 @@ def _refined(
     start = {"J": inertia[0], "B": damping[0], **fit.values}
     runs = [t for t in traces if t.settings["kind"] in ("constant", "ramp", "relay")]
     result = refine(
-        runs, start, runner.spec.dt, runner.spec.limit, shape,
-        reading=reading, direction=runner.spec.direction,
-    )  # fmt: skip
+        runs,
+        start,
+        runner.spec.dt,
+        runner.spec.limit,
+        shape,
+        reading=reading,
+        direction=runner.spec.direction,
+    )
     v = result.values
     model = StictionCoulomb(
-        v["us_pos"], v["us_neg"], v["uc_pos"], v["uc_neg"], v["v0_pos"], v["v0_neg"],
-        v["B"], shape,
-    )  # fmt: skip
+        v["us_pos"],
+        v["us_neg"],
+        v["uc_pos"],
+        v["uc_neg"],
+        v["v0_pos"],
+        v["v0_neg"],
+        v["B"],
+        shape,
+    )
     values = {**{k: v[k] for k in fit.values if k != "viscous"}, "viscous": v["B"]}
     stderr = {k: result.stderr[k] for k in values if k != "viscous"}
     stderr["viscous"] = result.stderr["B"]

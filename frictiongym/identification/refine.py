@@ -196,9 +196,15 @@ class _Simulator:
         for x in np.atleast_2d(xs):
             inertia, damping, us_p, us_n, ratio_p, ratio_n, v0_p, v0_n = (float(v) for v in x)
             law = StictionCoulomb(
-                us_p, us_n, min(ratio_p, 1.0) * us_p, min(ratio_n, 1.0) * us_n, v0_p, v0_n,
-                0.0, self.shape,  # type: ignore[arg-type]
-            )  # fmt: skip
+                us_p,
+                us_n,
+                min(ratio_p, 1.0) * us_p,
+                min(ratio_n, 1.0) * us_n,
+                v0_p,
+                v0_n,
+                0.0,
+                self.shape,  # type: ignore[arg-type]
+            )
             plant = PlantParams(inertia, damping, self.limit, dead_time=delay * self.dt)
             params += [plant] * self.runs
             frictions += [law] * self.runs
@@ -317,9 +323,13 @@ def _local_fit(
     x = np.clip(x0, lower, upper)
     for _ in range(_RESTARTS):
         result = least_squares(
-            lambda x: sim.residual(x, delay), x, jac=lambda x: sim.jacobian(x, delay),
-            bounds=(lower, upper), x_scale="jac", max_nfev=100,
-        )  # fmt: skip
+            lambda x: sim.residual(x, delay),
+            x,
+            jac=lambda x: sim.jacobian(x, delay),
+            bounds=(lower, upper),
+            x_scale="jac",
+            max_nfev=100,
+        )
         improved = best is None or result.cost < (1.0 - 1e-6) * best.cost
         if best is None or result.cost < best.cost:
             best = result

@@ -75,8 +75,15 @@ S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
 STATE_SIZE = 7
 #: The state columns by what they hold, for the plant's named accessors.
-COLUMNS = {"position": S_X, "velocity": S_V, "bristle": S_Z, "lag": S_LAG,
-           "friction_force": S_FRICTION, "command": S_COMMAND, "stuck": S_STUCK}  # fmt: skip
+COLUMNS = {
+    "position": S_X,
+    "velocity": S_V,
+    "bristle": S_Z,
+    "lag": S_LAG,
+    "friction_force": S_FRICTION,
+    "command": S_COMMAND,
+    "stuck": S_STUCK,
+}
 
 
 def pack_row(
@@ -519,10 +526,18 @@ def step_plant(
     r = 0 if one_row else i
     plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG], params[r, I_STOP])
     friction = (
-        params[r, F0 + 0], params[r, F0 + 1], params[r, F0 + 2], params[r, F0 + 3],
-        params[r, F0 + 4], params[r, F0 + 5], params[r, F0 + 6], params[r, F0 + 7],
-        params[r, F0 + 8], params[r, F0 + 9], params[r, F0 + 10],
-    )  # fmt: skip
+        params[r, F0 + 0],
+        params[r, F0 + 1],
+        params[r, F0 + 2],
+        params[r, F0 + 3],
+        params[r, F0 + 4],
+        params[r, F0 + 5],
+        params[r, F0 + 6],
+        params[r, F0 + 7],
+        params[r, F0 + 8],
+        params[r, F0 + 9],
+        params[r, F0 + 10],
+    )
     c = command[0] if one_command else command[i]
     c = min(max(c, -plant[I_UMAX]), plant[I_UMAX])
     state[i, S_COMMAND] = c
@@ -607,6 +622,15 @@ def step_batch_parallel(
     for i in prange(state.shape[0]):
         step_plant(
             np.int64(i),  # prange's index is unsigned; the body indexes with signed integers
-            state, delay_buffer, head, command, h, n_sub, params, one_row, one_command, delayed,
-        )  # fmt: skip
+            state,
+            delay_buffer,
+            head,
+            command,
+            h,
+            n_sub,
+            params,
+            one_row,
+            one_command,
+            delayed,
+        )
     return -1

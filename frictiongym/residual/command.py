@@ -163,14 +163,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Train; return the exit status (2 for bad input)."""
     settings = TrainSettings(
-        env_id=args.env, algo=args.algo, steps=args.steps, seed=args.seed, out=args.out,
-        randomize=args.randomize, quick=args.quick, resume=args.resume, n_envs=args.n_envs,
-        checkpoint_every=args.checkpoint_every, scale=args.scale, quiet=args.quiet,
-        reward=args.reward, residual_cost=args.residual_cost, hyperparameters=dict(args.sb3),
-        validate_every=args.validate_every or None, validation_plants=args.validation_plants,
-        threads=args.threads, overwrite=args.overwrite,
+        env_id=args.env,
+        algo=args.algo,
+        steps=args.steps,
+        seed=args.seed,
+        out=args.out,
+        randomize=args.randomize,
+        quick=args.quick,
+        resume=args.resume,
+        n_envs=args.n_envs,
+        checkpoint_every=args.checkpoint_every,
+        scale=args.scale,
+        quiet=args.quiet,
+        reward=args.reward,
+        residual_cost=args.residual_cost,
+        hyperparameters=dict(args.sb3),
+        validate_every=args.validate_every or None,
+        validation_plants=args.validation_plants,
+        threads=args.threads,
+        overwrite=args.overwrite,
         command_line=command_line,
-    )  # fmt: skip
+    )
     say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     try:
         summary = train(settings, say)

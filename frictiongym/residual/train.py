@@ -123,8 +123,13 @@ def check_settings(settings: TrainSettings) -> None:
     if not (math.isfinite(settings.residual_cost) and settings.residual_cost >= 0.0):
         raise TrainingError(f"--residual-cost must be >= 0, got {settings.residual_cost}")
     for name in (
-        "steps", "n_envs", "checkpoint_every", "validate_every", "validation_plants", "threads"
-    ):  # fmt: skip
+        "steps",
+        "n_envs",
+        "checkpoint_every",
+        "validate_every",
+        "validation_plants",
+        "threads",
+    ):
         value = getattr(settings, name)
         if value is not None and value < 1:
             raise TrainingError(
@@ -390,8 +395,14 @@ def train(settings: TrainSettings, say: Callable[[str], None] | None = None) -> 
     """
     say = say or (lambda _: None)
     check_settings(settings)
-    output = OutputDir(settings.out, OUTPUTS, overwrite=settings.overwrite, staged=False,
-                       continuing=settings.resume is not None, resumable=True)  # fmt: skip
+    output = OutputDir(
+        settings.out,
+        OUTPUTS,
+        overwrite=settings.overwrite,
+        staged=False,
+        continuing=settings.resume is not None,
+        resumable=True,
+    )
     with output:  # checked before the work; removed again if the run writes nothing
         summary = _train(settings, say, output)
         output.commit()
@@ -516,9 +527,11 @@ def _train(
     validate = None
     if settings.validate_every is not None:
         validation = Validation(
-            device.name, kwargs.get("randomize", device.randomization), config,
+            device.name,
+            kwargs.get("randomize", device.randomization),
+            config,
             settings.validation_plants,
-        )  # fmt: skip
+        )
         validate = _validation_callback(validation, settings.validate_every, out, say)
         callbacks.append(validate)
     say(f"training {algo.upper()} on {settings.env_id} for {remaining} steps -> {out}")

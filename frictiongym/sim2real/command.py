@@ -112,7 +112,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     add_output_arguments(parser, "sim2real-results", "the report and the device logs")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
-    parser.add_argument("--quiet", action="store_true", help="print only errors")  # fmt: skip
+    parser.add_argument("--quiet", action="store_true", help="print only errors")
 
 
 def _log_directory(out: Path) -> Path:
@@ -131,34 +131,48 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         print("error: --repeats and --steps must be positive", file=sys.stderr)
         return 2
     if args.backend in SIM:
-        print(f"error: --backend {args.backend} is the simulator; sim2real compares a device "
-              "with it: give a device URI, e.g. emulator://rotary", file=sys.stderr)  # fmt: skip
+        print(
+            f"error: --backend {args.backend} is the simulator; sim2real compares a device "
+            "with it: give a device URI, e.g. emulator://rotary",
+            file=sys.stderr,
+        )
         return 2
     say = (lambda _: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:  # before the device
         try:
             result = run_sim2real(
-                args.env, args.backend, controller=args.controller, gains=args.gains,
-                params=args.params, repeats=args.repeats, steps=args.steps,
-                reference=args.reference, log=_log_directory(args.out), progress=say,
-            )  # fmt: skip
+                args.env,
+                args.backend,
+                controller=args.controller,
+                gains=args.gains,
+                params=args.params,
+                repeats=args.repeats,
+                steps=args.steps,
+                reference=args.reference,
+                log=_log_directory(args.out),
+                progress=say,
+            )
         except (HardwareError, ParamsFileError, ValueError, FileExistsError) as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 2
-        path = out.final(write_report(result, out.path, command_line,
-                                      figures=not args.no_figures))  # fmt: skip
+        path = out.final(write_report(result, out.path, command_line, figures=not args.no_figures))
         out.commit()
     if not result.device:
-        print(f"error: no device run completed ({stops(result)}): "
-              f"nothing to compare; {path} says how each ended", file=sys.stderr)  # fmt: skip
+        print(
+            f"error: no device run completed ({stops(result)}): "
+            f"nothing to compare; {path} says how each ended",
+            file=sys.stderr,
+        )
         return 1
     if not args.quiet:
         data = summary(result)
         if result.stopped:
-            print(f"note: {len(result.stopped)} of {runs_text(data['repeats'])} on the device "
-                  f"ended early ({stops(result)}); the comparison uses the "
-                  f"{runs_text(data['complete_runs'])} that completed",
-                  file=sys.stderr)  # fmt: skip
+            print(
+                f"note: {len(result.stopped)} of {runs_text(data['repeats'])} on the device "
+                f"ended early ({stops(result)}); the comparison uses the "
+                f"{runs_text(data['complete_runs'])} that completed",
+                file=sys.stderr,
+            )
         for name in result.models:
             gap = data["gap"][name]["output"]
             print(f"{name:>12}: output RMSE {gap['rmse']:.4g}, fit {gap['fit_pct']:.3g} %")

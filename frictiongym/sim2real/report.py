@@ -67,12 +67,14 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         "gains": result.gains,
         "repeats": len(runs),
         "complete_runs": len(result.device),
-        "runs": [{"run": r.run, "steps": r.steps, "ended": r.ended, "detail": r.detail}
-                 for r in runs],
+        "runs": [
+            {"run": r.run, "steps": r.steps, "ended": r.ended, "detail": r.detail} for r in runs
+        ],
         "steps": int(min(t.t.size for t in result.device)) - 1 if result.device else None,
         "models": result.model_descriptions,
-        "model_stops": {n: t.t.size - 1 if t.terminated else None
-                        for n, t in result.models.items()},
+        "model_stops": {
+            n: t.t.size - 1 if t.terminated else None for n, t in result.models.items()
+        },
         "gap": None,
         "gap_closed": None,
         "device_spread": None,
@@ -84,7 +86,7 @@ def summary(result: Sim2RealResult) -> dict[str, Any]:
         "timing": None if timing is None else timing.__dict__,
         "priority": result.priority or None,
         "device_log": result.log_dir,
-    }  # fmt: skip
+    }
     if not result.device:
         return data
     gaps = {
@@ -136,25 +138,43 @@ def _run_lines(result: Sim2RealResult, data: dict[str, Any]) -> list[str]:
     if stopped:
         names = ", ".join(str(run.run) for run in stopped)
         are = "is" if len(stopped) == 1 else "are"
-        lines += ["", f"{len(stopped)} of {runs_text(data['repeats'])} ({names}) ended early "
-                  f"and {are} left out of the comparison" + (f": the figures below use the "
-                  f"{runs_text(data['complete_runs'])} that completed." if result.device
-                  else ".")]  # fmt: skip
+        lines += [
+            "",
+            f"{len(stopped)} of {runs_text(data['repeats'])} ({names}) ended early "
+            f"and {are} left out of the comparison"
+            + (
+                f": the figures below use the {runs_text(data['complete_runs'])} that completed."
+                if result.device
+                else "."
+            ),
+        ]
         if any(run.ended == WATCHDOG for run in stopped):
-            lines += ["", "A watchdog trip means the host loop sent no command for the "
-                      "device's watchdog time (a stalled host, or lost frames): the device "
-                      "zeroed its motor, and the next run re-armed it (docs/hardware.md, "
-                      '"Timing and the watchdog").']  # fmt: skip
+            lines += [
+                "",
+                "A watchdog trip means the host loop sent no command for the "
+                "device's watchdog time (a stalled host, or lost frames): the device "
+                "zeroed its motor, and the next run re-armed it (docs/hardware.md, "
+                '"Timing and the watchdog").',
+            ]
         if any(run.ended == LINK for run in stopped):
-            lines += ["", "A link fault means no state frame came in time, or one came too old "
-                      "(a stalled host or emulator, a slow or lossy link): the motor was zeroed "
-                      "and the next run started afresh."]  # fmt: skip
+            lines += [
+                "",
+                "A link fault means no state frame came in time, or one came too old "
+                "(a stalled host or emulator, a slow or lossy link): the motor was zeroed "
+                "and the next run started afresh.",
+            ]
         if any(run.ended == DISCONNECTED for run in stopped):
-            lines += ["", "The device went away (cable, power, emulator stopped): the runs "
-                      "after it were not tried."]  # fmt: skip
+            lines += [
+                "",
+                "The device went away (cable, power, emulator stopped): the runs "
+                "after it were not tried.",
+            ]
         if any(run.ended in (SAFETY_LIMIT, DEVICE_LIMIT) for run in stopped):
-            lines += ["", "A run ended by a limit went where the limit forbids: a reference "
-                      "near it, or a controller that overshoots."]  # fmt: skip
+            lines += [
+                "",
+                "A run ended by a limit went where the limit forbids: a reference "
+                "near it, or a controller that overshoots.",
+            ]
     return lines
 
 
@@ -192,18 +212,23 @@ def write_report(result: Sim2RealResult, out: Path, command: str, figures: bool 
     timing = data["timing"]
     if timing is not None and timing["steps"]:
         lines += [
-            "", "## Timing of the device loop", "",
+            "",
+            "## Timing of the device loop",
+            "",
             f"{timing['steps']} timed steps at {_num(timing['rate_hz'])} Hz achieved; period "
             f"error |T - dt| p50 {1e3 * timing['period_p50']:.3f} ms, p99 "
             f"{1e3 * timing['period_p99']:.3f} ms, max {1e3 * timing['period_max']:.3f} ms; "
             f"{timing['late']} late commands, {timing['skipped']} skipped ticks. Host loop "
             f"scheduling: {result.priority or 'not recorded'}.",
-        ]  # fmt: skip
+        ]
         rate = 1.0 / _period(result)
         if timing["rate_hz"] > 1.5 * rate:
-            lines += ["", f"The loop ran faster than the device's {rate:g} Hz: its clock did not "
-                      "pace it (a lock-step emulator), so these figures show the host's speed "
-                      "only; see docs/benchmarks.md for a real-time run."]  # fmt: skip
+            lines += [
+                "",
+                f"The loop ran faster than the device's {rate:g} Hz: its clock did not "
+                "pace it (a lock-step emulator), so these figures show the host's speed "
+                "only; see docs/benchmarks.md for a real-time run.",
+            ]
     if figures:
         lines += ["", "## Figures", ""]
         lines += ["![overlay](overlay.png)", ""] if result.device else []
@@ -233,12 +258,18 @@ def _gap_lines(result: Sim2RealResult, data: dict[str, Any], units: dict[str, st
         gaps = [data["gap"][n][s] for n in result.models]
         cells = [f"{_num(g['rmse'])} {units[s]} | {_num(g['fit_pct'], 3)}" for g in gaps]
         lines.append(f"| {s} | " + " | ".join(cells) + f" | {_num(data['device_spread'][s])} |")
-    lines += ["", "The device spread is each device run's RMSE against the mean of the others:",
-              "the noise floor no model can beat.", ""]  # fmt: skip
+    lines += [
+        "",
+        "The device spread is each device run's RMSE against the mean of the others:",
+        "the noise floor no model can beat.",
+        "",
+    ]
     for name, stop in data["model_stops"].items():
         if stop is not None:
-            lines.append(f"The safety limit ended the **{name}** model's run after {stop} steps: "
-                         "its figures cover those steps only.")  # fmt: skip
+            lines.append(
+                f"The safety limit ended the **{name}** model's run after {stop} steps: "
+                "its figures cover those steps only."
+            )
     if any(stop is not None for stop in data["model_stops"].values()):
         lines.append("")
     for name, closed in data["gap_closed"].items():
@@ -247,10 +278,15 @@ def _gap_lines(result: Sim2RealResult, data: dict[str, Any], units: dict[str, st
             f"gap and {_num(100 * closed['command'], 3)} % of its command gap"
             + (" (negative: farther than the nominal model)." if min(closed.values()) < 0 else ".")
         )
-    lines += ["", "## Step metrics (model minus the complete device runs' mean)", "",
-              "| metric | device mean | device std | "
-              + " | ".join(f"{n} - device" for n in result.models) + " |",
-              "|---|---:|---:|" + "---:|" * len(result.models)]  # fmt: skip
+    lines += [
+        "",
+        "## Step metrics (model minus the complete device runs' mean)",
+        "",
+        "| metric | device mean | device std | "
+        + " | ".join(f"{n} - device" for n in result.models)
+        + " |",
+        "|---|---:|---:|" + "---:|" * len(result.models),
+    ]
     for key, unit in METRICS.items():
         values = np.array([m[key] for m in data["device_metrics"]], dtype=float)
         if np.all(np.isfinite(values)):
@@ -287,8 +323,14 @@ def _write_overlay(result: Sim2RealResult, out: Path, plt: Any) -> None:
     for k, s in enumerate(SIGNALS):
         ax = axes[k]
         for i, trace in enumerate(result.device):
-            ax.plot(trace.t, signal(trace, s), color="0.55", lw=3.0, alpha=0.6,
-                    label="device runs" if i == 0 else None)  # fmt: skip
+            ax.plot(
+                trace.t,
+                signal(trace, s),
+                color="0.55",
+                lw=3.0,
+                alpha=0.6,
+                label="device runs" if i == 0 else None,
+            )
         for name, trace in result.models.items():
             ax.plot(trace.t, signal(trace, s), lw=1.2, label=f"sim: {name}")
         ax.set_ylabel(f"{s} [{units[s]}]")

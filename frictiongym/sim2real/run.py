@@ -316,9 +316,16 @@ def run_sim2real(
         finally:
             sim_env.close()
     return Sim2RealResult(
-        env_id=env_id, backend=str(backend), controller=controller,
+        env_id=env_id,
+        backend=str(backend),
+        controller=controller,
         gains={"kp": float(gains.kp), "ki": float(gains.ki), "kd": float(gains.kd)},
         device=[run.trace for run in runs if run.complete and run.trace is not None],
-        models=traces, model_descriptions={name: text for name, (_, text) in models.items()},
-        timing=timing, periods=periods, log_dir=log_dir, runs=runs, priority=priority,
-    )  # fmt: skip
+        models=traces,
+        model_descriptions={name: text for name, (_, text) in models.items()},
+        timing=timing,
+        periods=periods,
+        log_dir=log_dir,
+        runs=runs,
+        priority=priority,
+    )

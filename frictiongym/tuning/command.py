@@ -55,47 +55,66 @@ OUTPUTS = ("tune.json", "tune.png")
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the tuner's options to ``parser``."""
     parser.add_argument(
-        "--samples", type=int, default=DEFAULT_SAMPLES, metavar="N",
+        "--samples",
+        type=int,
+        default=DEFAULT_SAMPLES,
+        metavar="N",
         help=f"gain triples to draw (default: {DEFAULT_SAMPLES}, about a second)",
-    )  # fmt: skip
-    parser.add_argument("--seed", type=int, default=0, metavar="S",
-                        help="seed of numpy's default_rng (default: 0)")  # fmt: skip
+    )
+    parser.add_argument(
+        "--seed", type=int, default=0, metavar="S", help="seed of numpy's default_rng (default: 0)"
+    )
     add_output_arguments(parser, "tune-results", "tune.json and tune.png")
     parser.add_argument(
-        "--model", choices=("nominal", "friction"), default=None,
+        "--model",
+        choices=("nominal", "friction"),
+        default=None,
         help="nominal: no friction (default without --params); friction: the paper's friction "
         "law in the plant (default with --params: the file's law)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--params", type=Path, metavar="PATH",
+        "--params",
+        type=Path,
+        metavar="PATH",
         help="a friction.json (or its directory) from `frictiongym identify`: tune on its J, B "
         "and friction",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--velocity", choices=("ideal", "filtered"), default="ideal",
+        "--velocity",
+        choices=("ideal", "filtered"),
+        default="ideal",
         help="the D term's velocity: ideal (the plant's true velocity, an ideal tachometer; "
         "default) or filtered (the QUBE's 50 s/(s+50) estimate of the angle, as the env "
         "observes it)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--rule", choices=tuple(RULES), default="itae",
+        "--rule",
+        choices=tuple(RULES),
+        default="itae",
         help="how to choose among the feasible candidates (default: itae)",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--horizon", type=float, default=DEFAULT_HORIZON, metavar="SECONDS",
+        "--horizon",
+        type=float,
+        default=DEFAULT_HORIZON,
+        metavar="SECONDS",
         help=f"simulated time per candidate, longer than the 1.5 s settling spec (default: "
         f"{DEFAULT_HORIZON:g})",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--chunk", type=int, default=DEFAULT_CHUNK, metavar="N",
+        "--chunk",
+        type=int,
+        default=DEFAULT_CHUNK,
+        metavar="N",
         help=f"candidates simulated at once; memory only, not results (default: {DEFAULT_CHUNK})",
-    )  # fmt: skip
+    )
     parser.add_argument(
-        "--full", action="store_true",
+        "--full",
+        action="store_true",
         help="simulate every candidate to the horizon instead of dropping those that have "
         "provably failed (same feasible set, about 50x slower; gives every candidate's "
         "per-spec failures in tune.json)",
-    )  # fmt: skip
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip tune.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
@@ -172,12 +191,24 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
     with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
-        with tqdm(total=args.samples, desc="tune", unit="cand", unit_scale=True,
-                  disable=args.quiet, file=sys.stderr) as bar:  # fmt: skip
+        with tqdm(
+            total=args.samples,
+            desc="tune",
+            unit="cand",
+            unit_scale=True,
+            disable=args.quiet,
+            file=sys.stderr,
+        ) as bar:
             result = random_search(
-                args.samples, args.seed, model, horizon=args.horizon, rule=args.rule,
-                chunk=args.chunk, early_stop=not args.full, progress=bar.update,
-            )  # fmt: skip
+                args.samples,
+                args.seed,
+                model,
+                horizon=args.horizon,
+                rule=args.rule,
+                chunk=args.chunk,
+                early_stop=not args.full,
+                progress=bar.update,
+            )
         result.extra["command"] = command_line
         write_json_atomic(out.path / "tune.json", result.record(), indent=1, allow_nan=False)
         if not args.no_figures:
@@ -185,7 +216,9 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
         written = out.commit()
     if not args.quiet:
         print(summary(result))
-        print(f"\n{result.n_samples} candidates in {result.wall_time:.1f} s "
-              f"({result.n_samples / result.wall_time:,.0f}/s); written to {args.out}/: "
-              + "  ".join(p.name for p in written))  # fmt: skip
+        print(
+            f"\n{result.n_samples} candidates in {result.wall_time:.1f} s "
+            f"({result.n_samples / result.wall_time:,.0f}/s); written to {args.out}/: "
+            + "  ".join(p.name for p in written)
+        )
     return 0

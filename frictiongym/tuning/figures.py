@@ -40,22 +40,48 @@ def _planes(axes: Any, result: TuneResult, pairs: Any, zoom: bool) -> Any:
     good = good[np.argsort(-result.scores[good])]  # best drawn last, on top
     sc = None
     for ax, (i, j) in zip(axes, pairs, strict=True):
-        ax.scatter(gains[grey, i], gains[grey, j], s=1.5, c="0.82", lw=0, rasterized=True,
-                   label=f"infeasible ({result.n_samples - result.n_feasible})")  # fmt: skip
+        ax.scatter(
+            gains[grey, i],
+            gains[grey, j],
+            s=1.5,
+            c="0.82",
+            lw=0,
+            rasterized=True,
+            label=f"infeasible ({result.n_samples - result.n_feasible})",
+        )
         if good.size:
-            sc = ax.scatter(gains[good, i], gains[good, j], s=8, c=result.scores[good],
-                            cmap="viridis_r", lw=0, label=f"feasible ({good.size})")  # fmt: skip
+            sc = ax.scatter(
+                gains[good, i],
+                gains[good, j],
+                s=8,
+                c=result.scores[good],
+                cmap="viridis_r",
+                lw=0,
+                label=f"feasible ({good.size})",
+            )
         if result.chosen is not None:
             c = result.gains[result.chosen]
             ax.plot(c[i], c[j], "*", ms=15, mfc="red", mec="k", label="chosen")
-        ax.plot(PAPER_GAINS[i], PAPER_GAINS[j], "X", ms=10, mfc="orange", mec="k",
-                label="paper (7.8, 1.5, 0.275)")  # fmt: skip
+        ax.plot(
+            PAPER_GAINS[i],
+            PAPER_GAINS[j],
+            "X",
+            ms=10,
+            mfc="orange",
+            mec="k",
+            label="paper (7.8, 1.5, 0.275)",
+        )
         lo, hi = result.bounds.low, result.bounds.high
         xlim, ylim = ((lo[i], hi[i]), (lo[j], hi[j]))
         if zoom and good.size:
             xlim, ylim = _zoom(result, i), _zoom(result, j)
-        ax.set(xlim=xlim, ylim=ylim, xlabel=_LABELS[i], ylabel=_LABELS[j],
-               title="zoom on the feasible set" if zoom else "")  # fmt: skip
+        ax.set(
+            xlim=xlim,
+            ylim=ylim,
+            xlabel=_LABELS[i],
+            ylabel=_LABELS[j],
+            title="zoom on the feasible set" if zoom else "",
+        )
     return sc
 
 
@@ -74,16 +100,36 @@ def _responses(ax: Any, result: TuneResult) -> None:
     if result.chosen is not None:
         ax.plot(t, y[:, n], color="red", lw=1.8, label="chosen")
     ax.plot(t, y[:, -1], color="orange", lw=1.8, ls="--", label="paper's gains")
-    ax.axhline(STEP * (1 + s.overshoot_pct / 100), color="k", lw=0.8, ls=":",
-               label=f"overshoot limit {s.overshoot_pct:g} %")  # fmt: skip
+    ax.axhline(
+        STEP * (1 + s.overshoot_pct / 100),
+        color="k",
+        lw=0.8,
+        ls=":",
+        label=f"overshoot limit {s.overshoot_pct:g} %",
+    )
     ax.axvline(s.peak_time, color="k", lw=0.8, ls="-.", label=f"peak-time limit {s.peak_time:g} s")
-    ax.axvspan(0, s.rise_time, color="tab:green", alpha=0.08,
-               label=f"rise-time limit {s.rise_time:g} s (10→90 %)")  # fmt: skip
+    ax.axvspan(
+        0,
+        s.rise_time,
+        color="tab:green",
+        alpha=0.08,
+        label=f"rise-time limit {s.rise_time:g} s (10→90 %)",
+    )
     band = f"±{s.settling_band * 100:g} % band (settled by {s.settling_time:g} s)"
-    ax.axhspan(STEP * (1 - s.settling_band), STEP * (1 + s.settling_band), color="0.6", alpha=0.3,
-               label=band)  # fmt: skip
-    ax.set(xlim=(0.0, min(0.5, float(t[-1]))), ylim=(0.0, 1.35), xlabel="time [s]",
-           ylabel="position [rad]", title="unit-step responses (first 0.5 s)")  # fmt: skip
+    ax.axhspan(
+        STEP * (1 - s.settling_band),
+        STEP * (1 + s.settling_band),
+        color="0.6",
+        alpha=0.3,
+        label=band,
+    )
+    ax.set(
+        xlim=(0.0, min(0.5, float(t[-1]))),
+        ylim=(0.0, 1.35),
+        xlabel="time [s]",
+        ylabel="position [rad]",
+        title="unit-step responses (first 0.5 s)",
+    )
     ax.legend(fontsize="x-small", loc="lower right")
 
 
@@ -99,8 +145,13 @@ def plot_feasible_set(result: TuneResult, path: Path, responses: bool = True) ->
     sc = _planes(axes[1, :2], result, ((0, 2), (1, 2)), zoom=True)
     axes[0, 0].legend(fontsize="small", loc="upper left", markerscale=1.5, framealpha=0.9)
     if sc is not None:
-        fig.colorbar(sc, ax=axes[:, :2].ravel().tolist(), shrink=0.5, pad=0.01,
-                     label=f"rule '{result.rule}' score (lower is better)")  # fmt: skip
+        fig.colorbar(
+            sc,
+            ax=axes[:, :2].ravel().tolist(),
+            shrink=0.5,
+            pad=0.01,
+            label=f"rule '{result.rule}' score (lower is better)",
+        )
     if responses:
         _responses(axes[1, 2], result)
     else:

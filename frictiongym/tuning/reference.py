@@ -92,8 +92,9 @@ def step_info_metrics(systems: list[Any], t: npt.ArrayLike, specs: StepSpecs) ->
                 SettlingTimeThreshold=specs.settling_band,
                 RiseTimeLimits=specs.rise_limits,
             )
-            rows.append((info["RiseTime"], info["PeakTime"], info["SettlingTime"],
-                         info["Overshoot"]))  # fmt: skip
+            rows.append(
+                (info["RiseTime"], info["PeakTime"], info["SettlingTime"], info["Overshoot"])
+            )
         except IndexError:  # the upper rise limit is never reached
             rows.append((np.inf, np.inf, np.inf, 0.0))
     arr = np.array(rows, dtype=np.float64).reshape(-1, 4)

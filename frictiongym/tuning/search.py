@@ -124,11 +124,16 @@ class TuneResult:
         kp, ki, kd = (float(g) for g in self.gains[index])
         margin = self.specs.margin(ev.metrics.take([index]))[0]
         return {
-            "index": int(index), "kp": kp, "ki": ki, "kd": kd,
+            "index": int(index),
+            "kp": kp,
+            "ki": ki,
+            "kd": kd,
             **{k: _finite(v) for k, v in ev.metrics[index].as_dict().items()},
-            "iae": _finite(ev.iae[index]), "itae": _finite(ev.itae[index]),
-            "margin": _finite(margin), "peak_command": _finite(ev.peak_command[index]),
-        }  # fmt: skip
+            "iae": _finite(ev.iae[index]),
+            "itae": _finite(ev.itae[index]),
+            "margin": _finite(margin),
+            "peak_command": _finite(ev.peak_command[index]),
+        }
 
     def paper_record(self) -> dict[str, Any]:
         """Return the paper's gains in this model: metrics, feasibility and the failing specs."""
@@ -253,7 +258,17 @@ def random_search(
     scores = rule_scores(rule, evaluation, specs)
     chosen = int(np.nanargmin(scores)) if evaluation.feasible.any() else None
     return TuneResult(
-        gains=gains, evaluation=evaluation, scores=scores, chosen=chosen, paper=paper, rule=rule,
-        model=model, specs=specs, bounds=bounds, seed=seed, horizon=horizon,
-        early_stop=early_stop, wall_time=wall,
-    )  # fmt: skip
+        gains=gains,
+        evaluation=evaluation,
+        scores=scores,
+        chosen=chosen,
+        paper=paper,
+        rule=rule,
+        model=model,
+        specs=specs,
+        bounds=bounds,
+        seed=seed,
+        horizon=horizon,
+        early_stop=early_stop,
+        wall_time=wall,
+    )
