@@ -120,17 +120,14 @@ def test_bad_actions_raise(bad):
         env.step(np.array(bad))
 
 
-def test_one_command_per_env_in_either_shape_and_no_reset_mask():
-    """(N, 1), the batched action space's shape, and (N,) give the same step; (N, 1, 1) and
-    others are refused (they were taken), and so is Gymnasium's reset_mask, clearly."""
+def test_one_command_per_env_in_either_shape():
+    """(N, 1), the batched action space's shape, and (N,) give the same step."""
     stepped = []
     for actions in (np.array([[0.5], [-0.5]]), np.array([0.5, -0.5])):
         env = make_vec(SERVO, 2)
         env.reset(seed=0)
         stepped.append(env.step(actions)[0])
     np.testing.assert_array_equal(stepped[0], stepped[1])
-    with pytest.raises(ValueError, match="reset_mask is not supported"):
-        env.reset(options={"reset_mask": np.array([True, False])})
 
 
 def test_vector_render_gives_one_frame_per_env():

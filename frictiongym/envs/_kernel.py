@@ -334,6 +334,49 @@ def reset_envs(
             rows[i, T_OFFSET] = 0.0
 
 
+@njit(cache=True)
+def observe_envs(
+    mask: npt.NDArray[np.bool_],
+    state: npt.NDArray[np.float64],
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    dt: float,
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Observe the just-reset envs of ``mask``; step none and leave the others' outputs.
+
+    What a same-step autoreset needs: the ended envs are reset and observed after the step that
+    ended them, without stepping the rest a second time.
+    """
+    none = np.zeros((state.shape[0], 0))
+    one_row = plant_rows.shape[0] == 1
+    for i in range(mask.shape[0]):
+        if mask[i]:
+            _env_element(
+                i,
+                state,
+                none,
+                0,
+                none[:, 0],
+                dt,
+                1,
+                plant_rows,
+                rows,
+                rng,
+                config,
+                mask,
+                obs,
+                out,
+                flags,
+                one_row,
+                False,
+            )
+
+
 @plant_kernel.serial_njit
 def step_envs(
     state: npt.NDArray[np.float64],

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from frictiongym.devices import ALTINO
-from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
+from frictiongym.envs.base import FrictionEnv
+from frictiongym.envs.vector import FrictionVectorEnv
 
 
 class AltinoDistanceEnv(FrictionEnv):
@@ -89,7 +90,8 @@ class AltinoDistanceVectorEnv(FrictionVectorEnv):
     """``num_envs`` Altino envs stepped by one compiled call (see :class:`AltinoDistanceEnv`).
 
     Takes the single env's arguments plus ``num_envs``, ``max_episode_steps`` (default 400
-    through ``gym.make_vec``) and ``parallel``. Autoreset mode: ``NEXT_STEP``. Env ``i`` of
+    through ``gym.make_vec``), ``parallel`` and ``autoreset_mode`` (``NEXT_STEP`` by default,
+    ``SAME_STEP`` or ``DISABLED``: :mod:`frictiongym.envs.vector`). Env ``i`` of
     ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
     """
 

@@ -1,12 +1,12 @@
-"""Gymnasium env classes shared by the devices: a single env and a native vector env.
+"""The single env class shared by the devices, and what the native vector env shares with it.
 
-Both drive an :class:`~frictiongym.envs.core.EnvCore`: a
+Both env classes drive an :class:`~frictiongym.envs.core.EnvCore`: a
 :class:`~frictiongym.envs.core.Simulation` of 1 or of N envs, or a single env's
 :class:`~frictiongym.envs.device.DeviceSession`. They differ only in how they seed, return and
-reset: the single env draws from ``self.np_random``, env ``i`` of
-the vector env from a generator seeded ``seed + i`` (as ``SyncVectorEnv`` seeds its copies),
-so ``vector_env.reset(seed=s)`` and ``single_env.reset(seed=s + i)`` give identical
-trajectories for the same actions.
+reset: the single env draws from ``self.np_random``, env ``i`` of the vector env
+(:mod:`frictiongym.envs.vector`) from a generator seeded ``seed + i`` (as ``SyncVectorEnv``
+seeds its copies), so ``vector_env.reset(seed=s)`` and ``single_env.reset(seed=s + i)`` give
+identical trajectories for the same actions.
 """
 
 from __future__ import annotations
@@ -21,9 +21,6 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
-from gymnasium.utils import seeding
-from gymnasium.vector import AutoresetMode, VectorEnv
-from gymnasium.vector.utils import batch_space
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.core import Device, EnvCore, Simulation
@@ -55,7 +52,7 @@ _SINGLE_ARGUMENTS = (
     *(name for name in _TASK_ARGUMENTS if name not in _VECTOR_ONLY),
     *_DEVICE_ARGUMENTS,
 )
-_VECTOR_ARGUMENTS = ("num_envs", "render_mode", *_TASK_ARGUMENTS)
+_VECTOR_ARGUMENTS = ("num_envs", "render_mode", "autoreset_mode", *_TASK_ARGUMENTS)
 
 
 def _check_arguments(env: object, given: Any, valid: tuple[str, ...]) -> None:
@@ -260,152 +257,3 @@ def _frame(sim: EnvCore, i: int) -> npt.NDArray[np.uint8]:
     if sim.device.sensor == env_kernel.SENSOR_ENCODER:
         return rendering.draw_servo(x, reference, stuck=stuck, time=time, command=command)
     return rendering.draw_altino(0.0 - x, reference, stuck=stuck, time=time, command=command)
-
-
-class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
-    """Base class of the native vector envs; see :class:`~frictiongym.envs.RotaryServoVectorEnv`."""
-
-    device: ClassVar[Device]
-    metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
-        "render_modes": ["rgb_array"],
-        "render_fps": _RENDER_FPS,
-        "autoreset_mode": AutoresetMode.NEXT_STEP,
-    }
-
-    def __init__(
-        self,
-        num_envs: int = 1,
-        *,
-        max_episode_steps: int | None = None,
-        render_mode: str | None = None,
-        parallel: bool | None = None,
-        **kwargs: Any,
-    ) -> None:
-        if render_mode not in (None, "rgb_array"):
-            raise ValueError(f"the vector env renders 'rgb_array' only, got {render_mode!r}")
-        backend = kwargs.pop("backend", "sim")
-        _check_arguments(self, kwargs, _VECTOR_ARGUMENTS)
-        if backend is not None and backend not in SIM:
-            raise ValueError(
-                f"backend={backend!r}: a device is one env; make it with gym.make (the vector "
-                "env simulates only)"
-            )
-        self.render_mode = render_mode
-        self.sim = Simulation(
-            self.device, num_envs, max_episode_steps=max_episode_steps, parallel=parallel, **kwargs
-        )
-        self.num_envs = self.sim.num_envs
-        self.dt = self.sim.dt
-        self.max_episode_steps = max_episode_steps
-        self.single_action_space, self.single_observation_space = _spaces(self.device, self.sim)
-        self.action_space = batch_space(self.single_action_space, self.num_envs)
-        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
-        self._seeds: list[int | None] = [None] * self.num_envs
-        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        self._done = np.zeros(self.num_envs, dtype=bool)
-        self._needs_reset = True
-
-    def _rng(self, i: int) -> np.random.Generator:
-        """Env ``i``'s generator, created on first use (most tasks draw nothing)."""
-        rng = self._rngs[i]
-        if rng is None:
-            rng, _ = seeding.np_random(self._seeds[i])
-            self._rngs[i] = rng
-        return rng
-
-    def _outputs(self) -> tuple[ObsArray, npt.NDArray[np.float64], npt.NDArray[np.bool_]]:
-        n = self.num_envs
-        return (
-            np.empty((n, self.sim.observation_size), dtype=np.float32),
-            np.empty((env_kernel.OUT_SIZE, n)),
-            np.empty((env_kernel.FLAG_SIZE, n), dtype=bool),
-        )
-
-    def _info(self, out: npt.NDArray[np.float64], flags: npt.NDArray[np.bool_]) -> dict[str, Any]:
-        info: dict[str, Any] = {
-            key: out[row] for key, row in zip(INFO_KEYS, _OUT_ROWS, strict=True)
-        }
-        info["stuck"] = flags[env_kernel.F_STUCK]
-        for key in (*INFO_KEYS, "stuck"):  # every env reports every key; new masks each call
-            info["_" + key] = np.ones(self.num_envs, dtype=bool)
-        return info
-
-    def reset(
-        self,
-        *,
-        seed: int | list[int | None] | None = None,
-        options: dict[str, Any] | None = None,
-    ) -> tuple[ObsArray, dict[str, Any]]:
-        """Reset every env; env ``i`` is seeded ``seed + i`` (or ``seed[i]`` for a list).
-
-        Without a seed (or for a ``None`` entry of the list) an env continues its generator,
-        as :class:`~gymnasium.vector.SyncVectorEnv`'s envs do: a run seeded once is
-        reproducible through later unseeded resets.
-        """
-        super().reset(seed=seed if isinstance(seed, int) else None)
-        if options is not None and "reset_mask" in options:
-            raise ValueError(
-                "reset_mask is not supported: this vector env resets every env on reset() and "
-                "each ended env on its next step (autoreset mode NEXT_STEP)"
-            )
-        if isinstance(seed, int):
-            seed = [seed + i for i in range(self.num_envs)]
-        elif seed is None:
-            seed = [None] * self.num_envs
-        elif len(seed) != self.num_envs:
-            raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
-        for i, env_seed in enumerate(seed):
-            if env_seed is not None:
-                self._seeds[i], self._rngs[i] = env_seed, None
-        fresh = np.ones(self.num_envs, dtype=bool)
-        self.sim.prepare_reset(fresh, self._rng, options)
-        obs, out, flags = self._outputs()
-        self.sim.run(np.zeros(self.num_envs), fresh, obs, out, flags)
-        self._done[:] = False
-        self._needs_reset = False
-        return obs, self._info(out, flags)
-
-    def step(
-        self, actions: ActArray
-    ) -> tuple[
-        ObsArray,
-        npt.NDArray[np.float64],
-        npt.NDArray[np.bool_],
-        npt.NDArray[np.bool_],
-        dict[str, Any],
-    ]:
-        """Step every env; envs whose episode ended on the last step are reset instead."""
-        if self._needs_reset:
-            raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
-        _refuse_masked(actions)
-        command = np.asarray(actions)
-        if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
-            if command.dtype.kind not in "iu":
-                raise ValueError(
-                    f"actions must be numbers in command units, one per env, got dtype "
-                    f"{command.dtype}"
-                )
-            command = command.astype(np.float64)
-        if command.shape not in ((self.num_envs, 1), (self.num_envs,)):
-            raise ValueError(
-                f"actions must hold one command per env, shape ({self.num_envs}, 1) (or "
-                f"({self.num_envs},)); got shape {command.shape}"
-            )
-        command = command.reshape(self.num_envs)
-        fresh = self._done
-        if fresh.any():
-            self.sim.prepare_reset(fresh, self._rng)
-        obs, out, flags = self._outputs()
-        self.sim.run(command, fresh, obs, out, flags)
-        terminated, truncated = flags[env_kernel.F_TERMINATED], flags[env_kernel.F_TRUNCATED]
-        self._done = terminated | truncated
-        return obs, out[env_kernel.O_REWARD], terminated, truncated, self._info(out, flags)
-
-    def render(self) -> tuple[npt.NDArray[np.uint8], ...] | None:
-        """One RGB frame per env (``render_mode='rgb_array'``)."""
-        if self.render_mode is None:
-            gym.logger.warn("render() called without render_mode='rgb_array'")
-            return None
-        if self._needs_reset:
-            raise gym.error.ResetNeeded("Cannot call render() before calling reset()")
-        return tuple(_frame(self.sim, i) for i in range(self.num_envs))

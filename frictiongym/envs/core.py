@@ -347,3 +347,21 @@ class Simulation:
                 f"action {command[bad]!r} (env {bad}) is not a finite number; actions must be "
                 "finite commands in physical units"
             )
+
+    def observe(
+        self, mask: BoolArray, obs: npt.NDArray[np.float32], out: FloatArray, flags: BoolArray
+    ) -> None:
+        """Observe the envs of ``mask`` just reset by :meth:`prepare_reset`; step none."""
+        plants = self.plants
+        env_kernel.observe_envs(
+            mask,
+            plants.state,
+            plants.rows,
+            self.rows,
+            self.noise_state,
+            self.config,
+            plants.dt,
+            obs,
+            out,
+            flags,
+        )

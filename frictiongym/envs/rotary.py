@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from frictiongym.devices import ROTARY
-from frictiongym.envs.base import FrictionEnv, FrictionVectorEnv
+from frictiongym.envs.base import FrictionEnv
+from frictiongym.envs.vector import FrictionVectorEnv
 
 
 class RotaryServoEnv(FrictionEnv):
@@ -106,7 +107,8 @@ class RotaryServoVectorEnv(FrictionVectorEnv):
 
     Takes the single env's arguments plus ``num_envs``, ``max_episode_steps`` (default 2500
     through ``gym.make_vec``) and ``parallel`` (``True``: numba's threads, ``False``: one;
-    default: from 512 envs, whichever is faster at the moment). Autoreset mode: ``NEXT_STEP``.
+    default: from 512 envs, whichever is faster at the moment) and ``autoreset_mode``
+    (``NEXT_STEP`` by default, ``SAME_STEP`` or ``DISABLED``: :mod:`frictiongym.envs.vector`).
     Env ``i`` of ``reset(seed=s)`` follows the single env reset with ``seed=s + i`` exactly.
     """
 

@@ -1,0 +1,333 @@
+"""The native vector env: N envs of one device stepped by one compiled call.
+
+It follows Gymnasium 1.x's vector API as :class:`~gymnasium.vector.SyncVectorEnv` over N
+single envs does, in each of the three autoreset modes (``autoreset_mode=``):
+
+* ``NEXT_STEP`` (the default): an env whose episode ended is reset by the next ``step``,
+  which spends that env's action on the reset (reward 0, the reset's observation and info);
+* ``SAME_STEP`` (CleanRL's scripts, Stable-Baselines3): the ended env is reset within the
+  step that ended it; the step returns the reset's observation and info, and the last
+  observation and info of the episode in ``info["final_obs"]`` and ``info["final_info"]``;
+* ``DISABLED``: nothing is reset for you; reset the ended envs with
+  ``reset(options={"reset_mask": mask})`` before the next step.
+
+``reset(options={"reset_mask": mask})`` works in every mode, and ``call``, ``get_attr`` and
+``set_attr`` answer as ``SyncVectorEnv``'s do where a batch of envs sharing one compiled
+simulation can (see :meth:`FrictionVectorEnv.call`).
+"""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+import gymnasium as gym
+import numpy as np
+import numpy.typing as npt
+from gymnasium.utils import seeding
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from frictiongym.envs import _kernel as env_kernel
+from frictiongym.envs.base import (
+    _OUT_ROWS,
+    _RENDER_FPS,
+    _VECTOR_ARGUMENTS,
+    INFO_KEYS,
+    ActArray,
+    ObsArray,
+    _check_arguments,
+    _frame,
+    _refuse_masked,
+    _spaces,
+)
+from frictiongym.envs.core import Device, Simulation
+from frictiongym.hardware import SIM
+
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
+#: What ``call`` and ``get_attr`` read per env, as each single env of a SyncVectorEnv holds it.
+_PER_ENV = ("np_random", "np_random_seed", "render")
+
+
+def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
+    """``value`` as an :class:`~gymnasium.vector.AutoresetMode` (the enum or its value)."""
+    try:
+        return AutoresetMode(value)
+    except ValueError:
+        names = ", ".join(f"AutoresetMode.{m.name} ({m.value!r})" for m in AutoresetMode)
+        raise ValueError(f"autoreset_mode must be one of {names}; got {value!r}") from None
+
+
+class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
+    """Base class of the native vector envs; see :class:`~frictiongym.envs.RotaryServoVectorEnv`."""
+
+    device: ClassVar[Device]
+    metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
+        "render_modes": ["rgb_array"],
+        "render_fps": _RENDER_FPS,
+        "autoreset_mode": AutoresetMode.NEXT_STEP,
+    }
+
+    def __init__(
+        self,
+        num_envs: int = 1,
+        *,
+        max_episode_steps: int | None = None,
+        render_mode: str | None = None,
+        parallel: bool | None = None,
+        autoreset_mode: AutoresetMode | str = AutoresetMode.NEXT_STEP,
+        **kwargs: Any,
+    ) -> None:
+        if render_mode not in (None, "rgb_array"):
+            raise ValueError(f"the vector env renders 'rgb_array' only, got {render_mode!r}")
+        backend = kwargs.pop("backend", "sim")
+        _check_arguments(self, kwargs, _VECTOR_ARGUMENTS)
+        if backend is not None and backend not in SIM:
+            raise ValueError(
+                f"backend={backend!r}: a device is one env; make it with gym.make (the vector "
+                "env simulates only)"
+            )
+        self.autoreset_mode = _autoreset_mode(autoreset_mode)
+        self.metadata = {**self.metadata, "autoreset_mode": self.autoreset_mode}
+        self.render_mode = render_mode
+        self.sim = Simulation(
+            self.device, num_envs, max_episode_steps=max_episode_steps, parallel=parallel, **kwargs
+        )
+        self.num_envs = self.sim.num_envs
+        self.dt = self.sim.dt
+        self.max_episode_steps = max_episode_steps
+        self.single_action_space, self.single_observation_space = _spaces(self.device, self.sim)
+        self.action_space = batch_space(self.single_action_space, self.num_envs)
+        self.observation_space = batch_space(self.single_observation_space, self.num_envs)
+        self._seeds: list[int | None] = [None] * self.num_envs
+        self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        self._done = np.zeros(self.num_envs, dtype=bool)
+        self._last_obs = np.zeros((self.num_envs, self.sim.observation_size), np.float32)
+        self._needs_reset = True
+        self._set_by_user: set[str] = set()
+
+    def _rng(self, i: int) -> np.random.Generator:
+        """Env ``i``'s generator, created on first use (most tasks draw nothing)."""
+        rng = self._rngs[i]
+        if rng is None:
+            rng, self._seeds[i] = seeding.np_random(self._seeds[i])
+            self._rngs[i] = rng
+        return rng
+
+    def _seed_of(self, i: int) -> int | None:
+        """Env ``i``'s seed, as ``Env.np_random_seed`` reads it (an unseeded env draws one)."""
+        self._rng(i)
+        return self._seeds[i]
+
+    def _outputs(self) -> tuple[ObsArray, FloatArray, BoolArray]:
+        n = self.num_envs
+        return (
+            np.empty((n, self.sim.observation_size), dtype=np.float32),
+            np.empty((env_kernel.OUT_SIZE, n)),
+            np.empty((env_kernel.FLAG_SIZE, n), dtype=bool),
+        )
+
+    def _info(
+        self, out: FloatArray, flags: BoolArray, mask: BoolArray | None = None
+    ) -> dict[str, Any]:
+        """Return the envs' info with Gymnasium's ``_key`` masks (only the envs of ``mask``)."""
+        values = [out[row] for row in _OUT_ROWS] + [flags[env_kernel.F_STUCK]]
+        info: dict[str, Any] = {}
+        for key, value in zip((*INFO_KEYS, "stuck"), values, strict=True):
+            if mask is None:  # every env reports every key; new masks each call
+                info[key], info["_" + key] = value, np.ones(self.num_envs, dtype=bool)
+            else:  # as SyncVectorEnv gathers a subset: zeros elsewhere
+                info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
+        return info
+
+    def reset(
+        self,
+        *,
+        seed: int | list[int | None] | None = None,
+        options: dict[str, Any] | None = None,
+    ) -> tuple[ObsArray, dict[str, Any]]:
+        """Reset every env, or those of ``options["reset_mask"]``; env ``i`` is seeded ``seed + i``.
+
+        ``seed`` may also be a list of one seed (or None) per env. Without a seed an env
+        continues its generator, as :class:`~gymnasium.vector.SyncVectorEnv`'s envs do: a run
+        seeded once is reproducible through later unseeded resets. ``options`` may hold
+        ``reset_mask`` (a boolean array of one entry per env, at least one True: reset only
+        those; the others keep their observation and report no info) and the single env's
+        reset options (``position``, ``velocity``, ``reference``).
+        """
+        options = dict(options) if options else {}
+        mask = options.pop("reset_mask", None)
+        if mask is not None:
+            mask = self._reset_mask(mask)
+        super().reset(seed=seed if isinstance(seed, int) else None)
+        if isinstance(seed, int):
+            seed = [seed + i for i in range(self.num_envs)]
+        elif seed is None:
+            seed = [None] * self.num_envs
+        elif len(seed) != self.num_envs:
+            raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
+        targets = np.ones(self.num_envs, dtype=bool) if mask is None else mask
+        for i in np.flatnonzero(targets):
+            if seed[i] is not None:
+                self._seeds[i], self._rngs[i] = seed[i], None
+        self.sim.prepare_reset(targets, self._rng, options or None)
+        if mask is None:
+            obs, out, flags = self._outputs()
+            self.sim.run(np.zeros(self.num_envs), targets, obs, out, flags)
+            info = self._info(out, flags)
+        else:
+            obs = self._last_obs.copy()
+            out = np.zeros((env_kernel.OUT_SIZE, self.num_envs))
+            flags = np.zeros((env_kernel.FLAG_SIZE, self.num_envs), dtype=bool)
+            self.sim.observe(mask, obs, out, flags)
+            info = self._info(out, flags, mask)
+        self._done[targets] = False
+        self._needs_reset = False
+        self._last_obs = obs.copy()
+        return obs, info
+
+    def _reset_mask(self, mask: Any) -> BoolArray:
+        """Check ``reset_mask`` as SyncVectorEnv does (same rules, messages that say how)."""
+        n = self.num_envs
+        if not isinstance(mask, np.ndarray):
+            raise TypeError(f"options['reset_mask'] must be a numpy array, got {type(mask)}")
+        if mask.shape != (n,):
+            raise ValueError(f"options['reset_mask'] must have shape ({n},), got {mask.shape}")
+        if mask.dtype != np.bool_:
+            raise TypeError(f"options['reset_mask'] must have dtype bool, got {mask.dtype}")
+        if not mask.any():
+            raise ValueError("options['reset_mask'] must select at least one env (one True)")
+        if self._needs_reset:
+            raise gym.error.ResetNeeded(
+                "reset every env once (reset() without reset_mask) before resetting some"
+            )
+        return mask.copy()
+
+    def step(
+        self, actions: ActArray
+    ) -> tuple[ObsArray, FloatArray, BoolArray, BoolArray, dict[str, Any]]:
+        """Step every env; what happens to an ended env depends on the autoreset mode."""
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
+        command = self._commands(actions)
+        mode = self.autoreset_mode
+        if mode is AutoresetMode.DISABLED and self._done.any():
+            raise gym.error.ResetNeeded(
+                f"envs {np.flatnonzero(self._done).tolist()} ended on the last step and "
+                "autoreset_mode is DISABLED: reset them first with "
+                "reset(options={'reset_mask': ...})"
+            )
+        fresh = self._done if mode is AutoresetMode.NEXT_STEP else np.zeros_like(self._done)
+        if fresh.any():
+            self.sim.prepare_reset(fresh, self._rng)
+        obs, out, flags = self._outputs()
+        self.sim.run(command, fresh, obs, out, flags)
+        reward = out[env_kernel.O_REWARD].copy()
+        terminated = flags[env_kernel.F_TERMINATED].copy()
+        truncated = flags[env_kernel.F_TRUNCATED].copy()
+        done = terminated | truncated
+        if mode is AutoresetMode.SAME_STEP and done.any():
+            final_obs = np.full(self.num_envs, None, dtype=object)
+            for i in np.flatnonzero(done):
+                final_obs[i] = obs[i].copy()
+            final = {
+                "final_obs": final_obs,
+                "_final_obs": done.copy(),
+                "final_info": self._info(out, flags, done),
+                "_final_info": done.copy(),
+            }
+            self.sim.prepare_reset(done, self._rng)
+            self.sim.observe(done, obs, out, flags)
+            info = {**final, **self._info(out, flags)}
+            done = np.zeros_like(done)
+        else:
+            info = self._info(out, flags)
+        self._done = done
+        self._last_obs = obs.copy()
+        return obs, reward, terminated, truncated, info
+
+    def _commands(self, actions: ActArray) -> npt.NDArray[np.floating[Any]]:
+        """Return one float command per env, or raise a ValueError that says what is wrong."""
+        _refuse_masked(actions)
+        command = np.asarray(actions)
+        if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
+            if command.dtype.kind not in "iu":
+                raise ValueError(
+                    f"actions must be numbers in command units, one per env, got dtype "
+                    f"{command.dtype}"
+                )
+            command = command.astype(np.float64)
+        if command.shape not in ((self.num_envs, 1), (self.num_envs,)):
+            raise ValueError(
+                f"actions must hold one command per env, shape ({self.num_envs}, 1) (or "
+                f"({self.num_envs},)); got shape {command.shape}"
+            )
+        return command.reshape(self.num_envs)
+
+    def render(self) -> tuple[npt.NDArray[np.uint8], ...] | None:
+        """One RGB frame per env (``render_mode='rgb_array'``)."""
+        if self.render_mode is None:
+            gym.logger.warn("render() called without render_mode='rgb_array'")
+            return None
+        if self._needs_reset:
+            raise gym.error.ResetNeeded("Cannot call render() before calling reset()")
+        return tuple(_frame(self.sim, i) for i in range(self.num_envs))
+
+    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
+        """Return what ``SyncVectorEnv.call`` would: one result per env.
+
+        The envs share one simulation, so only these have per-env answers: ``render`` (each
+        env's frame), ``np_random`` and ``np_random_seed`` (each env's generator and seed).
+        ``action_space`` and ``observation_space`` are the single env's; any other attribute
+        that is not a method (``dt``, ``device``, ``spec``, ``render_mode``, one set by
+        :meth:`set_attr`...) is the same for every env. Other methods raise AttributeError.
+        """
+        if name == "render":
+            frames = self.render(*args, **kwargs)
+            return (None,) * self.num_envs if frames is None else frames
+        if name == "np_random":
+            return tuple(self._rng(i) for i in range(self.num_envs))
+        if name == "np_random_seed":
+            return tuple(self._seed_of(i) for i in range(self.num_envs))
+        single = {
+            "action_space": "single_action_space",
+            "observation_space": "single_observation_space",
+        }
+        value = getattr(self, single.get(name, name))
+        if callable(value) and not isinstance(value, gym.Space):
+            raise AttributeError(
+                f"call({name!r}): the native vector env's envs share one simulation and have "
+                f"no method {name!r} of their own; per env it answers {', '.join(_PER_ENV)} and "
+                "attributes that are not methods (use SyncVectorEnv for other methods)"
+            )
+        return (value,) * self.num_envs
+
+    def get_attr(self, name: str) -> tuple[Any, ...]:
+        """One value per env, as :meth:`call` reads it."""
+        return self.call(name)
+
+    def set_attr(self, name: str, values: list[Any] | tuple[Any, ...] | Any) -> None:
+        """Set an attribute of the envs, one value for all (a list or tuple: one per env).
+
+        The envs share this object, so a list must hold one value N times. Only new
+        attributes (for a wrapper or a callback to read back) can be set: the env's own
+        settings are fixed when it is made, so make a new env to change them.
+        """
+        if not isinstance(values, list | tuple):
+            values = [values] * self.num_envs
+        if len(values) != self.num_envs:
+            raise ValueError(
+                f"set_attr needs one value or a list of {self.num_envs}, got {len(values)} values"
+            )
+        if any(v is not values[0] and v != values[0] for v in values[1:]):
+            raise ValueError(
+                f"set_attr({name!r}): the native vector env's envs share one value of each "
+                "attribute; give one value for all of them"
+            )
+        if hasattr(self, name) and name not in self._set_by_user:
+            raise AttributeError(
+                f"set_attr({name!r}): {name} is the env's own setting, fixed when it is made; "
+                f"make a new env with the value you want (gym.make_vec(..., {name}=...))"
+            )
+        self._set_by_user.add(name)
+        setattr(self, name, values[0])
