@@ -164,6 +164,38 @@ class Controller(ABC):
         u = np.clip(self.command(obs), -self.spec.limit, self.spec.limit)
         return np.asarray(u, dtype=np.float64)[..., np.newaxis]
 
+    def advance(self, observation: npt.ArrayLike, mask: npt.ArrayLike) -> FloatArray:
+        """Return the actions of a batch ``(N, k)`` as a call does; update only ``mask``'s envs.
+
+        The other envs' history is left as it was, so they can be called again on the same
+        step: what a vector env needs after resetting some envs within a step (their base
+        controller is reset and called on the new episode's first observation). It relies on
+        the convention that makes ``reset(mask)`` work: a controller keeps its per-env history
+        in numpy arrays whose last axis is the batch (its own, and those of the controllers
+        it holds).
+        """
+        keep = ~np.asarray(mask, dtype=bool)
+        saved = [(owner, name, value.copy()) for owner, name, value in _history(self)]
+        action = self(observation)
+        for owner, name, old in saved:
+            new = getattr(owner, name)
+            if old.ndim and new.shape == old.shape and old.shape[-1] == keep.size:
+                new = np.array(new)
+                new[..., keep] = old[..., keep]
+                setattr(owner, name, new)
+        return action
+
+
+def _history(controller: Controller) -> list[tuple[Controller, str, FloatArray]]:
+    """Return the numpy arrays a controller and the controllers it holds keep as attributes."""
+    found = []
+    for name, value in vars(controller).items():
+        if isinstance(value, np.ndarray):
+            found.append((controller, name, value))
+        elif isinstance(value, Controller):
+            found += _history(value)
+    return found
+
 
 def reset_mask(mask: npt.ArrayLike | None, size: int) -> BoolArray | None:
     """``mask`` as a boolean array of ``size`` (None: every env), with a clear error."""

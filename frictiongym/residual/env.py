@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -93,34 +94,9 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         precision: float | None = None,
     ) -> None:
         super().__init__(env)
-        if config is None:
-            config = ResidualConfig.for_env(env, scale)
-        elif scale is not None:
-            config = ResidualConfig.from_dict({**config.to_dict(), "scale": float(scale)})
-        if base is None:
-            controller = make_base(env)
-        elif isinstance(base, Controller):
-            controller = base
-        elif callable(base):
-            controller = base(env)
-        else:
-            raise TypeError(
-                f"base must be a Controller or a factory env -> Controller, got {base!r}"
-            )
-        if not isinstance(controller, Controller):
-            raise TypeError(f"the base factory returned {controller!r}, not a Controller")
-        if controller.spec.limit != config.limit:
-            raise ValueError(
-                f"the base controller's limit {controller.spec.limit} differs from the "
-                f"config's {config.limit}: build both for this env"
-            )
-        self.base = controller
-        self.config = config
-        self.residual_cost = real_number("residual_cost", residual_cost, ">= 0")
-        if precision is not None:
-            precision = real_number("precision", precision, "> 0", hint=" (an error scale)")
-        self.precision = precision
-        self._error_scale = float(device_of(env).error_scale)  # the env's e0
+        self.base, self.config, self.objective = residual_setup(
+            env, base, config, scale, residual_cost, precision
+        )
         self.action_space = spaces.Box(-1.0, 1.0, (1,), np.float32)
         bound = OBSERVATION_BOUND
         self.observation_space = spaces.Box(-bound, bound, (OBSERVATION_SIZE,), np.float32)
@@ -150,14 +126,72 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         total = np.clip(base + residual, -self.config.limit, self.config.limit)
         obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
         info = {**info, "base_action": float(base[0]), "residual": float(residual[0])}
-        if self.precision is not None:
-            reward = self._precision_reward(float(reward), info)
-        if self.residual_cost:
-            reward = float(reward) - self.residual_cost * (residual[0] / self.config.scale) ** 2
-        return self._observe(obs), reward, terminated, truncated, info
+        shaped = self.objective.reward(
+            float(reward), info["reference"], info["position"], residual[0]
+        )
+        return self._observe(obs), float(shaped), terminated, truncated, info
 
-    def _precision_reward(self, reward: float, info: dict[str, Any]) -> float:
-        """Swap the env's linear tracking term for the logarithmic one (class docstring)."""
-        assert self.precision is not None
-        error = abs(float(info["reference"]) - float(info["position"]))
-        return reward + error / self._error_scale - float(np.log1p(error / self.precision))
+
+@dataclass(frozen=True)
+class Objective:
+    """What the residual env's reward adds to the env's (the class docstring's "Rewards")."""
+
+    error_scale: float  #: the env's e0
+    scale: float  #: the residual bound
+    residual_cost: float = 0.0
+    precision: float | None = None
+
+    def reward(
+        self,
+        reward: npt.ArrayLike,
+        reference: npt.ArrayLike,
+        position: npt.ArrayLike,
+        residual: npt.ArrayLike,
+    ) -> Any:
+        """Return the training reward of one env (numbers) or of a batch (arrays)."""
+        shaped: Any = np.asarray(reward, dtype=np.float64)
+        if self.precision is not None:
+            error = np.abs(np.asarray(reference, np.float64) - np.asarray(position, np.float64))
+            shaped = shaped + error / self.error_scale - np.log1p(error / self.precision)
+        if self.residual_cost:
+            shaped = shaped - self.residual_cost * (np.asarray(residual) / self.scale) ** 2
+        return shaped
+
+
+def residual_setup(
+    env: Any,
+    base: BaseSpec,
+    config: ResidualConfig | None,
+    scale: float | None,
+    residual_cost: float,
+    precision: float | None,
+) -> tuple[Controller, ResidualConfig, Objective]:
+    """Check and resolve a residual env's arguments (single or vector; the class docstring)."""
+    if config is None:
+        config = ResidualConfig.for_env(env, scale)
+    elif scale is not None:
+        config = ResidualConfig.from_dict({**config.to_dict(), "scale": float(scale)})
+    if base is None:
+        controller = make_base(env)
+    elif isinstance(base, Controller):
+        controller = base
+    elif callable(base):
+        controller = base(env)
+    else:
+        raise TypeError(f"base must be a Controller or a factory env -> Controller, got {base!r}")
+    if not isinstance(controller, Controller):
+        raise TypeError(f"the base factory returned {controller!r}, not a Controller")
+    if controller.spec.limit != config.limit:
+        raise ValueError(
+            f"the base controller's limit {controller.spec.limit} differs from the "
+            f"config's {config.limit}: build both for this env"
+        )
+    if precision is not None:
+        precision = real_number("precision", precision, "> 0", hint=" (an error scale)")
+    objective = Objective(
+        error_scale=float(device_of(env).error_scale),
+        scale=config.scale,
+        residual_cost=real_number("residual_cost", residual_cost, ">= 0"),
+        precision=precision,
+    )
+    return controller, config, objective
