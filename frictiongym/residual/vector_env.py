@@ -138,6 +138,33 @@ class ResidualVectorEnv(VectorWrapper):
         self._base_action = following
         return residual_obs, np.asarray(reward, np.float64), terminated, truncated, info
 
+    def call(self, name: str, *args: Any, **kwargs: Any) -> tuple[Any, ...]:
+        """One result per env, as ``SyncVectorEnv`` over ``ResidualEnv`` answers.
+
+        The residual env's own spaces, ``base``, ``config`` and ``objective``; the rest as the
+        wrapped vector env answers (:meth:`frictiongym.envs.vector.FrictionVectorEnv.call`).
+        """
+        own = {
+            "action_space": self.single_action_space,
+            "observation_space": self.single_observation_space,
+            "base": self.base,
+            "config": self.config,
+            "objective": self.objective,
+        }
+        if name in own:
+            return (own[name],) * self.num_envs
+        inner: Any = self.env
+        return tuple(inner.call(name, *args, **kwargs))
+
+    def get_attr(self, name: str) -> tuple[Any, ...]:
+        """One value per env, as :meth:`call` reads it."""
+        return self.call(name)
+
+    def set_attr(self, name: str, values: Any) -> None:
+        """Set an attribute of the wrapped vector env's envs (its rules)."""
+        inner: Any = self.env
+        inner.set_attr(name, values)
+
     @staticmethod
     def _ended(
         info: dict[str, Any],
