@@ -6,10 +6,13 @@ algorithms and its ``VecNormalize`` and ``VecMonitor`` run on it as on a ``Dummy
 over the single envs, and get the same trajectories for the same seeds::
 
     from stable_baselines3 import PPO
-    from frictiongym.sb3 import make_sb3_vec
+    from frictiongym.residual.vector_env import make_residual_vec
+    from frictiongym.sb3 import FrictionVecEnv, make_sb3_vec
 
     env = make_sb3_vec("frictiongym/RotaryServo-v0", n_envs=32)
     PPO("MlpPolicy", env, seed=0).learn(100_000)
+    # residual policies on the compensated PID:
+    residual = FrictionVecEnv(make_residual_vec("frictiongym/RotaryServo-v0", 32))
 
 It follows SB3's conventions: ``reset()`` returns the observations only (seeds go through
 ``seed()`` and options through ``set_options()`` first, each used by one reset); an env whose
@@ -36,8 +39,6 @@ except ImportError as exc:  # pragma: no cover - the rl extra is part of the tes
     raise ImportError(
         f'frictiongym.sb3 needs Stable-Baselines3: pip install "frictiongym[rl]" ({exc})'
     ) from None
-
-from frictiongym.residual.vector_env import make_residual_vec
 
 
 class FrictionVecEnv(VecEnv):
@@ -165,13 +166,7 @@ def _split(info: dict[str, Any], n: int) -> list[dict[str, Any]]:
 
 
 def make_sb3_vec(
-    env_id: str,
-    n_envs: int,
-    *,
-    seed: int | None = None,
-    residual: bool = False,
-    residual_kwargs: dict[str, Any] | None = None,
-    **env_kwargs: Any,
+    env_id: str, n_envs: int, *, seed: int | None = None, **env_kwargs: Any
 ) -> FrictionVecEnv:
     """Make a :class:`FrictionVecEnv` of ``n_envs`` envs of ``env_id`` on its native vector env.
 
@@ -183,29 +178,21 @@ def make_sb3_vec(
         Number of envs, stepped in one compiled call.
     seed : int, optional
         Seeds the first reset (env ``i``: ``seed + i``), as ``make_vec_env(seed=...)`` does.
-    residual : bool, default False
-        Residual envs on the device's compensated PID
-        (:class:`~frictiongym.residual.vector_env.ResidualVectorEnv`).
-    residual_kwargs : dict, optional
-        Arguments of the residual env (``base``, ``config``, ``scale``, ``residual_cost``,
-        ``precision``).
     **env_kwargs
         Arguments of the env (``randomize``, ``reference``, ``max_episode_steps``...).
+
+    See Also
+    --------
+    frictiongym.residual.vector_env.make_residual_vec : residual envs on the native vector
+        env, for ``FrictionVecEnv(make_residual_vec(env_id, n_envs))``.
     """
-    if residual:
-        env: VectorEnv[Any, Any, Any] = make_residual_vec(
-            env_id, n_envs, **(residual_kwargs or {}), **env_kwargs
-        )
-    elif residual_kwargs:
-        raise ValueError("residual_kwargs apply with residual=True")
-    else:
-        env = gym.make_vec(
-            env_id,
-            num_envs=n_envs,
-            vectorization_mode="vector_entry_point",
-            autoreset_mode=AutoresetMode.SAME_STEP,
-            **env_kwargs,
-        )
+    env = gym.make_vec(
+        env_id,
+        num_envs=n_envs,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+        **env_kwargs,
+    )
     vec = FrictionVecEnv(env)
     if seed is not None:
         vec.seed(seed)

@@ -40,7 +40,7 @@ LAYERS: dict[str, int] = {
     "frictiongym.residual": 4,
     "frictiongym.sim2real": 4,
     "frictiongym.loops": 4,
-    "frictiongym.sb3": 4,
+    "frictiongym.sb3": 3,
     "frictiongym.cli": 5,
 }
 

@@ -136,6 +136,8 @@ def residual_model(tmp_path_factory):
     status = main(
         [
             "train",
+            "--n-envs",
+            "1",
             "--env",
             "frictiongym/RotaryServo-v0",
             "--quick",

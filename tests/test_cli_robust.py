@@ -202,6 +202,8 @@ def test_train_overwrite_drops_the_earlier_validation_and_best_model(tmp_path, c
     (tmp_path / "notes.txt").write_text("mine")
     argv = [
         "train",
+        "--n-envs",
+        "1",
         "--env",
         SERVO,
         "--quick",
@@ -344,6 +346,8 @@ def test_ctrl_c_on_training_saves_a_checkpoint_that_resume_continues(tmp_path, c
         [
             "frictiongym",
             "train",
+            "--n-envs",
+            "1",
             "--env",
             SERVO,
             "--quick",
@@ -382,6 +386,8 @@ def test_ctrl_c_on_training_saves_a_checkpoint_that_resume_continues(tmp_path, c
     assert not [p for p in out.rglob(".*") if p.is_file()]  # no temporary file left
     argv = [
         "train",
+        "--n-envs",
+        "1",
         "--env",
         SERVO,
         "--steps",

@@ -200,6 +200,8 @@ def trained(tmp_path_factory):
         status = main(
             [
                 "train",
+                "--n-envs",
+                "1",
                 "--env",
                 env_id,
                 "--quick",
@@ -225,7 +227,7 @@ def test_training_writes_the_model_logs_checkpoints_and_summary(trained):
     assert (summary["algo"], summary["steps"], summary["seed"]) == ("ppo", 512, 1)
     assert summary["env_kwargs"]["randomize"]["friction"] == [0.7, 1.3]
     assert summary["scale"] == 1.0
-    assert summary["steps_per_second"] > 0
+    assert summary["env_steps_per_s"] > 0
     assert {"torch", "stable_baselines3", "frictiongym"} <= set(summary["versions"])
     assert (path / "model.zip").is_file()
     assert sorted(p.name for p in (path / "checkpoints").iterdir()) == [
@@ -251,6 +253,8 @@ def test_resume_continues_to_the_total_steps(trained, capsys):
     status = main(
         [
             "train",
+            "--n-envs",
+            "1",
             "--env",
             ALTINO,
             "--algo",
@@ -395,14 +399,54 @@ def test_a_run_resumed_on_a_validation_step_validates_there_once(tmp_path, valid
     model = _FakeModel(6144)
     if validated_before:  # a run from 4 000 validates at 6 144, then saves its checkpoint
         model.num_timesteps = 4000
-        first = _validation_callback(validation, 2048, tmp_path, lambda _: None)
+        first = _validation_callback(validation, 2048, tmp_path, lambda _: None, 0.0)
         first.init_callback(model)
         first.on_training_start({}, {})
         model.num_timesteps = 6144
         first.on_step()
-    resumed = _validation_callback(validation, 2048, tmp_path, lambda _: None)
+    resumed = _validation_callback(validation, 2048, tmp_path, lambda _: None, 0.0)
     resumed.init_callback(model)
     resumed.on_training_start({}, {})
     rows = (tmp_path / "validation.csv").read_text().splitlines()[1:]
     assert [int(row.split(",")[0]) for row in rows] == [6144]
     assert resumed.due == 8192
+
+
+def test_train_steps_32_envs_of_the_native_vector_env_by_default(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    assert main(["train", "--env", ALTINO, "--quick", "--out", str(out), "--quiet"]) == 0
+    summary = json.loads((out / "train.json").read_text())
+    assert summary["n_envs"] == 32
+    assert summary["hyperparameters"]["batch_size"] == 256
+    assert summary["steps"] == 2048  # one rollout of 64 steps in each of the 32 envs
+    assert summary["best_score"] == summary["validation"]["best_score"]
+    assert summary["stopped_by"] == "steps"
+    # A resumed run keeps its 32 envs without being told.
+    assert (
+        main(
+            ["train", "--env", ALTINO, "--steps", "4096", "--out", str(out), "--resume", "--quiet"]
+        )
+        == 0
+    )
+    assert json.loads((out / "train.json").read_text())["n_envs"] == 32
+
+
+def test_max_time_stops_training_in_time_and_keeps_the_best_policy(tmp_path):
+    pytest.importorskip("stable_baselines3")
+    out = tmp_path / "run"
+    args = ["train", "--env", ALTINO, "--max-time", "12", "--validate-every", "4096"]
+    assert main([*args, "--out", str(out), "--quiet"]) == 0
+    summary = json.loads((out / "train.json").read_text())
+    assert summary["stopped_by"] == "max_time"
+    assert summary["wall_time_s"] <= 12 + 3  # the last validation fits in; saving is quick
+    assert summary["steps"] > 4096
+    assert (out / "best.zip").is_file()
+    rows = (out / "validation.csv").read_text().splitlines()
+    assert rows[0].endswith(",time_s")
+    assert summary["best_score"] == pytest.approx(min(float(r.split(",")[1]) for r in rows[1:]))
+
+
+def test_max_time_must_be_a_positive_number_of_seconds(tmp_path, capsys):
+    assert main(["train", "--env", SERVO, "--max-time", "0", "--out", str(tmp_path / "x")]) == 2
+    assert "--max-time" in capsys.readouterr().err

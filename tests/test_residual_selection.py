@@ -79,6 +79,8 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     status = main(
         [
             "train",
+            "--n-envs",
+            "1",
             "--env",
             ALTINO,
             "--quick",
@@ -122,6 +124,8 @@ def test_training_keeps_the_best_validated_policy(tmp_path, capsys):
     status = main(
         [
             "train",
+            "--n-envs",
+            "1",
             "--env",
             ALTINO,
             "--steps",

@@ -11,6 +11,7 @@ from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv, VecMonitor, VecNormalize
 
 from frictiongym.residual import ResidualEnv
+from frictiongym.residual.vector_env import make_residual_vec
 from frictiongym.sb3 import FrictionVecEnv, make_sb3_vec
 from tests._envs import ALTINO, IDS, RANDOM_KWARGS, SERVO, commands
 
@@ -26,7 +27,9 @@ def dummy(env_id: str, residual: bool = False, **kwargs: Any) -> DummyVecEnv:
 
 
 def native(env_id: str, residual: bool = False, **kwargs: Any) -> FrictionVecEnv:
-    return make_sb3_vec(env_id, N, residual=residual, max_episode_steps=MAX_STEPS, **kwargs)
+    if residual:
+        return FrictionVecEnv(make_residual_vec(env_id, N, max_episode_steps=MAX_STEPS, **kwargs))
+    return make_sb3_vec(env_id, N, max_episode_steps=MAX_STEPS, **kwargs)
 
 
 def same(a: Any, b: Any, where: str) -> None:

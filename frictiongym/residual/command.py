@@ -102,7 +102,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="continue training: from the newest checkpoint in --out (no PATH) or a model zip",
     )
     parser.add_argument(
-        "--n-envs", type=_positive, default=1, metavar="K", help="envs in the DummyVecEnv (1)"
+        "--n-envs",
+        type=_positive,
+        metavar="K",
+        help="envs of the native vector env, stepped in one compiled call (default 32 for PPO, "
+        "1 for SAC and TD3)",
+    )
+    parser.add_argument(
+        "--max-time",
+        type=float,
+        metavar="SECONDS",
+        help="wall-time budget of the run: training stops in time for a last validation and "
+        "the saves, best.zip kept (without --steps, the budget alone bounds the run)",
     )
     parser.add_argument(
         "--checkpoint-every",
@@ -172,6 +183,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         quick=args.quick,
         resume=args.resume,
         n_envs=args.n_envs,
+        max_time=args.max_time,
         checkpoint_every=args.checkpoint_every,
         scale=args.scale,
         quiet=args.quiet,
@@ -193,7 +205,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     if not args.quiet:
         print(
             f"trained {summary['algo'].upper()} to {summary['steps']} steps in "
-            f"{summary['learn_seconds']:.1f} s ({summary['steps_per_second']:.0f} steps/s); "
+            f"{summary['learn_time_s']:.1f} s ({summary['env_steps_per_s']:.0f} env-steps/s); "
             f"model: {args.out / 'model.zip'}"
         )
     return 0
