@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments
 from frictiongym._validation import check_seed
-from frictiongym.benchmark.figures import write_figures
+from frictiongym.benchmark.figures import figure_names, write_figures
 from frictiongym.benchmark.report import (
     format_metric,
     paper_claims,
@@ -56,18 +56,7 @@ It needs Stable-Baselines3 and torch.
 
 
 #: What a run may write into --out: the results and every figure (write_figures).
-OUTPUTS = (
-    "results.json",
-    "results.csv",
-    "results.md",
-    "rotary_response.png",
-    "altino_response.png",
-    "compensator_mismatch.png",
-    "residual_rotary_response.png",
-    "residual_altino_response.png",
-    "residual_plants.png",
-    "friction_curves.png",
-)
+OUTPUTS = ("results.json", "results.csv", "results.md", *figure_names())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -17,7 +17,6 @@ from frictiongym.controllers.compensation import MODES, Mode
 from frictiongym.controllers.residual import ResidualController
 from frictiongym.devices import ALTINO, DEVICES, ROTARY
 from frictiongym.friction import FRICTION_NAMES
-from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI20
 
 #: The compensator's model mismatch grid: ±20 % and ±50 % in friction level.
 MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
@@ -32,7 +31,7 @@ HELDOUT_PLANTS = 20
 
 ROTARY_GAINS = PIDGains(**ROTARY.paper_gains["pid"])
 ALTINO_KI10 = PIDGains(**ALTINO.paper_gains["pid"])
-ALTINO_KI20 = PIDGains(**ALTINO_PAPER_GAINS_KI20)
+ALTINO_KI20 = PIDGains(**ALTINO.paper_gains["pid-ki20"])
 ALTINO_COMPENSATED = PIDGains(**ALTINO.paper_gains["compensated"])
 
 
