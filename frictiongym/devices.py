@@ -66,10 +66,6 @@ class Device:
     limit_penalty: float
     observation_names: tuple[str, ...]
     output: str  #: observation name of the measured controlled output
-    #: +1 if a positive command increases ``output``, -1 if it decreases it: also the sign
-    #: convention, plant position = ``direction`` × the env's position (``output``), so -1
-    #: with ``SENSOR_IR`` (the distance to the wall) and +1 with the encoder
-    direction: float
     #: speed (plant units) below which a friction compensator treats the body as at rest
     rest_speed: float
     position_unit: str  #: of the output: ``"rad"``, ``"cm"``
@@ -113,27 +109,26 @@ class Device:
                 f"{self.name}: plant.command_limit * command_scale = {counts} counts must fit "
                 f"the wire format's int16 commands (1..{INT16_MAX}): lower command_scale"
             )
-        encoder = self.sensor == sensors.SENSOR_ENCODER
-        if encoder != (0 < self.counts_per_rev <= 0xFFFF):
+        if (self.sensor == sensors.SENSOR_ENCODER) != (0 < self.counts_per_rev <= 0xFFFF):
             raise ValueError(
                 f"{self.name}: counts_per_rev must be 1..65535 with SENSOR_ENCODER and 0 "
                 f"without, got {self.counts_per_rev!r}"
             )
-        if self.direction != (1.0 if encoder else -1.0):
-            raise ValueError(
-                f"{self.name}: direction must be +1 with SENSOR_ENCODER and -1 with SENSOR_IR "
-                "(the env kernel's sign convention)"
-            )
+
+    @property
+    def direction(self) -> float:
+        """The sign convention: plant position = ``direction`` × the env's position.
+
+        +1 with the encoder; -1 with the IR sensor, whose output is the distance to the wall
+        (a positive command drives toward it). So it is also +1 if a positive command
+        increases ``output``, -1 if it decreases it.
+        """
+        return 1.0 if self.sensor == sensors.SENSOR_ENCODER else -1.0
 
     @property
     def encoder_step(self) -> float:
         """One encoder count, position units (0.0 without an encoder)."""
         return self.position_per_rev / self.counts_per_rev if self.counts_per_rev else 0.0
-
-    @property
-    def resolution(self) -> float:
-        """Position resolution of the sensor: an encoder count, or the IR estimate's finest step."""
-        return self.encoder_step if self.counts_per_rev else sensors.ir_quantum()
 
     @property
     def units(self) -> dict[str, str]:
@@ -181,7 +176,6 @@ ROTARY = Device(
     limit_penalty=100.0,
     observation_names=("angle", "velocity", "reference"),
     output="angle",
-    direction=1.0,
     # Assumed: at rest the filtered encoder derivative decays from a last count's pulse
     # (1.5 rad/s for one count per period, times 1 - exp(-50 dt) = 0.095) toward 0; 0.1 rad/s
     # is below that first pulse and 3 % of the paper's v0 (docs/controllers.md).
@@ -271,7 +265,6 @@ ALTINO = Device(
     limit_penalty=100.0,
     observation_names=("readout", "distance", "velocity", "reference"),
     output="distance",
-    direction=-1.0,  # a positive command drives toward the wall, shortening the distance
     # Assumed: at rest the noiseless backward difference is exactly 0, and one IR count at
     # 5 cm per period is 0.52 cm/s; half of it separates the two (docs/controllers.md).
     rest_speed=0.25,

@@ -25,6 +25,7 @@ from frictiongym.hardware.errors import HardwareError
 from frictiongym.hardware.firmware import PLACE_RANGE, Firmware
 from frictiongym.identification.identify import Plan
 from frictiongym.plants import PlantParams
+from frictiongym.plants.sensors import SENSOR_IR
 from frictiongym.sim2real.run import check_reference
 
 LINEAR = dataclasses.replace(
@@ -141,7 +142,7 @@ def test_messages_take_the_units_of_the_description(linear):
     [
         ({"command_scale": 10_000}, r"plant\.command_limit \* command_scale = 100000 counts"),
         ({"counts_per_rev": 70_000}, "counts_per_rev must be 1..65535"),
-        ({"direction": -1.0}, r"direction must be \+1 with SENSOR_ENCODER"),
+        ({"sensor": SENSOR_IR}, "counts_per_rev must be 1..65535 with SENSOR_ENCODER and 0"),
     ],
 )
 def test_a_description_the_wire_or_the_kernel_cannot_carry_is_refused(changes, message):

@@ -46,7 +46,7 @@ x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, on over several seeds, and
 sensor without quantisation), friction
 (each friction law in the plant). The default run takes well under 2 minutes on 2 cores.
 
---residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE rotary or altino) adds
+--residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE its device's kind) adds
 the group residual: the compensated PID and the residual controller on the paper's step, on
 the nominal plant and on --heldout randomised plants (seeds from --heldout-seed, factors
 drawn from the training ranges, the same plants for both), and a table of ITAE, SSE,
@@ -94,8 +94,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="DEVICE=MODEL",
-        help="add residual scenarios for DEVICE (rotary or altino) with the model zip MODEL "
-        "from frictiongym train (repeatable, once per device)",
+        help=f"add residual scenarios for DEVICE ({', '.join(d.kind for d in devices.DEVICES)}) "
+        "with the model zip MODEL from frictiongym train (repeatable, once per device)",
     )
     parser.add_argument(
         "--heldout",

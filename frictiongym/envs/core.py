@@ -25,7 +25,7 @@ from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, PlantParams, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
-from frictiongym.plants.sensors import noise_std, velocity_floor
+from frictiongym.plants.sensors import ir_quantum, noise_std, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -205,7 +205,7 @@ class Simulation:
             noise=noise_std(sensor_noise, device.noise_std),
             encoder_step=device.encoder_step,
             pole=pole,
-            velocity_floor=velocity_floor(device.resolution, pole, self.dt),
+            velocity_floor=velocity_floor(device.encoder_step or ir_quantum(), pole, self.dt),
             error_scale=device.error_scale,
             effort_weight=device.effort_weight
             if effort_weight is None
