@@ -71,14 +71,10 @@ PAPER_LABELS = {
 
 def figure_names() -> list[str]:
     """Return the file names :func:`write_figures` may write, for the devices there are."""
-    kinds = [d.kind for d in devices.DEVICES]
+    shared = ["compensator_mismatch.png", "residual_plants.png", "friction_curves.png"]
     return [
-        *(f"{kind}_response.png" for kind in kinds),
-        "compensator_mismatch.png",
-        *(f"residual_{kind}_response.png" for kind in kinds),
-        "residual_plants.png",
-        "friction_curves.png",
-    ]
+        f"{p}{d.kind}_response.png" for d in devices.DEVICES for p in ("", "residual_")
+    ] + shared
 
 
 def _responses(
@@ -192,23 +188,23 @@ def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
     paper = [r.scenario for r in results if r.scenario.group == "paper"]
     written = []
     for device in devices.DEVICES:
-        names = {
-            s.name: PAPER_LABELS.get(s.name, s.description)
-            for s in paper
-            if s.env_id == device.env_id
+        kind, figures = device.kind, device.figures
+        mine = {s.name: PAPER_LABELS.get(s.name, s.description) for s in paper if s.device == kind}
+        residual = {
+            f"residual-{kind}-nominal-compensated": "PID + compensator",
+            f"residual-{kind}-nominal-residual": "PID + compensator + residual",
         }
-        figures = device.figures
-        path = out / f"{device.kind}_response.png"
-        written.append(_responses(results, names, path, figures.response, figures.zoom))
+        written += [
+            _responses(results, mine, out / f"{kind}_response.png", figures.response, figures.zoom),
+            _responses(
+                results,
+                residual,
+                out / f"residual_{kind}_response.png",
+                figures.residual,
+                figures.residual_zoom,
+            ),
+        ]
     written.append(plot_mismatch(results, out / "compensator_mismatch.png"))
-    for device in devices.DEVICES:
-        names = {
-            f"residual-{device.kind}-nominal-compensated": "PID + compensator",
-            f"residual-{device.kind}-nominal-residual": "PID + compensator + residual",
-        }
-        figures = device.figures
-        path = out / f"residual_{device.kind}_response.png"
-        written.append(_responses(results, names, path, figures.residual, figures.residual_zoom))
     written.append(plot_residual_plants(results, out / "residual_plants.png"))
     written.append(plot_friction_curves(out / "friction_curves.png"))
     return [p for p in written if p is not None]

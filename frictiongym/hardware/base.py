@@ -51,7 +51,7 @@ KINDS = ("rotary", "altino")
 class DeviceInfo:
     """What the host knows about an opened device."""
 
-    kind: str  #: ``"rotary"`` or ``"altino"``
+    kind: str  #: one of :data:`KINDS`
     rate_hz: float  #: the device's sample rate (it paces the loop)
     command_limit: float  #: largest |command| it applies, physical units (V or motor units)
     counts_per_rev: int  #: encoder counts per revolution (0 without an encoder)

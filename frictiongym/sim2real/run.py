@@ -204,12 +204,10 @@ def _ended_early(
     sample = session.last_sample
     if sample is not None and sample.status & Status.LIMIT:
         return DEVICE_LIMIT, f"the device's distance guard stopped it after {steps} steps"
-    unit, output = device.position_unit, device.output
-    if device.sensor == SENSOR_IR:
-        where = f"its {output} fell to {limit:g} {unit}"
-    else:
-        where = f"|{output}| passed {limit:.4g} {unit}"
-    return SAFETY_LIMIT, f"the safety limit ended it after {steps} steps ({where})"
+    output, wall = device.output, device.sensor == SENSOR_IR
+    where = f"its {output} fell to {limit:g}" if wall else f"|{output}| passed {limit:.4g}"
+    detail = f"the safety limit ended it after {steps} steps ({where} {device.position_unit})"
+    return SAFETY_LIMIT, detail
 
 
 def run_sim2real(
