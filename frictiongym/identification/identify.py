@@ -117,6 +117,11 @@ class Plan:
 
         It is the device's ``identification`` settings, whose ``span`` and ``reading`` (a
         :class:`ReciprocalReading`) are given as tuples of their fields.
+
+        Raises
+        ------
+        ValueError
+            If the settings lack a field of the schedule: the device has no plan.
         """
         described = devices.get(device)
         settings = dict(described.identification)
