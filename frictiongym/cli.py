@@ -68,18 +68,15 @@ def _demo(args: argparse.Namespace) -> int:
         _check_plot(args.plot)
     # Imported here, so that `frictiongym --help` stays light (no numba, no gymnasium).
     from frictiongym.controllers.pid import PIDGains
+    from frictiongym.devices import ROTARY
     from frictiongym.friction import FrictionModel, NoFriction, friction_from_name
-    from frictiongym.friction.presets import ROTARY_LUGRE, ROTARY_PAPER
     from frictiongym.loops import rotary_step
-    from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 
-    gains = PIDGains(**ROTARY_PAPER_GAINS)
+    gains = PIDGains(**ROTARY.paper_gains["pid"])
+    presets = (ROTARY.paper_friction, ROTARY.lugre_friction)
     cases: list[tuple[str, FrictionModel]] = [
         ("nominal (no friction)", NoFriction()),
-        (
-            f"friction: {args.friction}",
-            friction_from_name(args.friction, ROTARY_PAPER, ROTARY_LUGRE),
-        ),
+        (f"friction: {args.friction}", friction_from_name(args.friction, *presets)),
     ]
     print(
         f"QUBE-Servo 2, step of {args.reference} rad, PID Kp={gains.kp} Ki={gains.ki} "

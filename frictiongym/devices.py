@@ -11,16 +11,30 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from frictiongym import friction
 from frictiongym.friction import LuGre, StictionCoulomb
+from frictiongym.friction import presets as friction
 from frictiongym.plants import presets, sensors
 from frictiongym.plants.plant import PlantParams
 
-__all__ = ["ALTINO", "DEVICES", "ROTARY", "Device", "device_of", "get"]
+__all__ = ["ALTINO", "DEVICES", "ROTARY", "Device", "Figures", "device_of", "get"]
+
+#: Largest count of the wire format's ``int16`` command fields (``Command``, ``Hello``).
+INT16_MAX = 0x7FFF
+
+
+class Figures(NamedTuple):
+    """What the benchmark's figures say of a device (:mod:`frictiongym.benchmark.figures`)."""
+
+    response: str  #: title of its paper scenarios' responses
+    residual: str  #: title of its residual policy's response
+    friction: str  #: title of its friction curves
+    speed: float  #: the friction curves' velocity range, ±
+    zoom: float  #: error axis of the paper responses, ±
+    residual_zoom: float  #: error axis of the residual response, ±
 
 
 @dataclass(frozen=True)
@@ -35,7 +49,10 @@ class Device:
     dt: float
     paper_friction: StictionCoulomb
     lugre_friction: LuGre
-    sensor: int  #: :data:`~frictiongym.plants.sensors.SENSOR_ENCODER` or ``SENSOR_IR``
+    #: :data:`~frictiongym.plants.sensors.SENSOR_ENCODER` or ``SENSOR_IR`` (a wall ahead of the
+    #: plant at its position 0: the output is the distance to it, and the safety limit the
+    #: least distance)
+    sensor: int
     velocity_cutoff: float | None  #: rad/s of the velocity filter; None: backward difference
     noise_std: float  #: sensor noise of ``sensor_noise=True``
     episode_steps: int  #: registered episode length
@@ -49,19 +66,20 @@ class Device:
     limit_penalty: float
     observation_names: tuple[str, ...]
     output: str  #: observation name of the measured controlled output
-    direction: float  #: +1 if a positive command increases ``output``, -1 if it decreases it
     #: speed (plant units) below which a friction compensator treats the body as at rest
     rest_speed: float
     position_unit: str  #: of the output: ``"rad"``, ``"cm"``
     command_unit: str  #: ``"V"``, ``"units"``
-    #: The paper's PID gains (``kp``, ``ki``, ``kd``) of its plain and its compensated PID.
+    #: The paper's PID gains (``kp``, ``ki``, ``kd``) of its plain (``pid``) and its
+    #: compensated PID (``compensated``), and of any other of its experiments.
     paper_gains: Mapping[str, Mapping[str, float]]
     benchmark_steps: int  #: length of a benchmark run
     #: Factor ranges of ``frictiongym train --randomize default`` and of the benchmark's
     #: held-out plants.
     randomization: Mapping[str, tuple[float, float]]
-    #: Settings of the identification plan (``Plan`` fields; ``span`` and ``reading`` as
-    #: tuples of their fields) and the env arguments it needs.
+    #: The identification plan: ``Plan`` fields (frictiongym/identification/identify.py; its
+    #: schedule has no defaults; ``span`` and ``reading`` as tuples of their fields) and the
+    #: env arguments it needs; empty: ``identify`` refuses the device.
     identification: Mapping[str, Any]
     #: Default ``ResidualConfig`` of a residual policy: its fields but ``device`` and ``limit``
     #: (the plant's command limit).
@@ -69,9 +87,48 @@ class Device:
     training_env: Mapping[str, Any]  #: ``gym.make`` arguments of the training env
     training_precision: float  #: error scale of ``--reward precision``
     training_gamma: float  #: discount
-    command_scale: int  #: firmware command counts per command unit
+    #: Firmware command counts per command unit: the wire format's commands are int16, so
+    #: ``plant.command_limit * command_scale`` must be at most 32767
+    command_scale: int
+    figures: Figures
     #: plant position of a rigid end stop (the Altino's wall), whatever plant is simulated
     end_stop: float = math.inf
+    #: Encoder counts per revolution with ``SENSOR_ENCODER`` (the wire format's ``Hello``
+    #: carries it: at most 65535), 0 without an encoder
+    counts_per_rev: int = 0
+    #: Position units per encoder revolution: 2π rad; a linear axis's lead
+    position_per_rev: float = 2.0 * math.pi
+    #: Function of :mod:`frictiongym.envs.rendering` that draws a frame of the position and
+    #: reference (``"draw_servo"``); None: the env cannot render
+    drawing: str | None = None
+
+    def __post_init__(self) -> None:
+        counts = round(self.plant.command_limit * self.command_scale)
+        if not 0 < counts <= INT16_MAX:
+            raise ValueError(
+                f"{self.name}: plant.command_limit * command_scale = {counts} counts must fit "
+                f"the wire format's int16 commands (1..{INT16_MAX}): lower command_scale"
+            )
+        if (self.sensor == sensors.SENSOR_ENCODER) != (0 < self.counts_per_rev <= 0xFFFF):
+            raise ValueError(
+                f"{self.name}: counts_per_rev must be 1..65535 with SENSOR_ENCODER and 0 "
+                f"without, got {self.counts_per_rev!r}"
+            )
+
+    @property
+    def direction(self) -> float:
+        """The sign convention: plant position = ``direction`` × the env's position.
+
+        +1 with the encoder; -1 with the IR sensor, whose output is the distance to the wall
+        (a positive command drives toward it). So it is also +1 if a positive command
+        increases ``output``, -1 if it decreases it.
+        """
+        return 1.0 if self.sensor == sensors.SENSOR_ENCODER else -1.0
+
+    @property
+    def encoder_step(self) -> float:
+        """One encoder count, position units (0.0 without an encoder)."""
+        return self.position_per_rev / self.counts_per_rev if self.counts_per_rev else 0.0
 
     @property
     def units(self) -> dict[str, str]:
@@ -119,7 +176,6 @@ ROTARY = Device(
     limit_penalty=100.0,
     observation_names=("angle", "velocity", "reference"),
     output="angle",
-    direction=1.0,
     # Assumed: at rest the filtered encoder derivative decays from a last count's pulse
     # (1.5 rad/s for one count per period, times 1 - exp(-50 dt) = 0.095) toward 0; 0.1 rad/s
     # is below that first pulse and 3 % of the paper's v0 (docs/controllers.md).
@@ -130,9 +186,25 @@ ROTARY = Device(
     benchmark_steps=2500,  # the registered 5 s episode (the paper's plots)
     # The encoder scale ±1 %: a calibration error.
     randomization={**_RANDOMIZATION, "sensor_gain": (0.99, 1.01)},
-    # The disk has no end stops: the run-away guard is widened (a 4.5 s run at 26 rad/s turns
+    # Constant levels from just above break-away to 6 times it (the map of Fig. 8(a)), three
+    # slow ramps per direction, velocity steps between 3 and 6 times break-away (J and B). The
+    # disk has no end stops: the run-away guard is widened (a 4.5 s run at 26 rad/s turns
     # 120 rad).
-    identification={"env_kwargs": {"safety_limit": 1.0e5}},
+    identification={
+        "levels": (1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5, 3.2, 4.0, 5.0, 6.0),
+        "constant_duration": 4.5,
+        "ramp_repeats": 3,
+        "ramp_from": 0.6,
+        "ramp_to": 1.2,
+        "ramp_duration": 8.0,
+        "step_levels": (3.0, 6.0),
+        "step_time": 2.0,
+        "step_duration": 4.0,
+        "step_repeats": 2,
+        "probe_to": 0.3,
+        "probe_duration": 3.0,
+        "env_kwargs": {"safety_limit": 1.0e5},
+    },
     residual={
         # 10 % of the limit = 1 V, about 5 times the break-away level (0.21 V): enough to
         # supply or cancel the whole friction of a plant whose friction is off by a factor of
@@ -151,6 +223,16 @@ ROTARY = Device(
     # after a step's transient (SB3's 0.99 sees 0.2 s).
     training_gamma=0.995,
     command_scale=1000,  # mV (protocol.DeviceKind)
+    figures=Figures(
+        response="QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
+        residual="QUBE-Servo 2, 1 rad step, nominal plant: residual policy",
+        friction="QUBE-Servo 2 (B_e's viscous part is in the plant)",
+        speed=6.0,
+        zoom=0.03,
+        residual_zoom=0.02,
+    ),
+    counts_per_rev=sensors.QUBE_COUNTS_PER_REV,
+    drawing="draw_servo",
 )
 
 ALTINO = Device(
@@ -183,7 +265,6 @@ ALTINO = Device(
     limit_penalty=100.0,
     observation_names=("readout", "distance", "velocity", "reference"),
     output="distance",
-    direction=-1.0,  # a positive command drives toward the wall, shortening the distance
     # Assumed: at rest the noiseless backward difference is exactly 0, and one IR count at
     # 5 cm per period is 0.52 cm/s; half of it separates the two (docs/controllers.md).
     rest_speed=0.25,
@@ -192,6 +273,7 @@ ALTINO = Device(
     paper_gains={
         "pid": presets.ALTINO_PAPER_GAINS_KI10,
         "compensated": presets.ALTINO_PAPER_GAINS_COMPENSATED,
+        "pid-ki20": presets.ALTINO_PAPER_GAINS_KI20,
     },
     # 60 s: long enough to tell a slow limit cycle from a stop (docs/altino-model.md §3).
     benchmark_steps=1200,
@@ -207,15 +289,19 @@ ALTINO = Device(
     identification={
         "levels": (1.03, 1.06, 1.1, 1.15, 1.2, 1.3, 1.45, 1.65, 2.0, 2.5),
         "constant_duration": 20.0,
+        "ramp_repeats": 3,
+        "ramp_from": 0.6,
         "ramp_to": 1.1,
         "ramp_duration": 15.0,
         "step_levels": (1.5, 2.5),
         "step_time": 0.6,
         "step_duration": 2.0,
-        "probe_to": 0.4,
         "step_repeats": 0,
+        "probe_to": 0.4,
+        "probe_duration": 3.0,
         "relay_levels": tuple(round(float(m), 2) for m in np.geomspace(1.03, 2.5, 20)),
         "relay_band": (4.0, 15.0),
+        "relay_duration": 20.0,
         "refine": True,
         "reading": (sensors.IR_NUMERATOR, sensors.IR_OFFSET, sensors.IR_MAX_READOUT),
         "span": (3.0, 19.5, 0.5),
@@ -238,7 +324,16 @@ ALTINO = Device(
     training_precision=5.0**2 / 966.0,
     training_gamma=0.99,  # SB3's: 100 steps = 5 s, a set-point of the training episodes
     command_scale=1,  # the Altino's own motor units
+    figures=Figures(
+        response="Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)",
+        residual="Altino, 30 → 5 cm, nominal plant: residual policy",
+        friction="Altino",
+        speed=30.0,
+        zoom=2.0,
+        residual_zoom=1.0,
+    ),
     end_stop=0.0,  # the wall: the plant's position is minus the distance to it
+    drawing="draw_altino",
 )
 
 #: Every device, in the order of the protocol's device kinds.

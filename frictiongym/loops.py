@@ -15,28 +15,20 @@ from frictiongym.controllers.base import FloatArray
 from frictiongym.controllers.compensation import FrictionCompensator
 from frictiongym.controllers.pid import PID, PIDGains
 from frictiongym.controllers.rollout import Rollout, rollout
+from frictiongym.devices import ALTINO, ROTARY
 from frictiongym.envs import AltinoDistanceEnv, RotaryServoEnv
-from frictiongym.friction import ALTINO_PAPER, ROTARY_PAPER, FrictionModel
+from frictiongym.friction import FrictionModel
 from frictiongym.plants import PlantParams
-from frictiongym.plants.presets import (
-    ALTINO_DT,
-    ALTINO_PLANT,
-    ALTINO_START_CM,
-    ALTINO_TARGET_CM,
-    ROTARY_DT,
-    ROTARY_PAPER_GAINS,
-    ROTARY_PLANT,
-)
 
 
 def rotary_step(
-    friction: FrictionModel = ROTARY_PAPER,
+    friction: FrictionModel = ROTARY.paper_friction,
     gains: PIDGains | None = None,
     reference: float = 1.0,
     duration: float = 5.0,
     encoder: bool = True,
-    plant: PlantParams = ROTARY_PLANT,
-    dt: float = ROTARY_DT,
+    plant: PlantParams = ROTARY.plant,
+    dt: float = ROTARY.dt,
 ) -> Rollout:
     """Run the paper's servo experiment: a position step under PID, from rest at 0 rad.
 
@@ -47,7 +39,7 @@ def rotary_step(
     env = RotaryServoEnv(
         friction=friction, reference=reference, quantize=encoder, plant=plant, dt=dt
     )
-    pid = PID.for_env(env, gains or PIDGains(**ROTARY_PAPER_GAINS))
+    pid = PID.for_env(env, gains or PIDGains(**ROTARY.paper_gains["pid"]))
     return _run(env, pid, duration, dt)
 
 
@@ -69,13 +61,13 @@ class _ErrorKickPID(PID):
 
 def altino_step(
     gains: PIDGains,
-    friction: FrictionModel = ALTINO_PAPER,
+    friction: FrictionModel = ALTINO.paper_friction,
     compensator: FrictionModel | None = None,
-    start_cm: float = ALTINO_START_CM,
-    target_cm: float = ALTINO_TARGET_CM,
+    start_cm: float = ALTINO.start,
+    target_cm: float = ALTINO.references["step"]["value"],
     duration: float = 10.0,
-    plant: PlantParams = ALTINO_PLANT,
-    dt: float = ALTINO_DT,
+    plant: PlantParams = ALTINO.plant,
+    dt: float = ALTINO.dt,
     derivative: Literal["measurement", "error"] = "measurement",
 ) -> Rollout:
     """Run the paper's Altino experiment: drive from ``start_cm`` to ``target_cm`` from a wall.
@@ -92,18 +84,18 @@ def altino_step(
     gains : PIDGains
         PID gains in per-second form: ``kp`` units/cm, ``ki`` units/(cm·s), ``kd``
         units/(cm/s).
-    friction : FrictionModel, default ALTINO_PAPER
+    friction : FrictionModel, default ``ALTINO.paper_friction``
         Friction law of the simulated car.
     compensator : FrictionModel, optional
         Friction model of the compensator; none by default.
     start_cm, target_cm : float
-        Initial and target distance to the wall, cm (defaults: ``ALTINO_START_CM``,
-        ``ALTINO_TARGET_CM``).
+        Initial and target distance to the wall, cm (defaults: the device's start and step,
+        30 and 5 cm).
     duration : float, default 10.0
         Simulated time, s.
-    plant : PlantParams, default ALTINO_PLANT
+    plant : PlantParams, default ``ALTINO.plant``
         Nominal plant (mass, damping, saturation, lag, dead time).
-    dt : float, default ALTINO_DT
+    dt : float, default ``ALTINO.dt``
         Control period, s.
     derivative : {"measurement", "error"}, default "measurement"
         Where the D term acts. ``measurement``: on the estimated distance, so it starts at

@@ -5,7 +5,9 @@ modules, at module level and inside functions alike (relative ones resolved), be
 between the package's parts (a subpackage such as ``frictiongym.envs``, or a top module such
 as ``frictiongym.cli``). A string holding a module's dotted name (``"frictiongym.envs.rotary"``)
 counts as an import too: the tables that import modules by name (``cli.TOOLS``, the env ids,
-the lazy names) are seen. Imports under ``if TYPE_CHECKING:`` are left out: they never run, and
+the lazy names) are seen, and a name imported from the root ``frictiongym`` is resolved through
+the root's lazy-name table (``from frictiongym import register_envs`` imports
+``frictiongym.envs``). Imports under ``if TYPE_CHECKING:`` are left out: they never run, and
 annotations may name a higher layer's types. The package root ``frictiongym/__init__.py``
 (which registers the Gymnasium ids) is no layer and is left out too.
 """
@@ -15,12 +17,15 @@ from __future__ import annotations
 import ast
 import re
 from collections.abc import Iterator
+from itertools import pairwise
 from pathlib import Path
 
 import frictiongym
 
 PACKAGE = Path(frictiongym.__file__).parent
 MODULE_NAME = re.compile(r"frictiongym(\.[a-z_]+)+")
+#: The root's names imported on first use (``frictiongym.load_params``) -> their module.
+ROOT_LAZY: dict[str, str] = frictiongym._LAZY
 
 #: Layer of each part, lowest first. A part may import its own layer's parts or lower ones.
 LAYERS: dict[str, int] = {
@@ -71,7 +76,15 @@ def imports_of(path: Path) -> Iterator[tuple[str, int]]:
     """Yield (imported module, line) of each import of ``frictiongym`` in the file at ``path``."""
     module = module_name(path)
     package = module if path.name == "__init__.py" else module.rpartition(".")[0]
-    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    yield from imports_in(path.read_text(encoding="utf-8"), package)
+
+
+def imports_in(source: str, package: str) -> Iterator[tuple[str, int]]:
+    """Yield (imported module, line) of each import of ``frictiongym`` in a module's ``source``.
+
+    ``package`` is the package relative imports start from.
+    """
+    tree = ast.parse(source)
     skipped: set[int] = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.If) and is_type_checking(node.test):
@@ -91,7 +104,7 @@ def imports_of(path: Path) -> Iterator[tuple[str, int]]:
                 base = ".".join([*anchor, base] if base else anchor)
             names = [base]
             if base == "frictiongym":  # ``from frictiongym import envs`` imports frictiongym.envs
-                names = [f"{base}.{alias.name}" for alias in node.names]
+                names = [ROOT_LAZY.get(a.name, f"{base}.{a.name}") for a in node.names]
         else:
             continue
         for name in names:
@@ -161,10 +174,19 @@ def test_every_part_has_a_layer():
     assert parts <= LAYERS.keys(), f"give these a layer in LAYERS: {parts - LAYERS.keys()}"
 
 
+def cycle_message(cycle: list[str], edges: dict[tuple[str, str], list[str]]) -> str:
+    """Say the cycle and where each of its imports is (``file:line``)."""
+    steps = [
+        f"{source} -> {target} ({', '.join(edges[source, target])})"
+        for source, target in pairwise(cycle)
+    ]
+    return "import cycle: " + "; ".join(steps)
+
+
 def test_no_cycle_between_parts():
-    edges = set(import_edges())
-    cycle = find_cycle(edges)
-    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+    edges = import_edges()
+    cycle = find_cycle(set(edges))
+    assert cycle is None, cycle_message(cycle, edges)
 
 
 def test_no_import_points_up_the_layers():
@@ -178,4 +200,17 @@ def test_the_checks_find_a_cycle_and_an_upward_import():
     places = upward({("frictiongym.friction", "frictiongym.cli"): ["friction/x.py:3"]})
     assert places == [
         "friction/x.py:3: frictiongym.friction (layer 0) imports frictiongym.cli (layer 5)"
+    ]
+    edges = {("a", "b"): ["a/x.py:3"], ("b", "a"): ["b/y.py:5", "b/z.py:1"]}
+    assert cycle_message(["a", "b", "a"], edges) == (
+        "import cycle: a -> b (a/x.py:3); b -> a (b/y.py:5, b/z.py:1)"
+    )
+
+
+def test_names_imported_from_the_root_resolve_through_its_lazy_table():
+    source = "from frictiongym import register_envs, load_params, __version__\n"
+    assert list(imports_in(source, "frictiongym.friction")) == [
+        ("frictiongym.envs", 1),
+        ("frictiongym.params", 1),
+        ("frictiongym.__version__", 1),
     ]

@@ -14,8 +14,10 @@ from frictiongym.controllers import (
     FrictionCompensator,
     LoopSpec,
     PIDGains,
+    ResidualController,
     rollout,
 )
+from frictiongym.controllers.residual_core import ResidualConfig
 from frictiongym.friction import ROTARY_PAPER, StictionCoulomb
 from frictiongym.plants.presets import ALTINO_PAPER_GAINS_COMPENSATED, ROTARY_PAPER_GAINS
 
@@ -353,3 +355,37 @@ def test_over_estimated_altino_friction_drives_a_limit_cycle():
         amplitude[scale] = run.metrics().limit_cycle_amplitude
     assert amplitude[1.5] > 0.0
     assert amplitude[1.0] == 0.0
+
+
+def test_for_env_builds_the_compensator_on_gains_a_base_or_the_paper_s_pid():
+    env = gym.make(ALTINO)
+    paper = FrictionCompensator.for_env(env)
+    assert paper.base.gains == PIDGains(**ALTINO_PAPER_GAINS_COMPENSATED)
+    assert paper.model == paper.spec.friction  # the env's model: the device's paper friction
+    on_gains = FrictionCompensator.for_env(env, {"kp": 1.0, "ki": 0.0, "kd": 0.0}, mode="error")
+    assert (on_gains.base.gains, on_gains.mode) == (PIDGains(1.0, 0.0, 0.0), "error")
+    pid = PID.for_env(env, PIDGains(2.0, 0.0, 0.0))
+    on_base = FrictionCompensator.for_env(env, pid, MODEL, scale=1.2)
+    assert on_base.base is pid
+    assert on_base.model == MODEL.scaled(1.2)
+    obs, _ = env.reset(seed=0)
+    assert paper(obs).shape == (1,)
+    env.close()
+
+
+def test_for_env_builds_the_residual_controller_on_the_base_of_training():
+    class Zero:  # a policy that adds nothing
+        def predict(self, observation, deterministic=True):
+            return np.zeros((*np.shape(observation)[:-1], 1)), None
+
+    env = gym.make(SERVO)
+    config = ResidualConfig.for_env(env)
+    residual = ResidualController.for_env(env, Zero(), config)
+    assert isinstance(residual.base, FrictionCompensator)
+    assert residual.base.base.gains == PIDGains(**ROTARY_PAPER_GAINS)
+    obs, _ = env.reset(seed=0)
+    _, added = residual.residual(obs)
+    assert added.tolist() == [0.0]
+    pid = PID.for_env(env, PIDGains(1.0, 0.0, 0.0))
+    assert ResidualController.for_env(env, Zero(), config, base=pid).base is pid
+    env.close()

@@ -194,7 +194,7 @@ def test_a_reference_beyond_the_safety_limit_is_refused_up_front(tmp_path, capsy
     )
     err = capsys.readouterr().err
     assert err.count("\n") == 1
-    assert "reference 100 rad lies beyond the servo's safety limit of 12.57 rad" in err
+    assert "reference 100 rad lies beyond the safety limit of 12.57 rad of a QUBE-Servo 2" in err
     assert not out.exists()
     with pytest.raises(ValueError, match="at or behind the safety limit of 0 cm"):
         run_sim2real(ALTINO, "emulator://altino?lockstep=1", reference=-2.0, log=False)
@@ -427,6 +427,7 @@ def test_the_device_example_holds_up_with_a_core_busy(tmp_path, monkeypatch):
 def test_a_run_the_altino_guard_stops_is_told_from_one_the_safety_limit_ends():
     from types import SimpleNamespace
 
+    from frictiongym import devices
     from frictiongym.controllers import Rollout
     from frictiongym.hardware import Sample
     from frictiongym.hardware.protocol import Status
@@ -435,13 +436,14 @@ def test_a_run_the_altino_guard_stops_is_told_from_one_the_safety_limit_ends():
     zeros = np.zeros(80)
     trace = Rollout.of_one_run(np.arange(80) * 0.05, terminated=True, measured=zeros)
     guard = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0, status=int(Status.LIMIT)))
-    assert _ended_early(guard, trace, 0.0, encoder=False) == (
+    assert _ended_early(guard, trace, 0.0, devices.ALTINO) == (
         DEVICE_LIMIT,
         "the device's distance guard stopped it after 79 steps",
     )
     wall = SimpleNamespace(last_sample=Sample(0.0, 0.0, 0, 0))
-    assert _ended_early(wall, trace, 0.0, encoder=False) == (
+    assert _ended_early(wall, trace, 0.0, devices.ALTINO) == (
         SAFETY_LIMIT,
-        "the safety limit ended it after 79 steps (the car reached 0 cm)",
+        "the safety limit ended it after 79 steps (its distance fell to 0 cm)",
     )
-    assert _ended_early(wall, trace, 12.566, encoder=True)[1].endswith("(|angle| passed 12.57 rad)")
+    _, detail = _ended_early(wall, trace, 12.566, devices.ROTARY)
+    assert detail.endswith("(|angle| passed 12.57 rad)")

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments
 from frictiongym._validation import check_seed
-from frictiongym.benchmark.figures import write_figures
+from frictiongym.benchmark.figures import figure_names, write_figures
 from frictiongym.benchmark.report import (
     format_metric,
     paper_claims,
@@ -46,7 +46,7 @@ x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, on over several seeds, and
 sensor without quantisation), friction
 (each friction law in the plant). The default run takes well under 2 minutes on 2 cores.
 
---residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE rotary or altino) adds
+--residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE its device's kind) adds
 the group residual: the compensated PID and the residual controller on the paper's step, on
 the nominal plant and on --heldout randomised plants (seeds from --heldout-seed, factors
 drawn from the training ranges, the same plants for both), and a table of ITAE, SSE,
@@ -56,18 +56,7 @@ It needs Stable-Baselines3 and torch.
 
 
 #: What a run may write into --out: the results and every figure (write_figures).
-OUTPUTS = (
-    "results.json",
-    "results.csv",
-    "results.md",
-    "rotary_response.png",
-    "altino_response.png",
-    "compensator_mismatch.png",
-    "residual_rotary_response.png",
-    "residual_altino_response.png",
-    "residual_plants.png",
-    "friction_curves.png",
-)
+OUTPUTS = ("results.json", "results.csv", "results.md", *figure_names())
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -105,8 +94,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="DEVICE=MODEL",
-        help="add residual scenarios for DEVICE (rotary or altino) with the model zip MODEL "
-        "from frictiongym train (repeatable, once per device)",
+        help=f"add residual scenarios for DEVICE ({', '.join(d.kind for d in devices.DEVICES)}) "
+        "with the model zip MODEL from frictiongym train (repeatable, once per device)",
     )
     parser.add_argument(
         "--heldout",

@@ -14,10 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym import devices
 from frictiongym._io import pyplot, save_figure
 from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
-from frictiongym.devices import DEVICES, get
 from frictiongym.friction import FRICTION_NAMES, FrictionModel, friction_from_name
 
 
@@ -45,16 +45,36 @@ def _friction_panel(
 
 
 def plot_friction_curves(path: Path) -> Path:
-    """Steady friction of every law for both devices (the paper's Figs. 8(b), 10(b))."""
+    """Steady friction of every law for every device (the paper's Figs. 8(b), 10(b))."""
     plt = pyplot()
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    titles = ("QUBE-Servo 2 (B_e's viscous part is in the plant)", "Altino")
-    for ax, device, title, v_max in zip(axes, DEVICES, titles, (6.0, 30.0), strict=True):
+    fig, axes = plt.subplots(1, len(devices.DEVICES), figsize=(5.5 * len(devices.DEVICES), 4.2))
+    for ax, device in zip(axes, devices.DEVICES, strict=True):
         presets = (device.paper_friction, device.lugre_friction)
         laws = {name: friction_from_name(name, *presets) for name in FRICTION_NAMES}
-        _friction_panel(ax, title, laws, v_max, (device.command_unit, device.units["velocity"]))
+        units = (device.command_unit, device.units["velocity"])
+        _friction_panel(ax, device.figures.friction, laws, device.figures.speed, units)
     fig.tight_layout()
     return save_figure(fig, path, dpi=120)
+
+
+#: Legends of the paper scenarios' runs in their device's response figure (another scenario's
+#: legend is its description).
+PAPER_LABELS = {
+    "paper-rotary-nominal": "PID, nominal (no friction)",
+    "paper-rotary-pid": "PID, paper friction",
+    "paper-rotary-compensated": "PID + compensator",
+    "paper-altino-pid-ki10": "PID Ki 10",
+    "paper-altino-pid-ki20": "PID Ki 20",
+    "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator",
+}
+
+
+def figure_names() -> list[str]:
+    """Return the file names :func:`write_figures` may write, for the devices there are."""
+    shared = ["compensator_mismatch.png", "residual_plants.png", "friction_curves.png"]
+    return [
+        f"{p}{d.kind}_response.png" for d in devices.DEVICES for p in ("", "residual_")
+    ] + shared
 
 
 def _responses(
@@ -69,7 +89,7 @@ def _responses(
     chosen = [(label, runs[name]) for name, label in names.items() if name in runs]
     if not chosen:
         return None
-    device = get(chosen[0][1].scenario.env_id)
+    device = devices.get(chosen[0][1].scenario.env_id)
     units = (device.position_unit, device.command_unit)
     plt = pyplot()
     fig, (ax, ax_err, ax_u) = plt.subplots(
@@ -101,11 +121,11 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
     if not runs:
         return None
     plt = pyplot()
-    devices = sorted({r.scenario.device for r in runs}, reverse=True)
-    fig, axes = plt.subplots(2, len(devices), figsize=(5.5 * len(devices), 6.5), squeeze=False)
-    for col, device in enumerate(devices):
+    kinds = [d.kind for d in devices.DEVICES if any(r.scenario.device == d.kind for r in runs)]
+    fig, axes = plt.subplots(2, len(kinds), figsize=(5.5 * len(kinds), 6.5), squeeze=False)
+    for col, device in enumerate(kinds):
         mine = [r for r in runs if r.scenario.device == device]
-        unit = get(device).position_unit
+        unit = devices.get(device).position_unit
         for mode in dict.fromkeys(r.scenario.mode for r in mine):
             pts = sorted((r.scenario.scale, r.metrics) for r in mine if r.scenario.mode == mode)
             scales = [s for s, _ in pts]
@@ -133,14 +153,14 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
         for (device, plants), pairs in residual_pairs(results).items()
         if plants == "heldout"
     }
-    devices = [d.kind for d in DEVICES if d.kind in heldout]
-    if not devices:
+    kinds = [d.kind for d in devices.DEVICES if d.kind in heldout]
+    if not kinds:
         return None
     plt = pyplot()
-    fig, axes = plt.subplots(len(devices), 2, figsize=(9, 4.2 * len(devices)), squeeze=False)
-    for row, device in enumerate(devices):
+    fig, axes = plt.subplots(len(kinds), 2, figsize=(9, 4.2 * len(kinds)), squeeze=False)
+    for row, device in enumerate(kinds):
         pairs = heldout[device]
-        unit = get(device).position_unit
+        unit = devices.get(device).position_unit
         for col, (metric, label) in enumerate(
             (("itae", f"ITAE [{unit}·s²]"), ("steady_state_error", f"SSE [{unit}]"))
         ):
@@ -165,51 +185,26 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
 
 def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
     """Write every figure the results allow into ``out``; return the paths written."""
-    written = [
-        _responses(
-            results,
-            {
-                "paper-rotary-nominal": "PID, nominal (no friction)",
-                "paper-rotary-pid": "PID, paper friction",
-                "paper-rotary-compensated": "PID + compensator",
-            },
-            out / "rotary_response.png",
-            "QUBE-Servo 2, 1 rad step (paper Figs. 6, 7)",
-            zoom=0.03,
-        ),
-        _responses(
-            results,
-            {
-                "paper-altino-pid-ki10": "PID Ki 10",
-                "paper-altino-pid-ki20": "PID Ki 20",
-                "paper-altino-compensated": "PID (Ki 0.5, Kd 7) + compensator",
-            },
-            out / "altino_response.png",
-            "Altino, 30 → 5 cm from the wall (paper Figs. 11, 12)",
-            zoom=2.0,
-        ),
-        plot_mismatch(results, out / "compensator_mismatch.png"),
-        _responses(
-            results,
-            {
-                "residual-rotary-nominal-compensated": "PID + compensator",
-                "residual-rotary-nominal-residual": "PID + compensator + residual",
-            },
-            out / "residual_rotary_response.png",
-            "QUBE-Servo 2, 1 rad step, nominal plant: residual policy",
-            zoom=0.02,
-        ),
-        _responses(
-            results,
-            {
-                "residual-altino-nominal-compensated": "PID + compensator",
-                "residual-altino-nominal-residual": "PID + compensator + residual",
-            },
-            out / "residual_altino_response.png",
-            "Altino, 30 → 5 cm, nominal plant: residual policy",
-            zoom=1.0,
-        ),
-        plot_residual_plants(results, out / "residual_plants.png"),
-        plot_friction_curves(out / "friction_curves.png"),
-    ]
+    paper = [r.scenario for r in results if r.scenario.group == "paper"]
+    written = []
+    for device in devices.DEVICES:
+        kind, figures = device.kind, device.figures
+        mine = {s.name: PAPER_LABELS.get(s.name, s.description) for s in paper if s.device == kind}
+        residual = {
+            f"residual-{kind}-nominal-compensated": "PID + compensator",
+            f"residual-{kind}-nominal-residual": "PID + compensator + residual",
+        }
+        written += [
+            _responses(results, mine, out / f"{kind}_response.png", figures.response, figures.zoom),
+            _responses(
+                results,
+                residual,
+                out / f"residual_{kind}_response.png",
+                figures.residual,
+                figures.residual_zoom,
+            ),
+        ]
+    written.append(plot_mismatch(results, out / "compensator_mismatch.png"))
+    written.append(plot_residual_plants(results, out / "residual_plants.png"))
+    written.append(plot_friction_curves(out / "friction_curves.png"))
     return [p for p in written if p is not None]

@@ -17,7 +17,6 @@ from frictiongym.controllers.compensation import MODES, Mode
 from frictiongym.controllers.residual import ResidualController
 from frictiongym.devices import ALTINO, DEVICES, ROTARY
 from frictiongym.friction import FRICTION_NAMES
-from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI20
 
 #: The compensator's model mismatch grid: ±20 % and ±50 % in friction level.
 MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
@@ -29,11 +28,6 @@ GROUPS = ("paper", "mismatch", "noise", "friction", "residual")
 HELDOUT_SEED = 1000
 #: Held-out plants per device (``--heldout``; 4 with ``--quick``).
 HELDOUT_PLANTS = 20
-
-ROTARY_GAINS = PIDGains(**ROTARY.paper_gains["pid"])
-ALTINO_KI10 = PIDGains(**ALTINO.paper_gains["pid"])
-ALTINO_KI20 = PIDGains(**ALTINO_PAPER_GAINS_KI20)
-ALTINO_COMPENSATED = PIDGains(**ALTINO.paper_gains["compensated"])
 
 
 @dataclass(frozen=True)
@@ -104,13 +98,14 @@ class Scenario:
 
 def paper_scenarios() -> list[Scenario]:
     """Return the paper's experiments with its gains (§3.1, §3.2, §5), on the default models."""
-    rotary = {"friction": "paper"}
+    rotary, servo = {"friction": "paper"}, PIDGains(**ROTARY.paper_gains["pid"])
+    car = {name: PIDGains(**gains) for name, gains in ALTINO.paper_gains.items()}
     return [
         Scenario(
             "paper-rotary-nominal",
             "paper",
             ROTARY.env_id,
-            ROTARY_GAINS,
+            servo,
             env_kwargs={"friction": "none"},
             description="the paper's PID on the nominal (frictionless) servo: the specs check",
         ),
@@ -118,7 +113,7 @@ def paper_scenarios() -> list[Scenario]:
             "paper-rotary-pid",
             "paper",
             ROTARY.env_id,
-            ROTARY_GAINS,
+            servo,
             env_kwargs=rotary,
             description="PID on the servo with the paper's friction (Figs. 6, 7)",
         ),
@@ -126,7 +121,7 @@ def paper_scenarios() -> list[Scenario]:
             "paper-rotary-compensated",
             "paper",
             ROTARY.env_id,
-            ROTARY_GAINS,
+            servo,
             mode="command",
             env_kwargs=rotary,
             description="the same PID plus the friction compensator",
@@ -135,21 +130,21 @@ def paper_scenarios() -> list[Scenario]:
             "paper-altino-pid-ki10",
             "paper",
             ALTINO.env_id,
-            ALTINO_KI10,
+            car["pid"],
             description="Altino PID Kp 25, Ki 10, Kd 12: the paper sees an offset (Fig. 11)",
         ),
         Scenario(
             "paper-altino-pid-ki20",
             "paper",
             ALTINO.env_id,
-            ALTINO_KI20,
+            car["pid-ki20"],
             description="Altino PID with Ki 20: the paper sees a limit cycle (Fig. 11)",
         ),
         Scenario(
             "paper-altino-compensated",
             "paper",
             ALTINO.env_id,
-            ALTINO_COMPENSATED,
+            car["compensated"],
             mode="command",
             description="compensated PID Kp 25, Ki 0.5, Kd 7: the paper "
             "sees rise and settling under 1 s (Fig. 12)",

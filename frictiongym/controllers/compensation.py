@@ -10,13 +10,16 @@ variants below are the usual answers (docs/controllers.md compares them).
 from __future__ import annotations
 
 import os
-from typing import Literal
+from collections.abc import Mapping
+from typing import Any, Literal
 
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym._validation import real_number
 from frictiongym.controllers.base import Controller, FloatArray
+from frictiongym.controllers.pid import PID, PIDGains
+from frictiongym.devices import device_of
 from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, resolve_params
 
@@ -107,6 +110,25 @@ class FrictionCompensator(Controller):
         self.rest_speed = rest
         self.smoothing = smooth
         self.scale = float(scale)
+
+    @classmethod
+    def for_env(  # its base, not a LoopSpec, follows the env
+        cls,
+        env: Any,
+        base: Controller | PIDGains | Mapping[str, float] | None = None,
+        model: FrictionModel | DeviceParams | str | os.PathLike[str] | None = None,
+        **kwargs: Any,
+    ) -> FrictionCompensator:
+        """Build the compensator for ``env`` (its friction model by default) around ``base``.
+
+        ``base`` is a controller, or the gains (``kp``, ``ki``, ``kd``) of a PID built for
+        ``env``; by default the paper's compensated PID of the env's device. ``model`` and
+        ``kwargs`` are the class's.
+        """
+        if not isinstance(base, Controller):
+            gains = device_of(env).paper_gains["compensated"] if base is None else base
+            base = PID.for_env(env, gains if isinstance(gains, PIDGains) else PIDGains(**gains))
+        return cls(base, model, **kwargs)
 
     def reset(self, mask: npt.ArrayLike | None = None) -> None:  # noqa: D102
         self.base.reset(mask)

@@ -109,6 +109,25 @@ class ResidualController(Controller):
         self.spec = base.spec
 
     @classmethod
+    def for_env(  # the policy, not a LoopSpec, follows the env
+        cls,
+        env: Any,
+        model: Any,
+        config: ResidualConfig | None = None,
+        *,
+        base: Controller | None = None,
+        deterministic: bool = True,
+    ) -> ResidualController:
+        """Build the controller for ``env``: ``model`` on ``base``.
+
+        ``base`` defaults to the base of training, the paper's compensated PID of the env's
+        device (:func:`~frictiongym.controllers.residual_core.make_base`); ``config`` to the
+        model's own. The other arguments are the class's.
+        """
+        base = make_base(env) if base is None else base
+        return cls(base, model, config, deterministic=deterministic)
+
+    @classmethod
     def load(
         cls,
         path: str | os.PathLike[str],

@@ -9,6 +9,7 @@ made.
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -17,8 +18,9 @@ if TYPE_CHECKING:
     from frictiongym.envs.altino import AltinoDistanceEnv, AltinoDistanceVectorEnv
     from frictiongym.envs.rotary import RotaryServoEnv, RotaryServoVectorEnv
 
-#: id -> (module, single class, vector class, max_episode_steps); steps are the devices'
-#: ``episode_steps`` (:mod:`frictiongym.devices`, checked by the tests).
+#: id -> (module, single class, vector class, max_episode_steps). The steps repeat the devices'
+#: ``episode_steps``: importing :mod:`frictiongym.devices` here would load numba with every
+#: ``import gymnasium``; tests/test_devices.py checks that they agree.
 ENV_IDS: dict[str, tuple[str, str, str, int]] = {
     "frictiongym/RotaryServo-v0": (
         "frictiongym.envs.rotary",
@@ -34,12 +36,8 @@ ENV_IDS: dict[str, tuple[str, str, str, int]] = {
     ),
 }
 
-_LAZY = {
-    "RotaryServoEnv": "frictiongym.envs.rotary",
-    "RotaryServoVectorEnv": "frictiongym.envs.rotary",
-    "AltinoDistanceEnv": "frictiongym.envs.altino",
-    "AltinoDistanceVectorEnv": "frictiongym.envs.altino",
-}
+#: The env classes, imported on first use: class name -> module.
+_LAZY = {name: entry[0] for entry in ENV_IDS.values() for name in entry[1:3]}
 
 __all__ = [
     "ENV_IDS",
@@ -69,7 +67,5 @@ register_envs()
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'frictiongym.envs' has no attribute {name!r}")

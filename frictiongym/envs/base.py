@@ -23,7 +23,9 @@ from gymnasium import spaces
 from gymnasium.envs.registration import EnvSpec
 
 from frictiongym.envs import _kernel as env_kernel
+from frictiongym.envs import rendering
 from frictiongym.envs.core import Device, EnvCore, Simulation
+from frictiongym.envs.device import DeviceSession
 from frictiongym.hardware import SIM
 from frictiongym.plants.sensors import IR_MAX_READOUT, ir_estimate
 
@@ -113,8 +115,6 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
                 )
             self.sim = Simulation(self.device, 1, **kwargs)
         else:
-            from frictiongym.envs.device import DeviceSession
-
             self.sim = DeviceSession(self.device, backend, **kwargs)
         #: Whether a device backend runs the env (then it is nondeterministic).
         self.on_device = self.sim.on_device
@@ -202,9 +202,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         if self.render_mode == "rgb_array":
             return frame
         if self._window is None:
-            from frictiongym.envs.rendering import Window
-
-            self._window = Window(f"frictiongym {self.device.name}", _RENDER_FPS)
+            self._window = rendering.Window(f"frictiongym {self.device.name}", _RENDER_FPS)
         self._window.show(frame)
         return None
 
@@ -250,10 +248,10 @@ def _one_number(action: object) -> float:
 
 
 def _frame(sim: EnvCore, i: int) -> npt.NDArray[np.uint8]:
-    from frictiongym.envs import rendering
-
+    """Draw env ``i`` with its device's drawing, at its position in env units."""
+    if sim.device.drawing is None:
+        raise NotImplementedError(f"{sim.device.name} has no drawing (Device.drawing)")
     x, reference, stuck, steps, command = sim.frame(i)
-    time = steps * sim.dt
-    if sim.device.sensor == env_kernel.SENSOR_ENCODER:
-        return rendering.draw_servo(x, reference, stuck=stuck, time=time, command=command)
-    return rendering.draw_altino(0.0 - x, reference, stuck=stuck, time=time, command=command)
+    draw = getattr(rendering, sim.device.drawing)
+    position = sim.device.direction * x + 0.0  # + 0.0: the wall at 0.0, not -0.0
+    return draw(position, reference, stuck=stuck, time=steps * sim.dt, command=command)

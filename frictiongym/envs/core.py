@@ -25,7 +25,7 @@ from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, PlantParams, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
-from frictiongym.plants.sensors import QUBE_ENCODER_STEP, ir_quantum, noise_std, velocity_floor
+from frictiongym.plants.sensors import ir_quantum, noise_std, velocity_floor
 
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
@@ -171,7 +171,7 @@ class Simulation:
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
         )
         self.plants = self._new_plants(parallel)
-        self._default_x0 = -device.start if device.sensor == env_kernel.SENSOR_IR else device.start
+        self._default_x0 = device.direction * device.start
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
@@ -199,14 +199,13 @@ class Simulation:
             )
         cutoff = device.velocity_cutoff
         pole = 0.0 if cutoff is None else math.exp(-cutoff * self.dt)
-        quantum = QUBE_ENCODER_STEP if device.sensor == env_kernel.SENSOR_ENCODER else ir_quantum()
         return env_kernel.pack_config(
             sensor=device.sensor,
             quantize=float(quantize),
             noise=noise_std(sensor_noise, device.noise_std),
-            encoder_step=QUBE_ENCODER_STEP,
+            encoder_step=device.encoder_step,
             pole=pole,
-            velocity_floor=velocity_floor(quantum, pole, self.dt),
+            velocity_floor=velocity_floor(device.encoder_step or ir_quantum(), pole, self.dt),
             error_scale=device.error_scale,
             effort_weight=device.effort_weight
             if effort_weight is None
@@ -273,19 +272,19 @@ class Simulation:
         vel = np.broadcast_to(np.asarray(options.get("velocity", 0.0), np.float64), count)
         if not (np.all(np.isfinite(pos)) and np.all(np.isfinite(vel))):
             raise ValueError("reset options 'position' and 'velocity' must be finite numbers")
-        if self.device.sensor == env_kernel.SENSOR_IR:
+        device, unit = self.device, self.device.position_unit
+        if device.sensor == env_kernel.SENSOR_IR:
             if np.any(pos <= self.limit):
                 raise ValueError(
-                    f"reset option 'position' is the distance to the wall in cm and must exceed "
-                    f"the safety limit {self.limit} cm, got {options['position']!r}"
+                    f"reset option 'position' is the distance to the wall in {unit} and must "
+                    f"exceed the safety limit {self.limit} {unit}, got {options['position']!r}"
                 )
-            return -pos, -vel  # the plant moves toward the wall
-        if np.any(np.abs(pos) > self.limit):
+        elif np.any(np.abs(pos) > self.limit):
             raise ValueError(
-                f"reset option 'position' must lie within the safety limit ±{self.limit} rad, "
+                f"reset option 'position' must lie within the safety limit ±{self.limit} {unit}, "
                 f"got {options['position']!r}"
             )
-        return np.array(pos), np.array(vel)
+        return device.direction * pos, device.direction * vel  # plant coordinates
 
     def prepare_reset(
         self,

@@ -152,9 +152,7 @@ class DeviceSession:
         """Return what a frame draws: the measured position (the device knows no other)."""
         frame = self.task.frame(i)
         estimate = float(env_kernel.task_state(self.task.state, "estimate")[i])
-        return frame._replace(
-            position=estimate if self.device.sensor == env_kernel.SENSOR_ENCODER else -estimate
-        )
+        return frame._replace(position=self.device.direction * estimate)
 
     def _metadata(self, extra: Mapping[str, Any] | None) -> dict[str, Any]:
         return {

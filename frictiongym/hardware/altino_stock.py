@@ -356,7 +356,6 @@ class AltinoStockBackend(Backend):
             kind="altino",
             rate_hz=self.rate_hz,
             command_limit=float(GO_LIMIT),
-            command_step=1.0,
             counts_per_rev=0,
             watchdog_s=None,
             can_place=False,

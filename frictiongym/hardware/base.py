@@ -51,10 +51,9 @@ KINDS = ("rotary", "altino")
 class DeviceInfo:
     """What the host knows about an opened device."""
 
-    kind: str  #: ``"rotary"`` or ``"altino"``
+    kind: str  #: one of :data:`KINDS`
     rate_hz: float  #: the device's sample rate (it paces the loop)
     command_limit: float  #: largest |command| it applies, physical units (V or motor units)
-    command_step: float  #: command resolution, physical units (0: continuous)
     counts_per_rev: int  #: encoder counts per revolution (0 without an encoder)
     watchdog_s: float | None  #: device watchdog time, s (None: the device has none)
     can_place: bool = False  #: honours :meth:`Backend.place` (the emulator)

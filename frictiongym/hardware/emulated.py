@@ -14,6 +14,7 @@ from typing import Any
 
 from frictiongym.hardware.base import KINDS, DeviceInfo
 from frictiongym.hardware.emulator import Emulator
+from frictiongym.hardware.errors import HardwareError
 from frictiongym.hardware.serial_backend import SerialBackend
 from frictiongym.hardware.uri import flag, integer, positive, uri_options
 
@@ -83,10 +84,15 @@ class EmulatedBackend(SerialBackend):
         try:
             self.port = self.emulator.serve_pty()
             return super()._open()
-        except BaseException:
-            self.emulator.close()
-            self.emulator = None
-            raise
+        except BaseException as exc:
+            emulator, self.emulator = self.emulator, None
+            emulator.close()
+            if emulator.error is None or not isinstance(exc, HardwareError):
+                raise
+            # The link only saw the device go quiet; say why it did.
+            raise HardwareError(
+                f"the emulator of {self.kind!r} stopped: {emulator.error!r}"
+            ) from emulator.error
 
     def _close(self) -> None:
         try:

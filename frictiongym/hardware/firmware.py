@@ -38,13 +38,7 @@ from frictiongym.hardware.guard import CarBounds, DistanceGuard
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
-from frictiongym.plants.sensors import (
-    QUBE_COUNTS_PER_REV,
-    QUBE_ENCODER_STEP,
-    measure,
-    noise_std,
-    normal_draw,
-)
+from frictiongym.plants.sensors import SENSOR_ENCODER, measure, noise_std, normal_draw
 
 #: Build number the firmware reports in its ``Hello``, the same as ``FG_FIRMWARE_BUILD`` in
 #: firmware/common/fg_device.h: 3 = the guard bounds the speed and the car (2: the predictive
@@ -55,9 +49,8 @@ FIRMWARE_BUILD = 3
 #: (docs/hardware.md, "Timing and the watchdog"), and a stall is not a dead host.
 WATCHDOG_PERIODS = 3
 WATCHDOG_MIN_MS = 100
-#: Farthest start of the emulated servo, rad (the disk has no end stops; a ``Place`` beyond is
-#: refused).
-ROTARY_NO_LIMIT = 1e9
+#: Farthest start of an emulated device, position units (a ``Place`` beyond is refused).
+PLACE_RANGE = 1e9
 #: Per-tick records kept in :attr:`Firmware.history` (200 s at 500 Hz; older ones are dropped).
 HISTORY_TICKS = 100_000
 #: One :attr:`Firmware.history` record: a plain tuple of numbers, which the garbage collector
@@ -92,8 +85,10 @@ class Firmware:
 
     Parameters
     ----------
-    kind : {"rotary", "altino"}
-        The device to emulate.
+    kind : str
+        The device to emulate, one of :data:`~frictiongym.hardware.base.KINDS`: what it is and
+        does is its :class:`~frictiongym.devices.Device` (sensor, sign, command scale, limits;
+        the distance guard with the IR sensor).
     params : str, PathLike or DeviceParams, optional
         The plant's "true" identified parameters (a ``friction.json``); default: the nominal
         model with ``friction``.
@@ -135,7 +130,8 @@ class Firmware:
         self.device = devices.get(kind)
         self.dt = self.device.dt
         self.scale = self.device.command_scale  #: command counts per unit
-        altino = kind == "altino"
+        self.encoder = self.device.sensor == SENSOR_ENCODER
+        guarded = not self.encoder  # the distance guard reads the IR sensor (hardware/guard.py)
         _, self.friction, _, self.plant_params = device_physics(
             self.device, self.dt, friction, params=params
         )
@@ -159,14 +155,14 @@ class Firmware:
             )
         self.watchdog_s = watchdog_ms / 1000.0
         caps = protocol.Capability.PLACE | (protocol.Capability.WATCHDOG if watchdog_ms else 0)
-        if altino:
+        if guarded:
             caps |= protocol.Capability.DISTANCE_LIMIT
         self.hello = protocol.Hello(
             version=protocol.PROTOCOL_VERSION,
-            kind=protocol.DeviceKind.ALTINO if altino else protocol.DeviceKind.ROTARY,
+            kind=protocol.DeviceKind(KINDS.index(kind) + 1),
             capabilities=protocol.Capability(caps),
             rate_hz=round(1.0 / self.dt),
-            counts_per_rev=0 if altino else QUBE_COUNTS_PER_REV,
+            counts_per_rev=self.device.counts_per_rev,
             command_scale=self.scale,
             command_limit=round(self.plant_params.command_limit * self.scale),
             watchdog_ms=watchdog_ms,
@@ -191,10 +187,10 @@ class Firmware:
         #: Per-tick records, as :meth:`ticks_history` returns them (:data:`TickRecord`).
         self.history: deque[TickRecord] = deque(maxlen=HISTORY_TICKS)
         self._errors_seen = 0
-        #: The Altino's distance guard (None on the servo): brakes before the wall.
+        #: The distance guard of a device with the IR sensor (None else): brakes before the wall.
         self.guard: DistanceGuard | None = None
         self.set_car_bounds(self._car_bounds() if car_bounds is None else car_bounds)
-        if altino:
+        if guarded:
             self.guard = self._new_guard()
         self.sensor = 0
         self.plant.step(0.0)  # compiled now: a first tick must not stall past the watchdog
@@ -204,15 +200,13 @@ class Firmware:
 
     @property
     def position(self) -> float:
-        """True plant position: rad, or cm from the wall."""
-        x = float(self.plant.position[0])
-        return -x if self.kind == "altino" else x
+        """True position, env units (rad, or cm from the wall)."""
+        return self.device.direction * float(self.plant.position[0])
 
     @property
     def velocity(self) -> float:
-        """True plant velocity: rad/s, or cm/s away from the wall."""
-        v = float(self.plant.velocity[0])
-        return -v if self.kind == "altino" else v
+        """True velocity, env units (rad/s, or cm/s away from the wall)."""
+        return self.device.direction * float(self.plant.velocity[0])
 
     @property
     def motor(self) -> float:
@@ -225,22 +219,24 @@ class Firmware:
     def _place(self, position: float) -> None:
         """Reset the plant at rest at ``position`` and sample it (the env's reset and draws).
 
-        Raises ValueError if ``position`` is not finite or, on the Altino, not ahead of the wall.
+        Raises ValueError if ``position`` is not within ±:data:`PLACE_RANGE` and short of the
+        device's end stop (ahead of the Altino's wall).
         The distance guard starts afresh there (the car did not drive there: no speed), keeping
         its trip, and judges the new sample at once.
         """
-        if self.kind == "altino" and not position > 0.0:
-            raise ValueError(f"the car must start ahead of the wall (> 0 cm), got {position!r}")
-        if self.kind == "rotary" and not abs(position) <= ROTARY_NO_LIMIT:
+        device = self.device
+        x = device.direction * position
+        if not (abs(position) <= PLACE_RANGE and x < device.end_stop):
             raise ValueError(
-                f"the disk must start within ±{ROTARY_NO_LIMIT:g} rad, got {position!r}"
+                f"{device.title} must start within ±{PLACE_RANGE:g} {device.position_unit} and "
+                f"short of its end stop, got {position!r}"
             )
         if self.randomize is not None:
             factors = self.randomize.draw(self._rng)
             self.plant.rows[0], self._gain = apply_factors(self._nominal_row, factors)
         if self.noise_std > 0.0:
             self._noise[0] = self._rng.integers(2**64, dtype=np.uint64)
-        self.plant.reset(-position if self.kind == "altino" else position)
+        self.plant.reset(x)
         self.sensor = self._sensor()
         if self.guard is not None:
             tripped = self.guard.tripped
@@ -285,9 +281,9 @@ class Firmware:
     def _sensor(self) -> int:
         """Sample the sensor, as the env does: encoder counts or IR readout."""
         noise = self.noise_std * normal_draw(self._noise, 0) if self.noise_std > 0.0 else 0.0
-        x, rotary = float(self.plant.position[0]), self.kind == "rotary"
-        measured = measure(x, rotary, self._gain, 0.0, noise, True, QUBE_ENCODER_STEP)
-        return _wrap_i32(round(measured / QUBE_ENCODER_STEP)) if rotary else int(measured)
+        x, step = float(self.plant.position[0]), self.device.encoder_step
+        measured = measure(x, self.encoder, self._gain, 0.0, noise, True, step)
+        return _wrap_i32(round(measured / step)) if self.encoder else int(measured)
 
     # -- messages ---------------------------------------------------------------------------
 
@@ -332,7 +328,7 @@ class Firmware:
                     self.latched |= protocol.Status.LIMIT  # still too close or too fast: at once
             if flags & protocol.Flag.ESTOP:
                 self.armed = False
-            if flags & protocol.Flag.ZERO_POSITION and self.kind == "rotary":
+            if flags & protocol.Flag.ZERO_POSITION and self.encoder:
                 self.plant.place(0.0)  # the encoder reset (Plant.place)
                 self.sensor = 0
             self.enabled = bool(flags & protocol.Flag.ENABLE)
@@ -394,8 +390,9 @@ class Firmware:
         """
         self.plant.step(counts / self.scale)
         self.sensor = self._sensor()
-        if self.kind == "altino" and self.plant.position[0] >= 0.0:
-            self.plant.place(0.0, stop=True)  # an inelastic wall (the env ends its episode there)
+        end_stop = self.device.end_stop
+        if self.plant.position[0] >= end_stop:  # an inelastic wall (the env ends episodes there)
+            self.plant.place(end_stop, stop=True)
 
     def tick(self, now: float) -> protocol.State:
         """Run one device period ending at ``now`` (s); return its ``State``.

@@ -159,7 +159,7 @@ class Hello(_Fields):
     rate_hz: int
     counts_per_rev: int  #: encoder counts per revolution (0 without an encoder)
     command_scale: int  #: command counts per physical unit (1000 per V; 1 per motor unit)
-    command_limit: int  #: largest |command| the device applies, counts
+    command_limit: int  #: largest |command| the device applies, counts (fits an int16)
     watchdog_ms: int  #: 0: no watchdog
     firmware: int  #: build number
     FORMAT: ClassVar[str] = "<BBBBHHHhHI"

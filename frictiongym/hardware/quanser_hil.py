@@ -18,6 +18,7 @@ from collections.abc import Callable, Mapping
 from typing import Any
 
 from frictiongym._validation import real_number
+from frictiongym.devices import ROTARY
 from frictiongym.hardware.base import Backend, DeviceInfo, Sample
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
@@ -30,7 +31,6 @@ from frictiongym.hardware.errors import (
 )
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.uri import positive, uri_options
-from frictiongym.plants.sensors import QUBE_COUNTS_PER_REV
 
 SDK_MISSING = (
     "Quanser's Python HIL API (quanser.hardware) is not installed, and it is not on PyPI. "
@@ -252,8 +252,7 @@ class QuanserHILBackend(Backend):
             kind="rotary",
             rate_hz=self.rate_hz,
             command_limit=self.voltage_limit,
-            command_step=0.0,
-            counts_per_rev=QUBE_COUNTS_PER_REV,
+            counts_per_rev=ROTARY.counts_per_rev,
             watchdog_s=self._watchdog,
             firmware=self._sdk_version(),
             link=f"quanser-hil {self.board} {self.identifier}",
@@ -344,7 +343,7 @@ class QuanserHILBackend(Backend):
         if self._faults_readable and self._since_poll >= self._poll_every:
             self._status, self._since_poll = self._faults(), 0
         return Sample(
-            measured=self._counts[0] * 2.0 * math.pi / QUBE_COUNTS_PER_REV,
+            measured=self._counts[0] * ROTARY.encoder_step,
             applied=applied,
             tick_us=round(self._tick * 1e6 / self.rate_hz) % 2**32,
             host_ns=host_ns,

@@ -15,10 +15,10 @@ nobody here asked for, or the device holding commands this host never sent.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import Any
 
+from frictiongym import devices
 from frictiongym._validation import real_number
 from frictiongym.hardware import protocol
 from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
@@ -103,6 +103,7 @@ class SerialBackend(Backend):
         self.timeout = timeout
         self.handshake_timeout = handshake_timeout
         self.hello: protocol.Hello | None = None
+        self._encoder_step = 0.0  #: position units per encoder count (the device description's)
         self.decoder = protocol.FrameDecoder()
         self._serial: Any = None
         self._seq = 0
@@ -160,15 +161,17 @@ class SerialBackend(Backend):
             self._serial.close()
             raise
         self.hello = hello
+        kind = KINDS[hello.kind - 1]
+        if hello.counts_per_rev:  # the same float as the simulated encoder's step
+            self._encoder_step = devices.get(kind).position_per_rev / hello.counts_per_rev
         period = 1.0 / hello.rate_hz
         if self.timeout is None:
             self.timeout = max(0.1, 5.0 * period)
         self._serial.timeout = min(self.timeout, READ_WAIT)
         return DeviceInfo(
-            kind=KINDS[hello.kind - 1],
+            kind=kind,
             rate_hz=float(hello.rate_hz),
             command_limit=hello.command_limit / hello.command_scale,
-            command_step=1.0 / hello.command_scale,
             counts_per_rev=hello.counts_per_rev,
             watchdog_s=hello.watchdog_ms / 1000.0 if hello.watchdog_ms else None,
             can_place=bool(hello.capabilities & protocol.Capability.PLACE),
@@ -344,7 +347,7 @@ class SerialBackend(Backend):
             skipped = max(0, ((state.seq - self._last.seq) & 0xFFFF) - 1)
         self._last = state
         if hello.counts_per_rev:  # the same float product as the simulated encoder
-            measured = state.sensor * (2.0 * math.pi / hello.counts_per_rev)
+            measured = state.sensor * self._encoder_step
         else:
             measured = float(state.sensor)
         return Sample(

@@ -49,8 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--env",
         required=True,
         metavar="ID",
-        help="env id of the device, e.g. frictiongym/RotaryServo-v0 or "
-        "frictiongym/AltinoDistance-v0",
+        help=f"env id of the device: {', '.join(d.env_id for d in devices.DEVICES)}",
     )
     add_output_arguments(
         parser, "identify-results", "friction.json, friction_map.png and summary.md"

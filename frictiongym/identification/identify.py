@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from typing import Any
 
 import gymnasium as gym
@@ -42,6 +42,10 @@ FloatArray = npt.NDArray[np.float64]
 @dataclass(frozen=True)
 class Plan:
     """The experiments of one identification, in units of the probe's break-away level.
+
+    The schedule (``levels`` to ``probe_duration``) has no defaults: each device's is in its
+    description (:meth:`for_device`); the other fields default to no relay runs, no
+    refinement, the whole sensor range and no env arguments.
 
     Attributes
     ----------
@@ -69,7 +73,7 @@ class Plan:
     relay_band : tuple of float, optional
         Output range (env units) a relay run drives back and forth across.
     relay_duration : float
-        Length of one relay run, s.
+        Length of one relay run, s (with ``relay_levels``).
     refine : bool
         Refine ``J``, ``B`` and the paper's law against every sample by an output-error fit
         (:mod:`~frictiongym.identification.refine`), for sensors whose range is too short for
@@ -86,36 +90,21 @@ class Plan:
         Keyword arguments the plan needs from ``gym.make`` (e.g. a wider safety limit).
     """
 
-    levels: tuple[float, ...] = (
-        1.03,
-        1.06,
-        1.1,
-        1.15,
-        1.2,
-        1.3,
-        1.45,
-        1.65,
-        2.0,
-        2.5,
-        3.2,
-        4.0,
-        5.0,
-        6.0,
-    )
-    constant_duration: float = 4.5
-    ramp_repeats: int = 3
-    ramp_from: float = 0.6
-    ramp_to: float = 1.2
-    ramp_duration: float = 8.0
-    step_levels: tuple[float, float] = (3.0, 6.0)
-    step_time: float = 2.0
-    step_duration: float = 4.0
-    step_repeats: int = 2
-    probe_to: float = 0.3
-    probe_duration: float = 3.0
+    levels: tuple[float, ...]
+    constant_duration: float
+    ramp_repeats: int
+    ramp_from: float
+    ramp_to: float
+    ramp_duration: float
+    step_levels: tuple[float, float]
+    step_time: float
+    step_duration: float
+    step_repeats: int
+    probe_to: float
+    probe_duration: float
     relay_levels: tuple[float, ...] = ()
     relay_band: tuple[float, float] | None = None
-    relay_duration: float = 20.0
+    relay_duration: float = 0.0
     refine: bool = False
     reading: Reading | None = None
     span: Span | None = None
@@ -128,8 +117,21 @@ class Plan:
 
         It is the device's ``identification`` settings, whose ``span`` and ``reading`` (a
         :class:`ReciprocalReading`) are given as tuples of their fields.
+
+        Raises
+        ------
+        ValueError
+            If the settings lack a field of the schedule: the device has no plan.
         """
-        settings = dict(devices.get(device).identification)
+        described = devices.get(device)
+        settings = dict(described.identification)
+        required = [f.name for f in fields(cls) if MISSING is f.default is f.default_factory]
+        missing = [name for name in required if name not in settings]
+        if missing:
+            raise ValueError(
+                f"{described.name} has no identification plan: its Device.identification "
+                f"(frictiongym/devices.py) lacks {', '.join(missing)}"
+            )
         if "span" in settings:
             settings["span"] = Span(*settings["span"])
         if "reading" in settings:

@@ -7,6 +7,7 @@ import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
+from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments
 from frictiongym.controllers import PIDGains
 from frictiongym.hardware import SIM
@@ -66,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--env",
         required=True,
         metavar="ID",
-        help="frictiongym/RotaryServo-v0 or frictiongym/AltinoDistance-v0",
+        help=", ".join(d.env_id for d in devices.DEVICES),
     )
     parser.add_argument(
         "--backend",
@@ -74,7 +75,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="URI",
         help="the device: serial:///dev/ttyACM0?baud=1000000, socket://HOST:PORT, "
         "altino-stock:///dev/rfcomm0, quanser-hil://qube_servo2_usb/0, or "
-        "emulator://rotary|altino (an emulator in this process)",
+        f"emulator://{'|'.join(d.kind for d in devices.DEVICES)} (an emulator in this process)",
     )
     parser.add_argument(
         "--controller",

@@ -35,7 +35,7 @@ from frictiongym.hardware.errors import (
 from frictiongym.hardware.protocol import Status
 from frictiongym.hardware.realtime import realtime_priority
 from frictiongym.hardware.runlog import Timing
-from frictiongym.plants.sensors import SENSOR_ENCODER, ir_estimate
+from frictiongym.plants.sensors import SENSOR_IR, ir_estimate
 
 FloatArray = npt.NDArray[np.float64]
 
@@ -173,20 +173,21 @@ def check_reference(env_id: str, reference: float) -> float:
     4π``, the Altino's wall), with nothing to compare.
     """
     device = devices.get(env_id)
-    limit, encoder = device.limit, device.sensor == SENSOR_ENCODER
+    limit, unit, wall = device.limit, device.position_unit, device.sensor == SENSOR_IR
     real_number("the reference", reference)
-    if encoder and abs(reference) >= limit:
+    if not wall and abs(reference) >= limit:
         raise ValueError(
-            f"reference {reference:g} rad lies beyond the servo's safety limit of {limit:.4g} rad, "
-            f"which ends a run when |angle| passes it: give a reference within ±{limit:.4g} rad"
+            f"reference {reference:g} {unit} lies beyond the safety limit of {limit:.4g} {unit} "
+            f"of {device.title}, which ends a run when |{device.output}| passes it: give a "
+            f"reference within ±{limit:.4g} {unit}"
         )
-    if not encoder and reference <= limit:
+    if wall and reference <= limit:
         raise ValueError(
-            f"reference {reference:g} cm is at or behind the safety limit of {limit:g} cm from "
-            f"the wall, which ends a run: give a distance above {limit:g} cm"
+            f"reference {reference:g} {unit} is at or behind the safety limit of {limit:g} {unit} "
+            f"from the wall, which ends a run: give a distance above {limit:g} {unit}"
         )
     farthest = float(ir_estimate(1))  # readout 0 means "out of range", not a distance
-    if not encoder and reference > farthest:
+    if wall and reference > farthest:
         raise ValueError(
             f"reference {reference:g} cm is beyond the IR sensor's range (its farthest reading "
             f"is {farthest:.3g} cm): the car would not see when it got there and would keep "
@@ -195,14 +196,18 @@ def check_reference(env_id: str, reference: float) -> float:
     return limit
 
 
-def _ended_early(session: Any, trace: Rollout, limit: float, encoder: bool) -> tuple[str, str]:
+def _ended_early(
+    session: Any, trace: Rollout, limit: float, device: devices.Device
+) -> tuple[str, str]:
     """How a terminated run ended: by the device's distance guard or the env's safety limit."""
     steps = trace.t.size - 1
     sample = session.last_sample
     if sample is not None and sample.status & Status.LIMIT:
         return DEVICE_LIMIT, f"the device's distance guard stopped it after {steps} steps"
-    where = f"|angle| passed {limit:.4g} rad" if encoder else f"the car reached {limit:g} cm"
-    return SAFETY_LIMIT, f"the safety limit ended it after {steps} steps ({where})"
+    output, wall = device.output, device.sensor == SENSOR_IR
+    where = f"its {output} fell to {limit:g}" if wall else f"|{output}| passed {limit:.4g}"
+    detail = f"the safety limit ended it after {steps} steps ({where} {device.position_unit})"
+    return SAFETY_LIMIT, detail
 
 
 def run_sim2real(
@@ -278,7 +283,7 @@ def run_sim2real(
         if n < 1:
             raise ValueError("give steps: the env has no registered episode length")
         session: Any = device_env.unwrapped.sim  # type: ignore[attr-defined]
-        limit, encoder = float(session.limit), devices.get(env_id).sensor == SENSOR_ENCODER
+        limit = float(session.limit)
         runs: list[DeviceRun] = []
         with realtime_priority() as priority:
             for r in range(1, repeats + 1):
@@ -296,7 +301,7 @@ def run_sim2real(
                         break
                     continue
                 if trace.terminated[0]:
-                    ended, detail = _ended_early(session, trace, limit, encoder)
+                    ended, detail = _ended_early(session, trace, limit, devices.get(env_id))
                     say(f"device run {r}: {detail}")
                 else:
                     ended, detail = COMPLETE, f"{trace.t.size - 1} steps"

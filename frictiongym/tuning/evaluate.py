@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, cast
 
 import numpy as np
 import numpy.typing as npt
@@ -33,11 +33,11 @@ import numpy.typing as npt
 from frictiongym._validation import real_number
 from frictiongym.controllers.base import LoopSpec
 from frictiongym.controllers.pid import PID, PIDGains
-from frictiongym.friction import ROTARY_PAPER, FrictionModel, NoFriction
+from frictiongym.devices import ROTARY
+from frictiongym.friction import FrictionModel, NoFriction
 from frictiongym.metrics import iae, itae
 from frictiongym.metrics.step import StepMetricsBatch, step_metrics_batch, step_progress
 from frictiongym.plants.plant import Plant, PlantParams
-from frictiongym.plants.presets import ROTARY_DT, ROTARY_PLANT, ROTARY_VELOCITY_CUTOFF
 from frictiongym.plants.sensors import FilteredDerivative
 from frictiongym.tuning.specs import StepSpecs
 
@@ -66,11 +66,11 @@ class TuningModel:
 
     Parameters
     ----------
-    plant : PlantParams, default ROTARY_PLANT
+    plant : PlantParams, default ``ROTARY.plant``
         The paper's Eq. (2) servo, ``J = 7.143e-3``, ``B = 0.0446``, ±10 V.
     friction : FrictionModel, default NoFriction()
         ``NoFriction()`` is the paper's nominal model (it tuned on Eq. (2)).
-    dt : float, default ROTARY_DT
+    dt : float, default ``ROTARY.dt``
         Control period, s (2 ms: Quanser's QUBE rate, plants/presets.py).
     name : str, default "nominal"
         Short name for reports.
@@ -80,17 +80,17 @@ class TuningModel:
         The D term's velocity: the plant's true velocity (an ideal tachometer, the paper's
         Eq. (2) loop), or the QUBE's estimate ``w s / (s + w)`` of the sampled angle
         (:class:`~frictiongym.plants.sensors.FilteredDerivative`, what the env observes).
-    velocity_cutoff : float, default ROTARY_VELOCITY_CUTOFF
+    velocity_cutoff : float, default ``ROTARY.velocity_cutoff``
         ``w`` of the filtered estimate, rad/s (50: Quanser's QUBE models).
     """
 
-    plant: PlantParams = ROTARY_PLANT
+    plant: PlantParams = ROTARY.plant
     friction: FrictionModel = field(default_factory=NoFriction)
-    dt: float = ROTARY_DT
+    dt: float = ROTARY.dt
     name: str = "nominal"
     source: str | None = None
     velocity: Literal["ideal", "filtered"] = "ideal"
-    velocity_cutoff: float = ROTARY_VELOCITY_CUTOFF
+    velocity_cutoff: float = cast(float, ROTARY.velocity_cutoff)  # the servo has its filter
 
     def __post_init__(self) -> None:
         real_number("TuningModel.dt", self.dt, "> 0", unit=" s")
@@ -101,9 +101,9 @@ class TuningModel:
 
     @classmethod
     def paper(cls, with_friction: bool = False) -> TuningModel:
-        """Return the paper's servo: nominal Eq. (2), or with its friction (``ROTARY_PAPER``)."""
+        """Return the paper's servo: nominal Eq. (2), or with its friction (its paper preset)."""
         if with_friction:
-            return cls(friction=ROTARY_PAPER, name="friction")
+            return cls(friction=ROTARY.paper_friction, name="friction")
         return cls()
 
     @classmethod
@@ -111,7 +111,7 @@ class TuningModel:
         cls, params: DeviceParams, with_friction: bool = True, source: str | None = None
     ) -> TuningModel:
         """Return the servo with ``J``, ``B`` (and friction) of identified ``DeviceParams``."""
-        plant = params.plant(ROTARY_PLANT)
+        plant = params.plant(ROTARY.plant)
         if with_friction:
             return cls(plant, params.plant_friction(), name="params", source=source)
         return cls(plant, NoFriction(), name="params-nominal", source=source)

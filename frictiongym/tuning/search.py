@@ -18,12 +18,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+import numba
 import numpy as np
 import numpy.typing as npt
 
 from frictiongym import __version__
+from frictiongym.devices import ROTARY
 from frictiongym.metrics.step import StepMetricsBatch
-from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 from frictiongym.tuning.evaluate import STOP_REASONS, Evaluation, TuningModel, simulate
 from frictiongym.tuning.specs import SPEC_FIELDS, GainBounds, StepSpecs
 
@@ -50,7 +51,7 @@ DEFAULT_HORIZON = 3.0
 DEFAULT_CHUNK = 32_768
 
 #: The paper's gains (§3.1), evaluated in every run.
-PAPER_GAINS = (ROTARY_PAPER_GAINS["kp"], ROTARY_PAPER_GAINS["ki"], ROTARY_PAPER_GAINS["kd"])
+PAPER_GAINS = tuple(ROTARY.paper_gains["pid"][k] for k in ("kp", "ki", "kd"))
 
 
 def rule_scores(rule: str, evaluation: Evaluation, specs: StepSpecs) -> FloatArray:
@@ -151,8 +152,6 @@ class TuneResult:
 
     def record(self) -> dict[str, Any]:
         """Return the content of ``tune.json``."""
-        import numba
-
         ev = self.evaluation
         stopped = {
             STOP_REASONS[code]: int(np.sum(ev.stop_reason == code))
