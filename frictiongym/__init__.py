@@ -1,7 +1,7 @@
 """frictiongym: friction as a first-class part of motion-control simulation and control.
 
-Importing the package registers its Gymnasium ids (``frictiongym/RotaryServo-v0``,
-``frictiongym/AltinoDistance-v0``): at once if gymnasium is already imported, otherwise the
+Importing the package registers its Gymnasium ids (``frictiongym/RotaryServo-v1``,
+``frictiongym/AltinoDistance-v1``): at once if gymnasium is already imported, otherwise the
 moment it is, so ``import frictiongym`` and ``import gymnasium`` work in either order while
 ``import frictiongym`` alone stays light (no gymnasium, no numba: ``frictiongym --help`` starts
 fast). ``load_params``, ``save_params``, ``DeviceParams`` (:mod:`frictiongym.params`) and

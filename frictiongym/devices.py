@@ -9,6 +9,7 @@ every other value cites its source here. Adding a device: docs/architecture.md.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, NamedTuple
@@ -43,7 +44,7 @@ class Device:
 
     name: str  #: ``"RotaryServo"``: the ``device`` of params files, residual models, run logs
     kind: str  #: ``"rotary"``: the hardware's kind, the benchmark's and the CLI's device name
-    env_id: str  #: ``"frictiongym/RotaryServo-v0"``
+    env_id: str  #: the current id, ``"frictiongym/RotaryServo-v1"`` (tools make their envs by it)
     title: str  #: for messages: ``"a QUBE-Servo 2"``
     plant: PlantParams
     dt: float
@@ -61,6 +62,8 @@ class Device:
     #: (:data:`frictiongym.envs.references.PRESET_CLASSES`).
     references: Mapping[str, Mapping[str, Any]]
     error_scale: float  #: tracking error that costs 1 per step
+    #: Largest tracking error the v1 reward charges (``terminal_cost=True``), output units
+    error_cap: float
     effort_weight: float
     limit: float  #: default safety limit of the env
     limit_penalty: float
@@ -151,7 +154,7 @@ _RANDOMIZATION = {"friction": (0.7, 1.3), "inertia": (0.8, 1.2), "damping": (0.8
 ROTARY = Device(
     name="RotaryServo",
     kind="rotary",
-    env_id="frictiongym/RotaryServo-v0",
+    env_id="frictiongym/RotaryServo-v1",
     title="a QUBE-Servo 2",
     plant=presets.ROTARY_PLANT,
     dt=presets.ROTARY_DT,
@@ -171,6 +174,9 @@ ROTARY = Device(
         "random_steps": {"low": -math.pi, "high": math.pi, "period": 1.0},
     },
     error_scale=1.0,  # rad: the default step costs 1 per step until it moves
+    # One turn: twice the largest error of a random step (a level in ±π); the safety limit
+    # (two turns) ends an episode before the error reaches 5π anyway.
+    error_cap=2.0 * math.pi,
     effort_weight=0.01,  # small: 10 V for a whole step costs as much as 10 mrad of error
     limit=4.0 * math.pi,  # assumed run-away guard (two turns); the disk has no end stops
     limit_penalty=100.0,
@@ -238,7 +244,7 @@ ROTARY = Device(
 ALTINO = Device(
     name="AltinoDistance",
     kind="altino",
-    env_id="frictiongym/AltinoDistance-v0",
+    env_id="frictiongym/AltinoDistance-v1",
     title="an Altino car",
     plant=presets.ALTINO_PLANT,
     dt=presets.ALTINO_DT,
@@ -260,6 +266,9 @@ ALTINO = Device(
         "random_steps": {"low": 3.0, "high": 18.0, "period": 5.0},
     },
     error_scale=presets.ALTINO_TARGET_CM,  # cm: the target distance costs 1 per step
+    # 40 cm: beyond the start (30 cm) and the IR's range (21.5 cm), where the readout is 0 and
+    # the car cannot see how far it is; a target of 3-18 cm never costs more from closer.
+    error_cap=40.0,
     effort_weight=0.01,
     limit=0.0,  # touching the wall
     limit_penalty=100.0,
@@ -341,7 +350,7 @@ DEVICES = (ROTARY, ALTINO)
 
 
 def get(spelling: str | Device) -> Device:
-    """Return the device named ``spelling``: its kind, name or env id (or the device itself).
+    """Return the device named ``spelling``: its kind, name or an env id of any version.
 
     Raises
     ------
@@ -353,6 +362,8 @@ def get(spelling: str | Device) -> Device:
     for device in DEVICES:
         if spelling in (device.kind, device.name, device.env_id):
             return device
+        if re.fullmatch(rf"frictiongym/{device.name}-v\d+", str(spelling)):
+            return device  # another version of its env: the same device, another reward
     names = ", ".join(f"{d.kind}, {d.name}, {d.env_id}" for d in DEVICES)
     raise ValueError(f"unknown device {spelling!r}; use one of {names}")
 

@@ -9,7 +9,7 @@ and ``FrictionCompensator(base, model=PATH)`` compensates with it. A file of the
       "us_pos": 0.21, "us_neg": 0.19, "uc_pos": 0.124, "uc_neg": 0.104,
       "v0_pos": 3.015, "v0_neg": 2.53, "viscous": 0.0411,
       "J": 0.007143, "B": 0.0446, "law": "paper", "shape": "linear",
-      "device": "RotaryServo", "env_id": "frictiongym/RotaryServo-v0",
+      "device": "RotaryServo", "env_id": "frictiongym/RotaryServo-v1",
       "units": {"force": "V", "velocity": "rad/s", "viscous": "V·s/rad", "J": "V·s²/rad",
                 "B": "V·s/rad"},
       "uncertainty": {"us_pos": 0.004}, "metadata": {"date": "2024-05-01"},

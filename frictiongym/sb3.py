@@ -9,10 +9,10 @@ over the single envs, and get the same trajectories for the same seeds::
     from frictiongym.residual.vector_env import make_residual_vec
     from frictiongym.sb3 import FrictionVecEnv, make_sb3_vec
 
-    env = make_sb3_vec("frictiongym/RotaryServo-v0", n_envs=32)
+    env = make_sb3_vec("frictiongym/RotaryServo-v1", n_envs=32)
     PPO("MlpPolicy", env, seed=0).learn(100_000)
     # residual policies on the compensated PID:
-    residual = FrictionVecEnv(make_residual_vec("frictiongym/RotaryServo-v0", 32))
+    residual = FrictionVecEnv(make_residual_vec("frictiongym/RotaryServo-v1", 32))
 
 It follows SB3's conventions: ``reset()`` returns the observations only (seeds go through
 ``seed()`` and options through ``set_options()`` first, each used by one reset); an env whose

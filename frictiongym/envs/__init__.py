@@ -18,22 +18,18 @@ if TYPE_CHECKING:
     from frictiongym.envs.altino import AltinoDistanceEnv, AltinoDistanceVectorEnv
     from frictiongym.envs.rotary import RotaryServoEnv, RotaryServoVectorEnv
 
-#: id -> (module, single class, vector class, max_episode_steps). The steps repeat the devices'
-#: ``episode_steps``: importing :mod:`frictiongym.devices` here would load numba with every
-#: ``import gymnasium``; tests/test_devices.py checks that they agree.
-ENV_IDS: dict[str, tuple[str, str, str, int]] = {
-    "frictiongym/RotaryServo-v0": (
-        "frictiongym.envs.rotary",
-        "RotaryServoEnv",
-        "RotaryServoVectorEnv",
-        2500,
-    ),
-    "frictiongym/AltinoDistance-v0": (
-        "frictiongym.envs.altino",
-        "AltinoDistanceEnv",
-        "AltinoDistanceVectorEnv",
-        400,
-    ),
+#: id -> (module, single class, vector class, max_episode_steps, env arguments). The steps
+#: repeat the devices' ``episode_steps``: importing :mod:`frictiongym.devices` here would load
+#: numba with every ``import gymnasium``; tests/test_devices.py checks that they agree. A v1
+#: id is its v0 env with the v1 reward (``terminal_cost=True``: the env classes' "Rewards");
+#: v0 stays for the results made with it.
+ENV_IDS: dict[str, tuple[str, str, str, int, dict[str, Any]]] = {
+    f"frictiongym/{name}-v{version}": (module, f"{name}Env", f"{name}VectorEnv", steps, kwargs)
+    for name, module, steps in (
+        ("RotaryServo", "frictiongym.envs.rotary", 2500),
+        ("AltinoDistance", "frictiongym.envs.altino", 400),
+    )
+    for version, kwargs in ((0, {}), (1, {"terminal_cost": True}))
 }
 
 #: The env classes, imported on first use: class name -> module.
@@ -51,7 +47,7 @@ __all__ = [
 
 def register_envs() -> None:
     """Register the frictiongym ids with Gymnasium (idempotent)."""
-    for env_id, (module, single, vector, steps) in ENV_IDS.items():
+    for env_id, (module, single, vector, steps, kwargs) in ENV_IDS.items():
         if env_id in gym.registry:
             continue
         gym.register(
@@ -59,6 +55,7 @@ def register_envs() -> None:
             entry_point=f"{module}:{single}",
             vector_entry_point=f"{module}:{vector}",
             max_episode_steps=steps,
+            kwargs=kwargs,
         )
 
 

@@ -1,4 +1,4 @@
-"""``frictiongym/AltinoDistance-v0``: hold the Altino car at a distance from a wall, by IR."""
+"""``frictiongym/AltinoDistance-v1``: hold the Altino car at a distance from a wall, by IR."""
 
 from __future__ import annotations
 
@@ -43,9 +43,16 @@ class AltinoDistanceEnv(FrictionEnv):
 
     ## Rewards
 
-    ``-|r - d| / 5 cm - effort_weight * (u / 1000)²`` per step, with the true distance ``d``
-    and the applied command ``u`` (``effort_weight`` 0.01); ``-limit_penalty`` (100) more when
-    the car touches the wall.
+    ``-min(|r - d| / 5 cm, 8) - effort_weight * (u / 1000)²`` per step (v1), with the true
+    distance ``d`` and the applied command ``u`` (``effort_weight`` 0.01): a step costs
+    between 0 and ``c = 8.01`` (the error is charged up to 40 cm, beyond the start and the IR's
+    range). The step that touches the wall costs ``limit_penalty`` (100) more, plus ``c`` for
+    each step left in the episode (``horizon``, by default the episode length: 400 steps, or
+    the vector env's ``max_episode_steps``). So, from any state, driving into the wall scores
+    less than any way of finishing the episode without touching it. With v0 it did not: the
+    contact cost 100 where standing still at the start cost 2000 per episode, so full throttle
+    from the start (the wall in 13 steps, -135) beat holding still; v1 scores that crash -3235.
+    ``terminal_cost=False`` gives v0's reward (no cap, only the penalty at the wall).
 
     ## Starting State
 
@@ -71,7 +78,8 @@ class AltinoDistanceEnv(FrictionEnv):
     ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``params`` (an identified
     ``friction.json`` of this car: its ``J`` is the mass, its ``B`` the total damping, viscous
     slope included; the preset is the file ``J = 2.2``, ``B = viscous = 10.93``),
-    ``effort_weight``, ``safety_limit`` (cm), ``limit_penalty``, ``backend`` (a device:
+    ``effort_weight``, ``safety_limit`` (cm), ``limit_penalty``, ``terminal_cost``,
+    ``horizon``, ``backend`` (a device:
     ``"altino-stock:///dev/rfcomm0"``, ``"serial://..."``, ``"emulator://altino"``; see
     docs/hardware.md), ``log``, ``run_metadata``, ``render_mode``.
 
@@ -80,7 +88,9 @@ class AltinoDistanceEnv(FrictionEnv):
 
     ## Version History
 
-    * v0: first release.
+    * v1: the tracking term capped (40 cm) and the terminal cost of the remaining steps
+      (``terminal_cost=True``), so an episode ended at the wall never pays off.
+    * v0: first release; still registered, for the results made with it.
     """
 
     device = ALTINO

@@ -58,6 +58,8 @@ class EnvCore(Protocol):
     params: DeviceParams | None
     model_friction: FrictionModel
     limit: float
+    #: Largest tracking term of a step's reward, in reward units (inf: none, the v0 reward)
+    tracking_cap: float
     #: Whether a device runs the env (then it is nondeterministic).
     on_device: bool
 
@@ -126,6 +128,7 @@ class Simulation:
     randomize: DomainRandomization | None
     limit: float
     config: FloatArray
+    tracking_cap: float = math.inf
     #: The N plants, stepped by the env kernel (their state has the env's columns after theirs).
     plants: Plant
     on_device = False
@@ -150,6 +153,8 @@ class Simulation:
         effort_weight: float | None = None,
         safety_limit: float | None = None,
         limit_penalty: float | None = None,
+        terminal_cost: bool = False,
+        horizon: int | None = None,
         max_episode_steps: int | None = None,
         parallel: bool | None = None,
     ) -> None:
@@ -170,6 +175,9 @@ class Simulation:
         self.config = self._task_config(
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
         )
+        if horizon is None:  # the episode's length: the vector env's, or the registered one
+            horizon = max_episode_steps or device.episode_steps
+        self._bound_reward(terminal_cost, horizon)
         self.plants = self._new_plants(parallel)
         self._default_x0 = device.direction * device.start
         # A random reference is sampled per env at reset; the zero row only fills the argument.
@@ -216,6 +224,17 @@ class Simulation:
             limit=self.limit,
             max_steps=max_episode_steps or 0,
         )
+
+    def _bound_reward(self, terminal_cost: bool, horizon: int) -> None:
+        """Set the v1 reward's cap and terminal cost (the env classes' "Rewards")."""
+        if not isinstance(terminal_cost, bool | np.bool_):
+            raise TypeError(f"terminal_cost must be True or False, got {terminal_cost!r}")
+        if not isinstance(horizon, numbers.Integral) or horizon < 1:
+            raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
+        if terminal_cost:
+            self.tracking_cap = self.device.error_cap / self.device.error_scale
+            self.config[env_kernel.CONFIG["error_cap"]] = self.tracking_cap
+            self.config[env_kernel.CONFIG["horizon"]] = horizon
 
     def _new_plants(self, parallel: bool | None) -> Plant:
         """Build the N plants on the env kernel; randomised envs get a parameter row each."""

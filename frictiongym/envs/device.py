@@ -116,7 +116,7 @@ class DeviceSession:
             self.task = Simulation(device, 1, dt=dt, **kwargs)
             self.device, self.dt, self.plant = device, dt, self.task.plant
             self.params, self.model_friction = self.task.params, self.task.model_friction
-            self.limit = self.task.limit
+            self.limit, self.tracking_cap = self.task.limit, self.task.tracking_cap
             self.log: RunLog | None = None
             if log is not False:
                 directory = default_directory(device.name) if log is True else Path(log)

@@ -1,4 +1,4 @@
-"""``frictiongym/RotaryServo-v0``: position control of a Quanser QUBE-Servo 2 with friction."""
+"""``frictiongym/RotaryServo-v1``: position control of a Quanser QUBE-Servo 2 with friction."""
 
 from __future__ import annotations
 
@@ -44,9 +44,16 @@ class RotaryServoEnv(FrictionEnv):
 
     ## Rewards
 
-    ``-|r - θ| / 1 rad - effort_weight * (u / 10 V)²`` per step, with the true angle θ and the
-    applied voltage ``u`` (``effort_weight`` 0.01); ``-limit_penalty`` (100) more on the step
-    that crosses the safety limit.
+    ``-min(|r - θ| / 1 rad, 2π) - effort_weight * (u / 10 V)²`` per step (v1), with the true
+    angle θ and the applied voltage ``u`` (``effort_weight`` 0.01): a step costs between 0 and
+    ``c = 2π + 0.01``. The step that crosses the safety limit costs ``limit_penalty`` (100)
+    more, plus ``c`` for each step left in the episode (``horizon``, by default the episode
+    length: 2500 steps, or the vector env's ``max_episode_steps``). So, from any state, running
+    into the limit scores less than any way of finishing the episode without it: an agent can
+    never gain by ending its episode early. With v0 it could: 10 V from rest reached the limit
+    in 79 steps for -415, where holding still scored -2500 (v1 scores that run-away -15 591).
+    ``terminal_cost=False`` gives v0's reward: the tracking term uncapped and only the penalty
+    at the limit.
 
     ## Starting State
 
@@ -60,7 +67,7 @@ class RotaryServoEnv(FrictionEnv):
 
     ## Arguments
 
-    ``gym.make("frictiongym/RotaryServo-v0", **kwargs)`` with
+    ``gym.make("frictiongym/RotaryServo-v1", **kwargs)`` with
 
     * ``friction``: ``"paper"`` (default), ``"none"``, ``"coulomb"``, ``"stribeck"``,
       ``"lugre"`` or a :class:`~frictiongym.friction.FrictionModel`;
@@ -79,7 +86,8 @@ class RotaryServoEnv(FrictionEnv):
       damping ``B``, the friction its law with the viscous slope left out (``B`` includes it),
       and compensators built with ``for_env`` model its friction. Not with ``plant`` or another
       ``friction``; a file identified on another device is refused;
-    * ``effort_weight``, ``safety_limit`` (rad), ``limit_penalty``: reward and safety;
+    * ``effort_weight``, ``safety_limit`` (rad), ``limit_penalty``, ``terminal_cost``,
+      ``horizon``: reward and safety (see Rewards);
     * ``backend``: ``"sim"`` (default), a device URI (``"serial:///dev/ttyACM0"``,
       ``"quanser-hil://qube_servo2_usb/0"``, ``"emulator://rotary"``...) or a
       :class:`~frictiongym.hardware.Backend` (docs/hardware.md); on a device ``log`` (True, a
@@ -96,7 +104,9 @@ class RotaryServoEnv(FrictionEnv):
 
     ## Version History
 
-    * v0: first release.
+    * v1: the tracking term capped at 2π and the terminal cost of the remaining steps
+      (``terminal_cost=True``), so an episode ended by the safety limit never pays off.
+    * v0: first release; still registered, for the results made with it.
     """
 
     device = ROTARY

@@ -33,8 +33,8 @@ least friction of the true law (--friction none: none at all, so it refuses fast
 of the IR range).
 
 The first line of output is the port to connect to. Connect an env to it:
-  gym.make("frictiongym/RotaryServo-v0", backend="serial:///dev/pts/7")
-  gym.make("frictiongym/AltinoDistance-v0", backend="socket://127.0.0.1:5000")
+  gym.make("frictiongym/RotaryServo-v1", backend="serial:///dev/pts/7")
+  gym.make("frictiongym/AltinoDistance-v1", backend="socket://127.0.0.1:5000")
 (backend URIs: serial://PATH?baud=N, socket://HOST:PORT; a pty ignores the baud rate).
 One host at a time, as on a device: a second one that connects to --tcp is disconnected at
 once (it then says so instead of timing out), and a pty is opened exclusively.

@@ -8,7 +8,7 @@ process) or a TCP server (:meth:`Emulator.serve_tcp`, pyserial's ``socket://``):
     from frictiongym.hardware.emulator import Emulator
     with Emulator("rotary") as emu:
         port = emu.serve_pty()                 # "/dev/pts/7"
-        env = gym.make("frictiongym/RotaryServo-v0", backend=f"serial://{port}")
+        env = gym.make("frictiongym/RotaryServo-v1", backend=f"serial://{port}")
 
 Two clocks:
 

@@ -34,7 +34,7 @@ best-scoring policy is saved as best.zip and every score goes to validation.csv.
 Needs the rl extra: pip install "frictiongym[rl]". On this kind of 2-core CPU, PPO runs
 about 1 700 env-steps/s and SAC about 90 (docs/residual.md).
 
-Smoke run (under a minute):  frictiongym train --env frictiongym/RotaryServo-v0 --quick
+Smoke run (under a minute):  frictiongym train --env frictiongym/RotaryServo-v1 --quick
 (--quick: {QUICK_STEPS["ppo"]} PPO steps or {QUICK_STEPS["sac"]} SAC/TD3 steps unless --steps says).
 """
 
@@ -67,7 +67,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--env",
         required=True,
         metavar="ID",
-        help="frictiongym/RotaryServo-v0 or frictiongym/AltinoDistance-v0",
+        help="frictiongym/RotaryServo-v1 or frictiongym/AltinoDistance-v1",
     )
     parser.add_argument(
         "--algo", choices=("ppo", "sac", "td3"), default="ppo", help="SB3 algorithm (default ppo)"

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, SupportsFloat
@@ -140,6 +141,7 @@ class Objective:
     scale: float  #: the residual bound
     residual_cost: float = 0.0
     precision: float | None = None
+    tracking_cap: float = math.inf  #: the env's cap of its tracking term (its v1 reward)
 
     def reward(
         self,
@@ -152,7 +154,8 @@ class Objective:
         shaped: Any = np.asarray(reward, dtype=np.float64)
         if self.precision is not None:
             error = np.abs(np.asarray(reference, np.float64) - np.asarray(position, np.float64))
-            shaped = shaped + error / self.error_scale - np.log1p(error / self.precision)
+            tracking = np.minimum(error / self.error_scale, self.tracking_cap)  # the env's term
+            shaped = shaped + tracking - np.log1p(error / self.precision)
         if self.residual_cost:
             shaped = shaped - self.residual_cost * (np.asarray(residual) / self.scale) ** 2
         return shaped
@@ -193,5 +196,6 @@ def residual_setup(
         scale=config.scale,
         residual_cost=real_number("residual_cost", residual_cost, ">= 0"),
         precision=precision,
+        tracking_cap=env.unwrapped.tracking_cap,
     )
     return controller, config, objective

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 
 from frictiongym import __version__, devices
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_json_atomic
@@ -229,8 +230,7 @@ def _replay_buffer_of(model_path: Path) -> Path:
 
 
 def _versions() -> dict[str, str]:
-    import numpy
-    import stable_baselines3
+    import stable_baselines3  # the rl extra: imported once training runs
     import torch
 
     return {
@@ -238,7 +238,7 @@ def _versions() -> dict[str, str]:
         "stable_baselines3": stable_baselines3.__version__,
         "torch": torch.__version__,
         "gymnasium": gym.__version__,
-        "numpy": numpy.__version__,
+        "numpy": np.__version__,
         "python": platform.python_version(),
     }
 

@@ -40,7 +40,7 @@ same --out keeps the earlier logs. An --out holding an earlier report is refused
 --overwrite replaces it (the report and its figures; the device logs stay); an error or a
 Ctrl-C leaves the report as it was (the device log of the interrupted run stays).
 
-Try it without hardware:  frictiongym sim2real --env frictiongym/RotaryServo-v0 \\
+Try it without hardware:  frictiongym sim2real --env frictiongym/RotaryServo-v1 \\
     --backend emulator://rotary --out sim2real-results
 (the emulator's plant has the paper's friction, so the friction model should close almost
 all of the gap; give the emulator other parameters with emulator://rotary?params=FILE).

@@ -233,7 +233,7 @@ def run_sim2real(
     Parameters
     ----------
     env_id : str
-        ``frictiongym/RotaryServo-v0`` or ``frictiongym/AltinoDistance-v0``.
+        ``frictiongym/RotaryServo-v1`` or ``frictiongym/AltinoDistance-v1``.
     backend : str or Backend
         The device (``emulator://`` in tests).
     controller : {"pid", "compensated"}
