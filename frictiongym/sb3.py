@@ -47,8 +47,9 @@ class FrictionVecEnv(VecEnv):
     Parameters
     ----------
     env : gymnasium.vector.VectorEnv
-        A frictiongym native vector env made with ``autoreset_mode=AutoresetMode.SAME_STEP``,
-        or a ``ResidualVectorEnv`` (:func:`make_sb3_vec` makes either).
+        A frictiongym native vector env made with ``autoreset_mode=AutoresetMode.SAME_STEP``
+        (:func:`make_sb3_vec`), or a ``ResidualVectorEnv``, either possibly under Gymnasium's
+        vector wrappers (``gymnasium.wrappers.vector.RescaleAction``...).
 
     Notes
     -----
@@ -66,7 +67,12 @@ class FrictionVecEnv(VecEnv):
                 f"{mode}: make it with gym.make_vec(..., autoreset_mode=AutoresetMode.SAME_STEP) "
                 "or use make_sb3_vec"
             )
-        self.env: Any = env  # frictiongym's vector envs have call, get_attr and set_attr
+        self.env: Any = env
+        #: What answers call, get_attr and set_attr: the outermost env that has them (the
+        #: native env or the residual env, under Gymnasium's vector wrappers, which do not).
+        self._calls: Any = env
+        while not hasattr(self._calls, "call") and hasattr(self._calls, "env"):
+            self._calls = self._calls.env
         self._actions: npt.NDArray[Any] | None = None
         super().__init__(env.num_envs, env.single_observation_space, env.single_action_space)
 
@@ -119,7 +125,7 @@ class FrictionVecEnv(VecEnv):
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """Return an attribute of the envs ``indices`` (all by default)."""
-        values = self.env.get_attr(attr_name)
+        values = self._calls.get_attr(attr_name)
         return [values[i] for i in self._get_indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
@@ -129,7 +135,7 @@ class FrictionVecEnv(VecEnv):
                 f"set_attr({attr_name!r}): the native vector env's envs share one value of each "
                 "attribute; set it for all of them (indices=None)"
             )
-        self.env.set_attr(attr_name, value)
+        self._calls.set_attr(attr_name, value)
 
     def env_method(
         self,
@@ -139,7 +145,7 @@ class FrictionVecEnv(VecEnv):
         **method_kwargs: Any,
     ) -> list[Any]:
         """Return ``env_i.method_name(*args, **kwargs)`` of the envs ``indices``."""
-        results = self.env.call(method_name, *method_args, **method_kwargs)
+        results = self._calls.call(method_name, *method_args, **method_kwargs)
         return [results[i] for i in self._get_indices(indices)]
 
     def env_is_wrapped(

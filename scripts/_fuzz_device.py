@@ -23,7 +23,7 @@ from frictiongym.hardware import protocol
 from frictiongym.hardware.firmware import Firmware
 from frictiongym.hardware.runlog import read_steps
 
-SERVO, ALTINO = "frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0"
+SERVO, ALTINO = "frictiongym/RotaryServo-v1", "frictiongym/AltinoDistance-v1"
 KIND = {SERVO: "rotary", ALTINO: "altino"}
 #: Longest wait for the emulator to show a zeroed motor after an error, s: well under the
 #: lock-step emulator's 1 s watchdog, which would otherwise stop a motor the host left running.

@@ -13,7 +13,7 @@ so the time per step includes the wrappers, the ``info`` dict and the resets at 
 (counted in that branch, which costs nothing measurable). Variants:
 
 * ``CartPole-v1`` (the reference), with random actions 0/1: it resets every ~22 steps;
-* ``frictiongym/RotaryServo-v0`` and ``frictiongym/AltinoDistance-v0`` with default kwargs
+* ``frictiongym/RotaryServo-v1`` and ``frictiongym/AltinoDistance-v1`` with default kwargs
   (paper friction, quantised sensors, full ``info``), with ``sensor_noise=True`` and with
   ``reference="random_steps"`` plus ``randomize={"friction": (0.5, 1.5), "inertia": (0.8,
   1.2)}`` (so each reset draws from the env's generator);
@@ -90,8 +90,8 @@ from _bench import (
 import frictiongym  # noqa: F401  (registers the frictiongym ids)
 from frictiongym.plants.threads import AdaptiveKernel
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 CARTPOLE = "CartPole-v1"
 OURS = (SERVO, ALTINO)
 

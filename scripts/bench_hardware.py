@@ -32,7 +32,7 @@
 5. With ``--example N``, instead of the above: the README's device example N times, with a
    process spinning on one core, each of the three in a session of its own as from three
    shells: ``frictiongym emulate --device rotary`` and ``frictiongym sim2real --env
-   frictiongym/RotaryServo-v0 --backend serial://PORT --out DIR`` (five runs of 2500 steps).
+   frictiongym/RotaryServo-v1 --backend serial://PORT --out DIR`` (five runs of 2500 steps).
    An example passes when it exits 0 with all five runs complete. ``--no-priority`` runs both
    commands without the right to real-time priority (as root: under ``setpriv`` without
    ``CAP_SYS_NICE``), as an ordinary user would.
@@ -118,7 +118,7 @@ def loop_timing(seconds: float, busy: str, realtime: bool) -> dict[str, object]:
             assert emulator.stdout is not None
             port = emulator.stdout.readline().strip()
             env = gym.make(
-                "frictiongym/RotaryServo-v0",
+                "frictiongym/RotaryServo-v1",
                 backend=port,
                 log=False,
                 max_episode_steps=-1,
@@ -213,7 +213,7 @@ def example(runs: int, priority: bool) -> None:
                         *cli,
                         "sim2real",
                         "--env",
-                        "frictiongym/RotaryServo-v0",
+                        "frictiongym/RotaryServo-v1",
                         "--backend",
                         f"serial://{port}",
                         "--out",

@@ -1,7 +1,7 @@
 """Benchmark: env-steps/s of two plain PPO training loops on frictiongym's envs and on gymnasium's.
 
-What a new user tries first, timed on ``frictiongym/RotaryServo-v0``,
-``frictiongym/AltinoDistance-v0``, ``CartPole-v1`` and ``Pendulum-v1`` in the same rounds:
+What a new user tries first, timed on ``frictiongym/RotaryServo-v1``,
+``frictiongym/AltinoDistance-v1``, ``CartPole-v1`` and ``Pendulum-v1`` in the same rounds:
 
 * **sb3**: Stable-Baselines3 ``PPO("MlpPolicy", gym.make(id))`` with its defaults (2 048-step
   rollouts, 10 epochs of batch 64, torch's default threads); one cycle is
@@ -43,7 +43,7 @@ from _bench import Runner, machine_line, paired_ratios, ratio_stats, source_revi
 
 import frictiongym  # noqa: F401  (registers the frictiongym ids)
 
-OURS = ("frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0")
+OURS = ("frictiongym/RotaryServo-v1", "frictiongym/AltinoDistance-v1")
 REFERENCES = ("CartPole-v1", "Pendulum-v1")
 ENVS = OURS + REFERENCES
 LOOPS = ("sb3", "cleanrl-style")

@@ -49,7 +49,7 @@ def main() -> None:
 def measure(repeats: int) -> None:
     """Print torch's threads after the first env step and the PPO update timings."""
     torch.set_num_threads(1)
-    env = ResidualEnv(gym.make("frictiongym/RotaryServo-v0", reference="random_steps"))
+    env = ResidualEnv(gym.make("frictiongym/RotaryServo-v1", reference="random_steps"))
     before = torch.get_num_threads()
     env.reset(seed=0)
     env.step([0.0])  # the first numba call

@@ -46,11 +46,11 @@ REPO = Path(__file__).resolve().parent.parent
 RUNS: dict[str, tuple[list[str], str]] = {
     "benchmark": (["benchmark", "--no-figures", "--quiet"], "results.json"),
     "identify-rotary": (
-        ["identify", "--env", "frictiongym/RotaryServo-v0", "--no-figures", "--quiet"],
+        ["identify", "--env", "frictiongym/RotaryServo-v1", "--no-figures", "--quiet"],
         "friction.json",
     ),
     "identify-altino": (
-        ["identify", "--env", "frictiongym/AltinoDistance-v0", "--no-figures", "--quiet"],
+        ["identify", "--env", "frictiongym/AltinoDistance-v1", "--no-figures", "--quiet"],
         "friction.json",
     ),
     "tune": (["tune", "--no-figures", "--quiet"], "tune.json"),

@@ -26,7 +26,7 @@ from frictiongym.plants.presets import (
     ALTINO_PAPER_GAINS_KI20,
 )
 
-ALTINO = "frictiongym/AltinoDistance-v0"
+ALTINO = "frictiongym/AltinoDistance-v1"
 STARTS = (2.0, 3.0, 4.0, 6.0, 8.0, 10.0, 15.0, 30.0)
 COMMANDS = (300.0, 600.0, 1000.0)
 

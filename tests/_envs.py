@@ -9,8 +9,8 @@ import numpy as np
 
 import frictiongym  # noqa: F401  (registers the ids)
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 IDS = (SERVO, ALTINO)
 #: Command scale around each device's break-away band (0.2 V; 200 units).
 SCALE = {SERVO: 0.25, ALTINO: 250.0}

@@ -39,7 +39,7 @@ from frictiongym.hardware.guard import STOPPED_SPEED, CarBounds, readout_jump_po
 from frictiongym.hardware.protocol import Status
 from frictiongym.plants._kernel import S_V
 
-ALTINO_ID = "frictiongym/AltinoDistance-v0"
+ALTINO_ID = "frictiongym/AltinoDistance-v1"
 RATE = 50.0  # Hz: fast enough for short tests, within the stock link's 66 Hz
 TARGET_CM = 10.0
 KP = 60.0  # motor units per cm

@@ -59,7 +59,7 @@ def test_records_follow_the_schema(quick):
     assert [r["scenario"] for r in records] == [s.name for s in all_scenarios(quick=True)]
     for r in records:
         assert set(REQUIRED) <= set(r)
-        assert r["env_id"] in ("frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0")
+        assert r["env_id"] in ("frictiongym/RotaryServo-v1", "frictiongym/AltinoDistance-v1")
         assert r["controller"] in ("pid", "compensated-pid")
         assert set(r["gains"]) == {"kp", "ki", "kd"}
         assert isinstance(r["seed"], int)
@@ -139,7 +139,7 @@ def residual_model(tmp_path_factory):
             "--n-envs",
             "1",
             "--env",
-            "frictiongym/RotaryServo-v0",
+            "frictiongym/RotaryServo-v1",
             "--quick",
             "--steps",
             "512",

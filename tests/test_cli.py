@@ -110,7 +110,7 @@ def test_import_frictiongym_alone_is_light():
     ],
 )
 def test_ids_registered_in_either_import_order(order):
-    code = f"{order}\nenv = gym.make('frictiongym/RotaryServo-v0')\nprint(env.reset(seed=0)[0])"
+    code = f"{order}\nenv = gym.make('frictiongym/RotaryServo-v1')\nprint(env.reset(seed=0)[0])"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.returncode == 0, out.stderr
     assert out.stdout.startswith("[")

@@ -26,7 +26,7 @@ from frictiongym.residual import train as train_module
 from frictiongym.sim2real import command as sim2real_command
 from frictiongym.tuning import command as tune_command
 
-SERVO = "frictiongym/RotaryServo-v0"
+SERVO = "frictiongym/RotaryServo-v1"
 EMULATOR = "emulator://rotary?lockstep=1"
 
 #: tool -> (its arguments besides --out, (module, attribute) doing the work, its OUTPUTS)

@@ -21,8 +21,8 @@ from frictiongym.controllers.residual_core import ResidualConfig
 from frictiongym.friction import ROTARY_PAPER, StictionCoulomb
 from frictiongym.plants.presets import ALTINO_PAPER_GAINS_COMPENSATED, ROTARY_PAPER_GAINS
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 
 #: Asymmetric levels and decay speeds, and a viscous slope the compensator must leave out.
 US_POS, US_NEG, UC_POS, UC_NEG, V0_POS, V0_NEG = 0.3, 0.2, 0.1, 0.05, 2.0, 4.0

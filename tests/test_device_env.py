@@ -28,8 +28,8 @@ from frictiongym.plants.presets import (
     ROTARY_PAPER_GAINS,
 )
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 LOCKSTEP = {SERVO: "emulator://rotary?lockstep=1", ALTINO: "emulator://altino?lockstep=1"}
 GAINS = {SERVO: PIDGains(**ROTARY_PAPER_GAINS), ALTINO: PIDGains(**ALTINO_PAPER_GAINS_KI10)}
 

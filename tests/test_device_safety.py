@@ -41,8 +41,8 @@ from frictiongym.hardware.serial_backend import SerialBackend
 from frictiongym.hardware.stop_signals import STOP_SIGNALS
 from frictiongym.plants.presets import ROTARY_PAPER_GAINS
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 STOCK_RATE = 50.0
 LOCKSTEP = "emulator://rotary?lockstep=1"
 

@@ -27,8 +27,8 @@ from frictiongym.residual import ResidualConfig
 from frictiongym.residual.train import env_kwargs, hyperparameters
 
 SPELLINGS = [
-    (ROTARY, ("rotary", "RotaryServo", "frictiongym/RotaryServo-v0")),
-    (ALTINO, ("altino", "AltinoDistance", "frictiongym/AltinoDistance-v0")),
+    (ROTARY, ("rotary", "RotaryServo", "frictiongym/RotaryServo-v1")),
+    (ALTINO, ("altino", "AltinoDistance", "frictiongym/AltinoDistance-v1")),
 ]
 
 

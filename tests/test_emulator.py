@@ -170,12 +170,12 @@ def test_boots_disabled_and_streams_states_at_its_rate(serve):
     [
         (
             "rotary",
-            "frictiongym/RotaryServo-v0",
+            "frictiongym/RotaryServo-v1",
             [1500] * 150 + [-800] * 100 + [300] * 50 + list(range(-3000, 3000, 60)),
         ),
         (
             "altino",
-            "frictiongym/AltinoDistance-v0",
+            "frictiongym/AltinoDistance-v1",
             [400] * 15 + [-200] * 10 + [300] * 15 + [0] * 5,
         ),
     ],
@@ -499,7 +499,7 @@ def test_altino_guard_brakes_through_an_estop(serve, counts):
 )
 def test_the_paper_gains_never_trip_the_guard(gains, compensated):
     env = gym.make(
-        "frictiongym/AltinoDistance-v0", backend="emulator://altino?lockstep=1", log=False
+        "frictiongym/AltinoDistance-v1", backend="emulator://altino?lockstep=1", log=False
     )
     emulator = env.unwrapped.sim.backend.emulator
     controller = PID.for_env(env, PIDGains(**gains))

@@ -139,9 +139,9 @@ def test_end_stop_must_be_a_position() -> None:
 
 @pytest.mark.parametrize("friction", ["paper", "none", "lugre", "stribeck"])
 def test_altino_full_forward_ends_in_contact_at_zero_cm(friction: str) -> None:
-    env = gym.make("frictiongym/AltinoDistance-v0", friction=friction)
+    env = gym.make("frictiongym/AltinoDistance-v1", friction=friction)
     env.reset(seed=0)
-    for _ in range(100):
+    for steps in range(1, 101):
         obs, reward, terminated, _, info = env.step(np.array([1000.0], np.float32))
         assert info["position"] >= 0.0
         if terminated:
@@ -152,15 +152,16 @@ def test_altino_full_forward_ends_in_contact_at_zero_cm(friction: str) -> None:
     assert info["velocity"] == 0.0
     assert obs[0] == 800.0  # the IR's nearest reading
     # The terminal reward describes the contact: the whole target distance, full effort and
-    # the limit penalty.
-    assert reward == pytest.approx(-(5.0 / 5.0 + 0.01 * 1.0 + 100.0), rel=1e-12)
+    # the limit penalty, then (v1) the most each of the 400-episode's remaining steps can cost.
+    rest = (40.0 / 5.0 + 0.01) * (400 - steps)
+    assert reward == pytest.approx(-(5.0 / 5.0 + 0.01 * 1.0 + 100.0 + rest), rel=1e-12)
 
 
 def test_vector_env_contacts_like_the_single_env() -> None:
     vec = gym.make_vec(
-        "frictiongym/AltinoDistance-v0", num_envs=3, vectorization_mode="vector_entry_point"
+        "frictiongym/AltinoDistance-v1", num_envs=3, vectorization_mode="vector_entry_point"
     )
-    single = gym.make("frictiongym/AltinoDistance-v0")
+    single = gym.make("frictiongym/AltinoDistance-v1")
     vec.reset(seed=0)
     single.reset(seed=0)
     for _ in range(30):

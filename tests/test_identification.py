@@ -26,8 +26,8 @@ from frictiongym.params import load_params, save_params
 from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_PAPER_GAINS, ROTARY_PLANT
 from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET, ir_estimate
 
-ROTARY = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+ROTARY = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 
 
 # --- estimators against closed forms ---------------------------------------------------------

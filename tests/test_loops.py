@@ -230,7 +230,7 @@ def assert_same_run(run: Rollout, expected: Rollout) -> None:
 
 
 def test_the_servo_step_is_rollout_of_the_papers_pid_on_the_registered_env():
-    env = gym.make("frictiongym/RotaryServo-v0")
+    env = gym.make("frictiongym/RotaryServo-v1")
     expected = rollout(env, PID.for_env(env, PIDGains(**ROTARY_PAPER_GAINS)))
     assert expected.t.size == 2501  # the registered 5 s episode, rotary_step's default
     assert_same_run(rotary_step(), expected)
@@ -242,7 +242,7 @@ def test_the_servo_step_is_rollout_of_the_papers_pid_on_the_registered_env():
 )
 def test_the_altino_experiment_is_rollout_on_the_registered_env(gains, compensated, start):
     """The paper's runs (and the Ki = 20 run that reaches the wall from 45 cm)."""
-    env = gym.make("frictiongym/AltinoDistance-v0")
+    env = gym.make("frictiongym/AltinoDistance-v1")
     pid = PID.for_env(env, gains)
     # altino_step's compensator: the "command" variant with an exact-zero rest band.
     controller = FrictionCompensator(pid, rest_speed=0.0) if compensated else pid

@@ -1,6 +1,6 @@
 """Checks on a real device: deselected by default, run with a device attached.
 
-    FRICTIONGYM_DEVICE=serial:///dev/ttyACM0 FRICTIONGYM_ENV=frictiongym/RotaryServo-v0 \\
+    FRICTIONGYM_DEVICE=serial:///dev/ttyACM0 FRICTIONGYM_ENV=frictiongym/RotaryServo-v1 \\
         python -m pytest -m hardware tests/test_on_device.py
 
 The servo turns by up to 1 rad; the Altino must stand 25-30 cm from a wall, facing it.
@@ -23,10 +23,10 @@ from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI10, ROTARY_PAPER_GAI
 pytestmark = pytest.mark.hardware
 
 DEVICE = os.environ.get("FRICTIONGYM_DEVICE")
-ENV_ID = os.environ.get("FRICTIONGYM_ENV", "frictiongym/RotaryServo-v0")
+ENV_ID = os.environ.get("FRICTIONGYM_ENV", "frictiongym/RotaryServo-v1")
 GAINS = {
-    "frictiongym/RotaryServo-v0": ROTARY_PAPER_GAINS,
-    "frictiongym/AltinoDistance-v0": ALTINO_PAPER_GAINS_KI10,
+    "frictiongym/RotaryServo-v1": ROTARY_PAPER_GAINS,
+    "frictiongym/AltinoDistance-v1": ALTINO_PAPER_GAINS_KI10,
 }
 
 
@@ -47,7 +47,7 @@ def test_a_pid_step_on_the_device_moves_toward_the_target(env):
         obs, _, terminated, _, _ = env.step(pid(obs))
         if terminated:
             break
-    column = 0 if ENV_ID.endswith("RotaryServo-v0") else 1
+    column = 0 if ENV_ID.endswith(("RotaryServo-v0", "RotaryServo-v1")) else 1
     target = obs[-1]
     assert abs(obs[column] - target) < 0.5 * abs(start[column] - target)
     timing = env.unwrapped.sim.timing()

@@ -30,8 +30,8 @@ from frictiongym.params import (
 from frictiongym.plants import PlantParams
 from frictiongym.plants.presets import ALTINO_PLANT, ROTARY_PAPER_GAINS, ROTARY_PLANT
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 
 #: A servo "identified" a little off the paper's preset, so that file and preset differ.
 SERVO_LAW = StictionCoulomb(

@@ -109,7 +109,7 @@ def test_batched_direction_and_masked_reset():
     assert actions.shape == (3, 1)
 
 
-@pytest.mark.parametrize("env_id", ["frictiongym/RotaryServo-v0", "frictiongym/AltinoDistance-v0"])
+@pytest.mark.parametrize("env_id", ["frictiongym/RotaryServo-v1", "frictiongym/AltinoDistance-v1"])
 def test_for_env_reads_the_loop(env_id):
     env = gym.make(env_id)
     pid = PID.for_env(env, PIDGains(kp=1.0))

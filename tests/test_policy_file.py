@@ -22,7 +22,7 @@ from frictiongym.controllers.policy_file import UnsafeModelError
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "models" / "residual" / "rotary.zip"
-SERVO = "frictiongym/RotaryServo-v0"
+SERVO = "frictiongym/RotaryServo-v1"
 
 
 class Touch:

@@ -289,7 +289,7 @@ def test_from_uri() -> None:
 def test_uri_and_env(board: FakeBoard) -> None:
     backend = resolve_backend("quanser-hil://qube_servo2_usb/0?rate=500", "rotary")
     assert isinstance(backend, QuanserHILBackend)
-    env = gym.make("frictiongym/RotaryServo-v0", backend=backend, reference=1.0)
+    env = gym.make("frictiongym/RotaryServo-v1", backend=backend, reference=1.0)
     obs, _ = env.reset()
     for _ in range(200):
         obs, _, terminated, _, info = env.step([5.0 * (1.0 - obs[0]) - 0.2 * obs[1]])

@@ -106,7 +106,7 @@ def test_captions_print_time_and_command_in_their_corner():
 
 
 def test_env_frames_carry_their_captions():
-    env = gym.make("frictiongym/AltinoDistance-v0", render_mode="rgb_array")
+    env = gym.make("frictiongym/AltinoDistance-v1", render_mode="rgb_array")
     env.reset(seed=0)
     first = env.render()
     env.step(np.array([0.0], np.float32))

@@ -15,8 +15,8 @@ from frictiongym.controllers import ResidualController
 from frictiongym.residual import ResidualConfig, ResidualEnv
 from frictiongym.residual.selection import Validation
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 
 
 class ConstantPolicy:

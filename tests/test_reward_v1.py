@@ -38,7 +38,7 @@ def test_running_into_the_limit_is_never_better_than_finishing_the_episode(env_i
     """From the state after ``prefix`` steps, running away to the limit scores less than
     holding still for the rest of the episode (whatever that costs)."""
     steps = gym.spec(env_id).max_episode_steps
-    start = commands(env_id.replace("-v1", "-v0"), prefix + 1, seed=3)[:prefix]
+    start = commands(env_id, prefix + 1, seed=3)[:prefix]
     runaway = np.full((steps, 1), RUNAWAY[env_id], np.float32)
     still = np.zeros((steps, 1), np.float32)
     crash, crashed = rewards(gym.make(env_id), 0, np.concatenate([start, runaway]))
@@ -71,7 +71,7 @@ def test_a_step_costs_at_most_the_cap_however_far_from_the_reference(env_id):
 
 @pytest.mark.parametrize(("old", "new"), list(zip(V0, V1, strict=True)))
 def test_v1_differs_from_v0_only_where_the_cap_applies(old, new):
-    actions = commands(old, 300, seed=8)
+    actions = commands(new, 300, seed=8)
     cap = devices.get(new).error_cap
     runs = []
     for env_id in (old, new):
@@ -89,10 +89,14 @@ def test_v1_differs_from_v0_only_where_the_cap_applies(old, new):
 
 
 @pytest.mark.parametrize("env_id", V1)
-def test_the_vector_env_pays_the_same_terminal_cost_over_its_own_episode_length(env_id):
+def test_the_vector_env_pays_the_same_terminal_cost_over_a_given_horizon(env_id):
     steps = 50
     vec = gym.make_vec(
-        env_id, num_envs=2, vectorization_mode="vector_entry_point", max_episode_steps=steps
+        env_id,
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        max_episode_steps=steps,
+        horizon=steps,
     )
     single = gym.make(env_id, max_episode_steps=steps, horizon=steps)
     push = np.full((steps, 2, 1), RUNAWAY[env_id], np.float32)

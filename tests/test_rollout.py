@@ -20,8 +20,8 @@ from frictiongym.envs import RotaryServoEnv, RotaryServoVectorEnv
 from frictiongym.metrics import response_metrics
 from frictiongym.plants.presets import ALTINO_PAPER_GAINS_KI10, ROTARY_PAPER_GAINS
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 SERVO_GAINS = PIDGains(**ROTARY_PAPER_GAINS)
 #: The per-sample signals and per-env flags (``direction`` and ``settings`` describe the run).
 FIELDS = [f.name for f in dataclasses.fields(Rollout) if f.name not in ("direction", "settings")]

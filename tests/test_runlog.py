@@ -18,7 +18,7 @@ from frictiongym import _io
 from frictiongym.hardware import runlog
 from frictiongym.hardware.runlog import RunLog, default_directory, read_steps
 
-SERVO = "frictiongym/RotaryServo-v0"
+SERVO = "frictiongym/RotaryServo-v1"
 NAMES = ("angle",)
 ROW = (0, 0, 0.0, 1, 2, 3, 4, 0, 0, 0, 0.5, 0.5, 0.1, 0.1, 0.0, 0)
 

@@ -132,7 +132,7 @@ def test_bench_envs_quick_reports_both_headline_ratios():
     out = done.stdout
     assert "single env, time per step ours / CartPole-v1 (target <= 1)" in out
     assert "env-steps/s ours / CartPoleVectorEnv (target >= 1.5)" in out
-    for name in ("RotaryServo-v0", "AltinoDistance-v0"):
+    for name in ("RotaryServo-v1", "AltinoDistance-v1"):
         assert name in out
     assert "| comparison | target |" in out  # the markdown tables
 

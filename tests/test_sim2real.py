@@ -19,8 +19,8 @@ from frictiongym.hardware.errors import DeviceTimeoutError
 from frictiongym.metrics import response_metrics
 from frictiongym.sim2real import fit_percent, rmse, run_sim2real, write_report
 
-SERVO = "frictiongym/RotaryServo-v0"
-ALTINO = "frictiongym/AltinoDistance-v0"
+SERVO = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
 
 
 def test_rmse_and_fit_are_exact_on_known_signals():

@@ -20,16 +20,16 @@ if TYPE_CHECKING:
 
 #: id -> (module, single class, vector class, max_episode_steps, env arguments). The steps
 #: repeat the devices' ``episode_steps``: importing :mod:`frictiongym.devices` here would load
-#: numba with every ``import gymnasium``; tests/test_devices.py checks that they agree. A v1
-#: id is its v0 env with the v1 reward (``terminal_cost=True``: the env classes' "Rewards");
-#: v0 stays for the results made with it.
+#: numba with every ``import gymnasium``; tests/test_devices.py checks that they agree. The
+#: classes implement v1; the v0 ids, kept for the results made with them, have v0's reward
+#: (``terminal_cost=False``: the env classes' "Rewards").
 ENV_IDS: dict[str, tuple[str, str, str, int, dict[str, Any]]] = {
     f"frictiongym/{name}-v{version}": (module, f"{name}Env", f"{name}VectorEnv", steps, kwargs)
     for name, module, steps in (
         ("RotaryServo", "frictiongym.envs.rotary", 2500),
         ("AltinoDistance", "frictiongym.envs.altino", 400),
     )
-    for version, kwargs in ((0, {}), (1, {"terminal_cost": True}))
+    for version, kwargs in ((0, {"terminal_cost": False}), (1, {}))
 }
 
 #: The env classes, imported on first use: class name -> module.

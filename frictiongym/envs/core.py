@@ -153,7 +153,7 @@ class Simulation:
         effort_weight: float | None = None,
         safety_limit: float | None = None,
         limit_penalty: float | None = None,
-        terminal_cost: bool = False,
+        terminal_cost: bool = True,
         horizon: int | None = None,
         max_episode_steps: int | None = None,
         parallel: bool | None = None,
@@ -175,9 +175,9 @@ class Simulation:
         self.config = self._task_config(
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
         )
-        if horizon is None:  # the episode's length: the vector env's, or the registered one
-            horizon = max_episode_steps or device.episode_steps
-        self._bound_reward(terminal_cost, horizon)
+        # The registered episode length by default, for the single env (which cannot see its
+        # TimeLimit) and the vector env alike: their rewards stay equal.
+        self._bound_reward(terminal_cost, device.episode_steps if horizon is None else horizon)
         self.plants = self._new_plants(parallel)
         self._default_x0 = device.direction * device.start
         # A random reference is sampled per env at reset; the zero row only fills the argument.
