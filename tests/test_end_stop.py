@@ -141,7 +141,8 @@ def test_end_stop_must_be_a_position() -> None:
 def test_altino_full_forward_ends_in_contact_at_zero_cm(friction: str) -> None:
     env = gym.make("frictiongym/AltinoDistance-v1", friction=friction)
     env.reset(seed=0)
-    for steps in range(1, 101):
+    steps = 0
+    for steps in range(1, 101):  # noqa: B007  (the count is read after the loop)
         obs, reward, terminated, _, info = env.step(np.array([1000.0], np.float32))
         assert info["position"] >= 0.0
         if terminated:

@@ -47,11 +47,12 @@ class AltinoDistanceEnv(FrictionEnv):
     distance ``d`` and the applied command ``u`` (``effort_weight`` 0.01): a step costs
     between 0 and ``c = 8.01`` (the error is charged up to 40 cm, beyond the start and the IR's
     range). The step that touches the wall costs ``limit_penalty`` (100) more, plus ``c`` for
-    each step left in the episode (``horizon``, by default the registered episode length,
-    400 steps: give your own with ``max_episode_steps``). So, from any state, driving into the wall scores
-    less than any way of finishing the episode without touching it. With v0 it did not: the
-    contact cost 100 where standing still at the start cost 2000 per episode, so full throttle
-    from the start (the wall in 13 steps, -135) beat holding still; v1 scores that crash -3235.
+    each step left in the episode (``horizon``: the registered episode length, 400 steps,
+    unless given; give it with another ``max_episode_steps``). So, from any state, driving into
+    the wall scores less than any way of finishing the episode without touching it. With v0
+    it did not: the contact cost 100 where standing still at the start cost 2000 per episode,
+    so full throttle from the start (the wall in 13 steps, -135) beat holding still; v1 scores
+    that crash -3235.
     ``terminal_cost=False`` gives v0's reward (no cap, only the penalty at the wall).
 
     ## Starting State

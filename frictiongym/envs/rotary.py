@@ -47,11 +47,12 @@ class RotaryServoEnv(FrictionEnv):
     ``-min(|r - θ| / 1 rad, 2π) - effort_weight * (u / 10 V)²`` per step (v1), with the true
     angle θ and the applied voltage ``u`` (``effort_weight`` 0.01): a step costs between 0 and
     ``c = 2π + 0.01``. The step that crosses the safety limit costs ``limit_penalty`` (100)
-    more, plus ``c`` for each step left in the episode (``horizon``, by default the registered
-    episode length, 2500 steps: give your own with ``max_episode_steps``). So, from any state, running
-    into the limit scores less than any way of finishing the episode without it: an agent can
-    never gain by ending its episode early. With v0 it could: 10 V from rest reached the limit
-    in 79 steps for -415, where holding still scored -2500 (v1 scores that run-away -15 591).
+    more, plus ``c`` for each step left in the episode (``horizon``: the registered episode
+    length, 2500 steps, unless given; give it with another ``max_episode_steps``). So, from any
+    state, running into the limit scores less than any way of finishing the episode without
+    it: an agent never gains by ending its episode early. With v0 it could: 10 V from rest
+    reached the limit in 79 steps for -415, where holding still scored -2500 (v1 scores that
+    run-away -15 591).
     ``terminal_cost=False`` gives v0's reward: the tracking term uncapped and only the penalty
     at the limit.
 
