@@ -46,6 +46,7 @@ LAYERS: dict[str, int] = {
     "frictiongym.sim2real": 4,
     "frictiongym.loops": 4,
     "frictiongym.sb3": 3,
+    "frictiongym.zoo": 4,
     "frictiongym.cli": 5,
 }
 

@@ -16,7 +16,9 @@ Train a residual policy with Stable-Baselines3 (SAC, TD3 or PPO): the applied co
 the paper's friction-compensated PID plus a learned correction bounded by --scale times the
 action limit (default 10 % for the servo, 20 % for the Altino). Training runs on random
 set-point steps, on plants whose friction, inertia, damping and sensor gain are drawn anew
-at every episode (--randomize default), K single envs under SB3's DummyVecEnv (seeds S+i).
+at every episode (--randomize default), K envs of the native vector env stepped in one
+compiled call (seeds S+i; K = 32 for PPO, 1 for SAC and TD3 by default). --max-time SECONDS
+stops the run in time for a last validation and keeps the best policy.
 
 Writes to --out: model.zip (load it with
 frictiongym.controllers.ResidualController.load(PATH, env)), train.json (settings, wall
@@ -31,8 +33,8 @@ Every --validate-every steps the policy runs the benchmark's step on validation 
 (seeds 500 and up; the benchmark holds out 1000 and up) next to the compensated PID; the
 best-scoring policy is saved as best.zip and every score goes to validation.csv.
 
-Needs the rl extra: pip install "frictiongym[rl]". On this kind of 2-core CPU, PPO runs
-about 1 700 env-steps/s and SAC about 90 (docs/residual.md).
+Needs the rl extra: pip install "frictiongym[rl]". Training speeds and the time a residual
+takes to beat the compensated PID are in docs/residual.md.
 
 Smoke run (under a minute):  frictiongym train --env frictiongym/RotaryServo-v1 --quick
 (--quick: {QUICK_STEPS["ppo"]} PPO steps or {QUICK_STEPS["sac"]} SAC/TD3 steps unless --steps says).
@@ -67,7 +69,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--env",
         required=True,
         metavar="ID",
-        help="frictiongym/RotaryServo-v1 or frictiongym/AltinoDistance-v1",
+        help="a frictiongym id: frictiongym/RotaryServo-v1 or frictiongym/AltinoDistance-v1",
     )
     parser.add_argument(
         "--algo", choices=("ppo", "sac", "td3"), default="ppo", help="SB3 algorithm (default ppo)"
