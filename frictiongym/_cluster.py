@@ -11,7 +11,9 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
 import socket
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -72,6 +74,14 @@ def _package_root() -> str:
     return str(Path(__file__).resolve().parent.parent)
 
 
+def _termination_handlers() -> dict[int, Any]:
+    """Return the Python handlers of SIGTERM and SIGHUP (none outside the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    numbers = [getattr(signal, name, None) for name in ("SIGTERM", "SIGHUP")]
+    return {n: signal.getsignal(n) for n in numbers if n is not None}
+
+
 @contextlib.contextmanager
 def ray_session(
     command: str, address: str | None = None, runtime_env: dict[str, Any] | None = None
@@ -100,6 +110,7 @@ def ray_session(
         paths = [_package_root(), os.environ.get("PYTHONPATH", "")]
         variables = {"PYTHONPATH": os.pathsep.join(p for p in paths if p)}
         env["env_vars"] = {**variables, **env.get("env_vars", {})}
+    handlers = _termination_handlers()
     try:
         ray.init(
             address=address,
@@ -113,6 +124,8 @@ def ray_session(
         where = f"at {address}" if address else "locally"
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         raise ClusterError(f"cannot start or join Ray {where}: {first}") from None
+    for number, handler in handlers.items():  # ray.init takes SIGTERM: give it back, so a
+        signal.signal(number, handler)  # command ends on it as on a Ctrl-C (frictiongym.cli)
     try:
         yield ray
     finally:

@@ -238,18 +238,23 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym sweep") -> in
         with output:  # trials stay on an error or a Ctrl-C, for --resume
             if args.resume:
                 _check_resume(args.out, record)
-            with ray_session("frictiongym sweep", args.address, args.runtime_env):
-                output.replace_earlier()
-                if not args.resume:
-                    write_json_atomic(args.out / "sweep.json", record)
-                errors = run_trials(
-                    trials,
-                    args.out,
-                    args.cpus_per_trial,
-                    args.retries,
-                    args.resume,
-                    args.quiet,
-                )
+            try:
+                with ray_session("frictiongym sweep", args.address, args.runtime_env):
+                    output.replace_earlier()
+                    if not args.resume:
+                        write_json_atomic(args.out / "sweep.json", record)
+                    errors = run_trials(
+                        trials,
+                        args.out,
+                        args.cpus_per_trial,
+                        args.retries,
+                        args.resume,
+                        args.quiet,
+                    )
+            except KeyboardInterrupt as interrupt:  # the trials stay: say so, not "as it was"
+                if not interrupt.args and (args.out / "sweep.json").is_file():
+                    interrupt.args = (f"the trials so far are in {args.out}; --resume continues",)
+                raise
             written = write_reports(
                 collect(trials, errors), args.out, command_line, record["heldout"]
             )
