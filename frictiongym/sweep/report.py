@@ -169,7 +169,12 @@ def markdown(outcomes: Sequence[Outcome], command_line: str, heldout: dict[str, 
             f"## Best: `{best.trial.name}`",
             "",
             f"Copied to `best/` ({(best.heldout or {}).get('policy')}, train.json, heldout.json). "
-            "The same policy, trained outside the sweep:",
+            "The same policy, trained outside the sweep"
+            + (
+                " (this trial was resumed from a checkpoint: an uninterrupted run may differ):"
+                if (best.summary or {}).get("resumed_from")
+                else ":"
+            ),
             "",
             "```bash",
             best.trial.settings.command_line,
