@@ -84,7 +84,10 @@ def _termination_handlers() -> dict[int, Any]:
 
 @contextlib.contextmanager
 def ray_session(
-    command: str, address: str | None = None, runtime_env: dict[str, Any] | None = None
+    command: str,
+    address: str | None = None,
+    runtime_env: dict[str, Any] | None = None,
+    option: str = "--address",
 ) -> Iterator[Any]:
     """Yield ``ray`` connected to a cluster: a local one started here, or ``address``.
 
@@ -92,7 +95,8 @@ def ray_session(
     ``frictiongym`` as this process (its folder leads their ``PYTHONPATH``). A cluster's
     workers need the package installed, or shipped with ``runtime_env`` (docs/cluster.md).
     Ray started here is shut down after, and a Ray already initialised in this process
-    (a test's, a notebook's) is used as it is and left running.
+    (a test's, a notebook's) is used as it is and left running. ``option`` names the
+    address's option in messages.
 
     Raises
     ------
@@ -104,7 +108,7 @@ def ray_session(
         yield ray
         return
     if address is not None:
-        check_reachable(address)
+        check_reachable(address, option)
     env = dict(runtime_env or {})
     if address is None:
         paths = [_package_root(), os.environ.get("PYTHONPATH", "")]

@@ -153,6 +153,10 @@ def test_bad_sweep_options_exit_2_before_ray_starts(tmp_path, capsys):
         assert says in err, err
         assert err.count("\n") == 1, err
         assert time.perf_counter() - started < 15
+    unreachable = ["--ray", f"127.0.0.1:{_free_port()}", "--out", str(tmp_path / "tune")]
+    assert main(["tune", "--samples", "10", *unreachable]) == 2
+    assert "cannot reach a Ray cluster at --ray" in capsys.readouterr().err
+    assert not (tmp_path / "tune").exists()
     (out / "trials").mkdir(parents=True)
     assert main(["sweep", *TINY, "--out", str(out)]) == 2
     assert "--overwrite to replace them, --resume to continue them" in capsys.readouterr().err

@@ -209,7 +209,7 @@ def _chunk_map(address: str | None) -> Iterator[tuple[ChunkMap | None, dict[str,
     if address is None:
         yield None, {}
         return
-    with ray_session("frictiongym tune --ray", address or None) as ray:
+    with ray_session("frictiongym tune --ray", address or None, option="--ray") as ray:
         cpus = int(ray.cluster_resources().get("CPU", 0))
         yield functools.partial(ordered_map, ray), {"address": address or "local", "cpus": cpus}
 
