@@ -31,6 +31,7 @@ ROOT_LAZY: dict[str, str] = frictiongym._LAZY
 LAYERS: dict[str, int] = {
     "frictiongym._validation": 0,
     "frictiongym._io": 0,
+    "frictiongym._cluster": 0,
     "frictiongym.metrics": 0,
     "frictiongym.friction": 0,
     "frictiongym.plants": 1,
@@ -44,6 +45,7 @@ LAYERS: dict[str, int] = {
     "frictiongym.tuning": 4,
     "frictiongym.residual": 4,
     "frictiongym.sim2real": 4,
+    "frictiongym.sweep": 4,
     "frictiongym.loops": 4,
     "frictiongym.sb3": 3,
     "frictiongym.zoo": 4,

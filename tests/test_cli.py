@@ -64,7 +64,7 @@ def test_output_piped_into_a_closed_pipe_is_not_an_error():
     assert "Traceback" not in stderr
 
 
-HEAVY = ("numba", "scipy", "gymnasium", "matplotlib", "torch")
+HEAVY = ("numba", "scipy", "gymnasium", "matplotlib", "torch", "ray")
 
 
 def _imported(code_or_args):

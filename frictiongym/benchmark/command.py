@@ -27,9 +27,8 @@ from frictiongym.benchmark.scenarios import (
     NOISE_SEEDS,
     Scenario,
     all_scenarios,
-    residual_scenarios,
+    model_scenarios,
 )
-from frictiongym.controllers.residual import read_metadata
 
 DESCRIPTION = """\
 Run the paper's experiments (PID vs PID + friction compensator, with the paper's gains) and
@@ -157,15 +156,9 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
         models[device] = path
     out = []
     for device, path in models.items():
-        meta = read_metadata(path)  # FileNotFoundError / ValueError with a message
-        if meta["config"]["device"] != devices.get(device).name:
-            raise ValueError(
-                f"--residual {device}={path}: the model is for "
-                f"{meta['config']['device']}, not for {device}"
-            )
-        randomize = meta.get("env_kwargs", {}).get("randomize")
         check_seed(args.heldout_seed, "--heldout-seed")
-        out += residual_scenarios(device, path, plants, randomize, args.heldout_seed)
+        # FileNotFoundError / ValueError with a message
+        out += model_scenarios(device, path, plants, args.heldout_seed)
     return out
 
 

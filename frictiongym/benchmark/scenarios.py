@@ -14,7 +14,7 @@ from typing import Any
 from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
 from frictiongym.controllers.compensation import MODES, Mode
-from frictiongym.controllers.residual import ResidualController
+from frictiongym.controllers.residual import ResidualController, read_metadata
 from frictiongym.devices import ALTINO, DEVICES, ROTARY
 from frictiongym.friction import FRICTION_NAMES
 
@@ -277,6 +277,29 @@ def residual_scenarios(
                 )
             )
     return out
+
+
+def model_scenarios(
+    device: str, model: str, plants: int = HELDOUT_PLANTS, first_seed: int = HELDOUT_SEED
+) -> list[Scenario]:
+    """Return :func:`residual_scenarios` of a model zip, on plants from its training ranges.
+
+    What ``frictiongym benchmark --residual DEVICE=MODEL`` runs (and ``frictiongym sweep``
+    for each trial's ``best.zip``).
+
+    Raises
+    ------
+    FileNotFoundError, ValueError
+        For a missing or unreadable model, or one trained on another device than ``device``.
+    """
+    meta = read_metadata(model)
+    if meta["config"]["device"] != devices.get(device).name:
+        raise ValueError(
+            f"--residual {device}={model}: the model is for {meta['config']['device']}, "
+            f"not for {device}"
+        )
+    randomize = meta.get("env_kwargs", {}).get("randomize")
+    return residual_scenarios(device, model, plants, randomize, first_seed)
 
 
 def all_scenarios(quick: bool = False) -> list[Scenario]:

@@ -65,6 +65,24 @@ def _hyperparameter(text: str) -> tuple[str, Any]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
+    add_training_arguments(parser)
+    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default 0)")
+    add_output_arguments(parser, "residual-results", "the model, logs and checkpoints")
+    parser.add_argument(
+        "--resume",
+        nargs="?",
+        const="latest",
+        metavar="PATH",
+        help="continue training: from the newest checkpoint in --out (no PATH) or a model zip",
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress bar; only errors")
+
+
+def add_training_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the options that say what is trained (all but seed, output, resume and quiet).
+
+    ``frictiongym sweep`` takes them too, for every trial (:func:`settings_from_args`).
+    """
     parser.add_argument(
         "--env",
         required=True,
@@ -80,8 +98,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="total env-steps of the model (default 200000; with --quick see above)",
     )
-    parser.add_argument("--seed", type=int, default=0, metavar="S", help="seed (default 0)")
-    add_output_arguments(parser, "residual-results", "the model, logs and checkpoints")
     parser.add_argument(
         "--randomize",
         choices=("none", "default"),
@@ -96,13 +112,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="residual bound as a fraction of the action limit (default 0.1 servo, 0.2 Altino)",
     )
     parser.add_argument("--quick", action="store_true", help="a smoke run of under a minute")
-    parser.add_argument(
-        "--resume",
-        nargs="?",
-        const="latest",
-        metavar="PATH",
-        help="continue training: from the newest checkpoint in --out (no PATH) or a model zip",
-    )
     parser.add_argument(
         "--n-envs",
         type=_positive,
@@ -170,31 +179,41 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="torch threads (default 1 for PPO, whose networks are too small to gain from "
         "more; every core for SAC and TD3). Give 1 to run trainings side by side",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress bar; only errors")
 
 
-def run(args: argparse.Namespace, command_line: str) -> int:
-    """Train; return the exit status (2 for bad input)."""
-    settings = TrainSettings(
+def settings_from_args(args: argparse.Namespace, **given: Any) -> TrainSettings:
+    """Return the :class:`TrainSettings` of the options of :func:`add_training_arguments`.
+
+    ``given`` sets the other fields (``seed``, ``out``, ``resume``...).
+    """
+    return TrainSettings(
         env_id=args.env,
         algo=args.algo,
         steps=args.steps,
-        seed=args.seed,
-        out=args.out,
         randomize=args.randomize,
         quick=args.quick,
-        resume=args.resume,
         n_envs=args.n_envs,
         max_time=args.max_time,
         checkpoint_every=args.checkpoint_every,
         scale=args.scale,
-        quiet=args.quiet,
         reward=args.reward,
         residual_cost=args.residual_cost,
         hyperparameters=dict(args.sb3),
         validate_every=args.validate_every or None,
         validation_plants=args.validation_plants,
         threads=args.threads,
+        **given,
+    )
+
+
+def run(args: argparse.Namespace, command_line: str) -> int:
+    """Train; return the exit status (2 for bad input)."""
+    settings = settings_from_args(
+        args,
+        seed=args.seed,
+        out=args.out,
+        resume=args.resume,
+        quiet=args.quiet,
         overwrite=args.overwrite,
         command_line=command_line,
     )

@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
+import functools
 import math
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 
+from frictiongym._cluster import ClusterError, ordered_map, ray_session
 from frictiongym._io import OutputDir, add_output_arguments, write_json_atomic
 from frictiongym._validation import check_seed
 from frictiongym.devices import ROTARY
@@ -19,6 +23,7 @@ from frictiongym.tuning.search import (
     DEFAULT_HORIZON,
     DEFAULT_SAMPLES,
     RULES,
+    ChunkMap,
     TuneResult,
     random_search,
 )
@@ -45,6 +50,11 @@ software version, wall time) and tune.png (the feasible set in the three gain pl
 feasible step responses). {DEFAULT_SAMPLES} samples take about a second on 2 cores. An --out
 holding an earlier run's results is refused unless --overwrite replaces them (both); an error
 or a Ctrl-C leaves --out as it was.
+
+--ray [ADDRESS] runs the chunks of --chunk candidates as Ray tasks: on a local Ray started for
+the command (shut down after), or on the cluster at ADDRESS. The result is the serial run's
+(tune.json equal but for its timing and provenance: wall_time_s, command, ray). Needs the
+cluster extra: pip install "frictiongym[cluster]" (docs/cluster.md).
 """
 
 
@@ -115,6 +125,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "provably failed (same feasible set, about 50x slower; gives every candidate's "
         "per-spec failures in tune.json)",
     )
+    parser.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="ADDRESS",
+        help="run the chunks as Ray tasks: on a local Ray (no ADDRESS) or the cluster at "
+        "ADDRESS (HOST:PORT, ray://HOST:PORT or auto); same result as without",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip tune.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
@@ -181,6 +200,20 @@ def summary(result: TuneResult) -> str:
     return "\n".join([head, *lines])
 
 
+@contextlib.contextmanager
+def _chunk_map(address: str | None) -> Iterator[tuple[ChunkMap | None, dict[str, object]]]:
+    """Yield how the chunks run (None: here, one after the other) and its record for tune.json.
+
+    With ``address`` (``""``: a local Ray), a Ray session for the command's duration.
+    """
+    if address is None:
+        yield None, {}
+        return
+    with ray_session("frictiongym tune --ray", address or None, option="--ray") as ray:
+        cpus = int(ray.cluster_resources().get("CPU", 0))
+        yield functools.partial(ordered_map, ray), {"address": address or "local", "cpus": cpus}
+
+
 def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int:
     """Run the tuner for parsed ``args``; return the exit status."""
     try:
@@ -190,30 +223,40 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
         return 2
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
-    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
-        with tqdm(
-            total=args.samples,
-            desc="tune",
-            unit="cand",
-            unit_scale=True,
-            disable=args.quiet,
-            file=sys.stderr,
-        ) as bar:
-            result = random_search(
-                args.samples,
-                args.seed,
-                model,
-                horizon=args.horizon,
-                rule=args.rule,
-                chunk=args.chunk,
-                early_stop=not args.full,
-                progress=bar.update,
-            )
-        result.extra["command"] = command_line
-        write_json_atomic(out.path / "tune.json", result.record(), indent=1, allow_nan=False)
-        if not args.no_figures:
-            plot_feasible_set(result, out.path / "tune.png")
-        written = out.commit()
+    try:
+        with (
+            OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out,
+            _chunk_map(args.ray) as (map_chunks, ray_record),
+        ):
+            with tqdm(
+                total=args.samples,
+                desc="tune",
+                unit="cand",
+                unit_scale=True,
+                disable=args.quiet,
+                file=sys.stderr,
+            ) as bar:
+                result = random_search(
+                    args.samples,
+                    args.seed,
+                    model,
+                    horizon=args.horizon,
+                    rule=args.rule,
+                    chunk=args.chunk,
+                    early_stop=not args.full,
+                    progress=bar.update,
+                    map_chunks=map_chunks,
+                )
+            result.extra["command"] = command_line
+            if ray_record:
+                result.extra["ray"] = ray_record
+            write_json_atomic(out.path / "tune.json", result.record(), indent=1, allow_nan=False)
+            if not args.no_figures:
+                plot_feasible_set(result, out.path / "tune.png")
+            written = out.commit()
+    except ClusterError as error:  # before any work: --out is left as it was
+        print(f"error: {error}", file=sys.stderr)
+        return 2
     if not args.quiet:
         print(summary(result))
         print(

@@ -7,14 +7,16 @@ chooses one of them by a stated rule (the paper does not say how it chose its ga
 328 feasible candidates). The paper's own gains are evaluated in the same model alongside.
 
 All samples are drawn before the first chunk runs, so the result does not depend on the chunk
-size; the same seed, model and options give the same result.
+size; the same seed, model and options give the same result. The chunks are independent, so
+they may run anywhere (``map_chunks``: ``frictiongym tune --ray`` runs them as Ray tasks) with
+the same result.
 """
 
 from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -194,6 +196,27 @@ def _finite(value: float) -> float | None:
     return v if math.isfinite(v) else None
 
 
+def simulate_chunk(
+    gains: FloatArray, model: TuningModel, specs: StepSpecs, horizon: float, early_stop: bool
+) -> Evaluation:
+    """Simulate one chunk of candidates (:func:`simulate`, with the arguments in a fixed order).
+
+    What ``map_chunks`` of :func:`random_search` applies to each chunk.
+    """
+    return simulate(gains, model, specs, horizon, early_stop=early_stop)
+
+
+#: ``map_chunks(simulate_chunk, chunks, model, specs, horizon, early_stop)``: yields
+#: ``simulate_chunk(chunk, model, specs, horizon, early_stop)`` of each chunk, in order.
+ChunkMap = Callable[..., Iterable[Evaluation]]
+
+
+def _serial_map(
+    function: Callable[..., Evaluation], chunks: Sequence[FloatArray], *shared: Any
+) -> Iterable[Evaluation]:
+    return (function(chunk, *shared) for chunk in chunks)
+
+
 def random_search(
     samples: int,
     seed: int | None = 0,
@@ -205,6 +228,7 @@ def random_search(
     chunk: int = DEFAULT_CHUNK,
     early_stop: bool = True,
     progress: Callable[[int], None] | None = None,
+    map_chunks: ChunkMap | None = None,
 ) -> TuneResult:
     """Run the paper's random search: sample, simulate, keep the feasible, choose by ``rule``.
 
@@ -230,6 +254,9 @@ def random_search(
         Drop provably failed candidates early (same feasible set, much faster).
     progress : callable, optional
         Called with the number of candidates of each finished chunk.
+    map_chunks : callable, optional
+        Runs the chunks (:data:`ChunkMap`); by default one after the other in this process.
+        Any map gives the same result.
 
     Returns
     -------
@@ -245,10 +272,13 @@ def random_search(
     bounds = bounds or GainBounds()
     start = time.perf_counter()
     gains = bounds.sample(np.random.default_rng(seed), int(samples))
+    chunks = [gains[lo : lo + int(chunk)] for lo in range(0, int(samples), int(chunk))]
     parts = []
-    for lo in range(0, int(samples), int(chunk)):
-        part = gains[lo : lo + int(chunk)]
-        parts.append(simulate(part, model, specs, horizon, early_stop=early_stop))
+    run = map_chunks or _serial_map
+    for part, evaluation in zip(
+        chunks, run(simulate_chunk, chunks, model, specs, horizon, early_stop), strict=True
+    ):
+        parts.append(evaluation)
         if progress is not None:
             progress(part.shape[0])
     evaluation = _concat(parts)
