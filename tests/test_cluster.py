@@ -27,7 +27,7 @@ from frictiongym.residual.train import TrainSettings, train
 from frictiongym.sweep.grid import SweepError, check_grid, expand, parse_grid, train_command
 from frictiongym.sweep.trial import train_trial
 
-SERVO = "frictiongym/RotaryServo-v0"
+SERVO = "frictiongym/RotaryServo-v1"
 #: A trial of a few seconds: 256 steps of 2 envs, one validation on one plant.
 TINY = [
     "--env",

@@ -41,7 +41,8 @@ Smoke run (under a minute):  frictiongym train --env frictiongym/RotaryServo-v1 
 """
 
 
-def _positive(text: str) -> int:
+def positive_count(text: str) -> int:
+    """Argparse type of a count: a whole number >= 1, or a one-line error."""
     try:
         value = int(text)
     except ValueError:
@@ -94,7 +95,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--steps",
-        type=_positive,
+        type=positive_count,
         metavar="N",
         help="total env-steps of the model (default 200000; with --quick see above)",
     )
@@ -114,7 +115,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quick", action="store_true", help="a smoke run of under a minute")
     parser.add_argument(
         "--n-envs",
-        type=_positive,
+        type=positive_count,
         metavar="K",
         help="envs of the native vector env, stepped in one compiled call (default 32 for PPO, "
         "1 for SAC and TD3)",
@@ -128,7 +129,7 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--checkpoint-every",
-        type=_positive,
+        type=positive_count,
         default=50_000,
         metavar="N",
         help="save a checkpoint every N env-steps (default 50000)",
@@ -167,14 +168,14 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--validation-plants",
-        type=_positive,
+        type=positive_count,
         default=VALIDATION_PLANTS,
         metavar="V",
         help=f"randomised validation plants besides the nominal one (default {VALIDATION_PLANTS})",
     )
     parser.add_argument(
         "--threads",
-        type=_positive,
+        type=positive_count,
         metavar="N",
         help="torch threads (default 1 for PPO, whose networks are too small to gain from "
         "more; every core for SAC and TD3). Give 1 to run trainings side by side",

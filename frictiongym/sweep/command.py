@@ -12,7 +12,11 @@ from frictiongym._cluster import ClusterError, import_ray, ray_session
 from frictiongym._io import OutputDir, add_output_arguments, write_json_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.benchmark.scenarios import HELDOUT_PLANTS, HELDOUT_SEED
-from frictiongym.residual.command import add_training_arguments, settings_from_args
+from frictiongym.residual.command import (
+    add_training_arguments,
+    positive_count,
+    settings_from_args,
+)
 from frictiongym.sweep.grid import SweepError, Trial, check_grid, expand, parse_grid
 from frictiongym.sweep.report import collect, ranked, write_reports
 from frictiongym.sweep.run import TUNE_FOLDER, run_trials
@@ -60,16 +64,6 @@ def _grid(text: str) -> tuple[str, list[Any]]:
         raise argparse.ArgumentTypeError(str(error)) from None
 
 
-def _count(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
 def _runtime_env(text: str) -> dict[str, Any]:
     try:
         value = json.loads(text)
@@ -114,7 +108,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--cpus-per-trial",
-        type=_count,
+        type=positive_count,
         default=1,
         metavar="N",
         help="CPUs Ray gives each trial, and its torch threads unless --threads (default 1)",
@@ -128,7 +122,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--heldout",
-        type=_count,
+        type=positive_count,
         default=HELDOUT_PLANTS,
         metavar="N",
         help=f"held-out plants of each trial's evaluation (default {HELDOUT_PLANTS}, as the "
