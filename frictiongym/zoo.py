@@ -44,7 +44,8 @@ class ZooSettings:
     env_id: str
     n_timesteps: int
     n_envs: int = 1
-    normalize: bool = False
+    #: ``VecNormalize``'s arguments (the Zoo's ``normalize: true`` is ``{}``); None: none
+    normalize: dict[str, Any] | None = None
     rescale: tuple[float, float] | None = None  #: ``RescaleAction``'s bounds, if wrapped
     policy: str = "MlpPolicy"
     policy_kwargs: dict[str, Any] = field(default_factory=dict)
@@ -85,12 +86,25 @@ def load(algo: str, env_id: str) -> ZooSettings:
         env_id=env_id,
         n_timesteps=int(entry["n_timesteps"]),
         n_envs=int(entry.get("n_envs", 1)),
-        normalize=bool(entry.get("normalize", False)),
+        normalize=_normalize(entry.get("normalize", False), env_id),
         rescale=rescale,
         policy=entry.get("policy", "MlpPolicy"),
         policy_kwargs=_plain_dict(entry.get("policy_kwargs", "dict()"), env_id),
         hyperparameters={k: v for k, v in entry.items() if k not in _ZOO_KEYS},
     )
+
+
+def _normalize(value: Any, env_id: str) -> dict[str, Any] | None:
+    """Read the Zoo's ``normalize``: a bool, or a string of ``VecNormalize``'s arguments."""
+    if isinstance(value, bool):
+        return {} if value else None
+    try:
+        arguments = ast.literal_eval(value)
+    except (ValueError, SyntaxError):
+        arguments = None
+    if not isinstance(arguments, dict):
+        raise ValueError(f"{env_id}: normalize {value!r} is neither a bool nor a dict of values")
+    return arguments
 
 
 def _plain_dict(text: str, env_id: str) -> dict[str, Any]:
@@ -124,8 +138,9 @@ def make_env(settings: ZooSettings, seed: int, n_envs: int | None = None) -> Any
     if settings.rescale is not None:
         vec = RescaleAction(vec, *settings.rescale)
     env: Any = VecMonitor(FrictionVecEnv(vec))
-    if settings.normalize:
-        env = VecNormalize(env, gamma=settings.hyperparameters.get("gamma", 0.99))
+    if settings.normalize is not None:
+        gamma = settings.hyperparameters.get("gamma", 0.99)
+        env = VecNormalize(env, **{"gamma": gamma, **settings.normalize})
     env.seed(seed)
     return env
 
@@ -163,7 +178,7 @@ def policy_controller(
     """
 
     def act(obs: npt.NDArray[np.float32]) -> npt.NDArray[np.float32]:
-        seen = env.normalize_obs(obs) if settings.normalize else obs
+        seen = env.normalize_obs(obs) if settings.normalize is not None else obs
         action, _ = model.predict(seen[None], deterministic=True)
         return np.asarray(action[0], np.float32)
 
