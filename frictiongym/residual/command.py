@@ -161,10 +161,9 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--validate-every",
         type=int,
-        default=10_000,
         metavar="N",
         help="score the policy on validation plants every N env-steps and keep the best as "
-        "best.zip (default 10000; 0: never)",
+        "best.zip (default 10000 with fewer than 8 envs, 30000 from 8; 0: never)",
     )
     parser.add_argument(
         "--validation-plants",
@@ -200,7 +199,7 @@ def settings_from_args(args: argparse.Namespace, **given: Any) -> TrainSettings:
         reward=args.reward,
         residual_cost=args.residual_cost,
         hyperparameters=dict(args.sb3),
-        validate_every=args.validate_every or None,
+        validate_every="auto" if args.validate_every is None else args.validate_every or None,
         validation_plants=args.validation_plants,
         threads=args.threads,
         **given,
