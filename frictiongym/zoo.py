@@ -90,8 +90,26 @@ def load(algo: str, env_id: str) -> ZooSettings:
         rescale=rescale,
         policy=entry.get("policy", "MlpPolicy"),
         policy_kwargs=_plain_dict(entry.get("policy_kwargs", "dict()"), env_id),
-        hyperparameters={k: v for k, v in entry.items() if k not in _ZOO_KEYS},
+        hyperparameters={k: _schedule(v) for k, v in entry.items() if k not in _ZOO_KEYS},
     )
+
+
+@dataclass(frozen=True)
+class LinearSchedule:
+    """The Zoo's ``lin_<x>``: a value falling linearly from ``x`` to 0 over the training."""
+
+    start: float
+
+    def __call__(self, progress_remaining: float) -> float:
+        """Return the value when ``progress_remaining`` (1 at the start, 0 at the end) is left."""
+        return progress_remaining * self.start
+
+
+def _schedule(value: Any) -> Any:
+    """Read the Zoo's ``lin_<x>`` (a linear schedule); anything else as it is."""
+    if isinstance(value, str) and value.startswith("lin_"):
+        return LinearSchedule(float(value[4:]))
+    return value
 
 
 def _normalize(value: Any, env_id: str) -> dict[str, Any] | None:

@@ -90,3 +90,18 @@ def test_episode_return_scores_a_controller_on_the_env():
     score = zoo.episode_return(V1[1], controller)
     assert -2000.0 < score < 0.0  # better than standing still at the start
     assert zoo.episode_return(V1[1], lambda obs: np.zeros(1)) == pytest.approx(-2000.0)
+
+
+def test_the_zoos_linear_schedules_and_normalize_settings_are_read():
+    schedule = zoo._schedule("lin_1e-3")
+    assert schedule(1.0) == pytest.approx(1e-3)
+    assert schedule(0.25) == pytest.approx(2.5e-4)
+    assert zoo._schedule(0.5) == 0.5
+    assert zoo._normalize(True, "x") == {}
+    assert zoo._normalize(False, "x") is None
+    assert zoo._normalize("{'norm_obs': True, 'norm_reward': False}", "x") == {
+        "norm_obs": True,
+        "norm_reward": False,
+    }
+    with pytest.raises(ValueError, match="normalize"):
+        zoo._normalize("dict(norm_obs=__import__('os'))", "x")
