@@ -201,8 +201,11 @@ def flipping(twin, which: int, cost: list[float], clock: FakeClock):
 
 
 @needs_threads
-def test_the_adaptive_plant_matches_the_serial_one() -> None:
+def test_the_adaptive_plant_matches_the_serial_one(monkeypatch: pytest.MonkeyPatch) -> None:
     """The real clock: whatever the adaptive kernel picks, the states are the serial ones."""
+    # Nothing learnt by earlier tests' batches (on a busy machine that can be "stay serial
+    # for a while"), so this batch tries both twins from its first calls.
+    monkeypatch.setattr(threads, "_LEARNT", {})
     n = PARALLEL_MIN_PLANTS
     u = np.random.default_rng(0).normal(0.0, 0.3, (300, n))
     adaptive = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=n)
