@@ -42,7 +42,8 @@ def test_batched_residual_env_equals_sync_over_the_single_residual_env(env_id, k
     ours = run(make_residual_vec(env_id, NUM_ENVS, **objective, **env_kwargs))
     theirs = run(
         SyncVectorEnv(
-            [lambda: ResidualEnv(gym.make(env_id, **env_kwargs), **objective)] * NUM_ENVS,
+            [lambda: ResidualEnv(gym.make(env_id, horizon=MAX_STEPS, **env_kwargs), **objective)]
+            * NUM_ENVS,
             autoreset_mode=AutoresetMode.SAME_STEP,
         )
     )

@@ -20,7 +20,7 @@ N, MAX_STEPS = 3, 40
 
 def dummy(env_id: str, residual: bool = False, **kwargs: Any) -> DummyVecEnv:
     def make() -> gym.Env:
-        env = gym.make(env_id, max_episode_steps=MAX_STEPS, **kwargs)
+        env = gym.make(env_id, max_episode_steps=MAX_STEPS, horizon=MAX_STEPS, **kwargs)
         return ResidualEnv(env) if residual else env
 
     return DummyVecEnv([make] * N)
@@ -151,7 +151,7 @@ def test_an_episode_ended_by_contact_on_its_last_step_is_not_called_truncated():
         steps += 1
     push = np.full((steps, 2, 1), 1000.0, np.float32)
     ours = make_sb3_vec(ALTINO, 2, max_episode_steps=steps)
-    theirs = DummyVecEnv([lambda: gym.make(ALTINO, max_episode_steps=steps)] * 2)
+    theirs = DummyVecEnv([lambda: gym.make(ALTINO, max_episode_steps=steps, horizon=steps)] * 2)
     for vec in (ours, theirs):
         vec.seed(0)
         vec.reset()

@@ -37,7 +37,7 @@ def test_make_vec_builds_batched_spaces_and_declares_autoreset(env_id):
 
 def single_run(env_id: str, seed: int, actions: np.ndarray, max_steps: int, kwargs: dict):
     """The single env driven as the vector env drives env i under NEXT_STEP autoreset."""
-    env = gym.make(env_id, max_episode_steps=max_steps, **kwargs)
+    env = gym.make(env_id, max_episode_steps=max_steps, horizon=max_steps, **kwargs)
     obs, _ = env.reset(seed=seed)
     observations, rewards, dones = [obs], [], []
     done = False

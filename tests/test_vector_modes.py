@@ -28,7 +28,9 @@ def native(env_id: str, mode: AutoresetMode, **kwargs: Any) -> gym.vector.Vector
 
 def sync(env_id: str, mode: AutoresetMode, **kwargs: Any) -> SyncVectorEnv:
     return SyncVectorEnv(
-        [lambda: gym.make(env_id, max_episode_steps=MAX_STEPS, **kwargs)] * NUM_ENVS,
+        # The single env cannot see its TimeLimit: it gets the vector env's horizon by hand.
+        [lambda: gym.make(env_id, max_episode_steps=MAX_STEPS, horizon=MAX_STEPS, **kwargs)]
+        * NUM_ENVS,
         autoreset_mode=mode,
     )
 

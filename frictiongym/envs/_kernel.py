@@ -62,7 +62,7 @@ C_LIMIT = 8  #: servo: |angle| limit, rad; Altino: least distance to the wall, c
 C_MAX_STEPS = 9  #: truncate after this many steps (0: never; the single env's TimeLimit does it)
 C_VELOCITY_FLOOR = 10  #: velocity estimates below it are 0.0 (sensors.velocity_floor)
 C_ERROR_CAP = 11  #: the tracking term of a step is at most this (0: no cap; the v1 reward)
-C_HORIZON = 12  #: episode length: a terminated episode pays its remaining steps (0: no)
+C_HORIZON = 12  #: episode length: a terminated episode pays as many worst steps (0: none)
 CONFIG_SIZE = 13
 #: The env's state columns after the plant's.
 TASK_COLUMNS = ENV_STATE_SIZE - plant_kernel.STATE_SIZE
@@ -252,10 +252,11 @@ def _observe(
             tracking = config[C_ERROR_CAP]
         reward = -(tracking + config[C_EFFORT_WEIGHT] * effort * effort)
         if terminated:
-            reward -= config[C_PENALTY]
-            rest = config[C_HORIZON] - state[i, E_STEPS]
-            if rest > 0.0:  # each remaining step at the most a step can cost
-                reward -= (config[C_ERROR_CAP] + config[C_EFFORT_WEIGHT]) * rest
+            # v1: and the worst whole episode, so that no ending by the limit scores better
+            # than an episode without one (the env classes' "Rewards")
+            reward -= config[C_PENALTY] + config[C_HORIZON] * (
+                config[C_ERROR_CAP] + config[C_EFFORT_WEIGHT]
+            )
         truncated = 0.0 < config[C_MAX_STEPS] <= state[i, E_STEPS]
 
     if config[C_SENSOR] == SENSOR_ENCODER:

@@ -45,14 +45,15 @@ class AltinoDistanceEnv(FrictionEnv):
 
     ``-min(|r - d| / 5 cm, 8) - effort_weight * (u / 1000)²`` per step (v1), with the true
     distance ``d`` and the applied command ``u`` (``effort_weight`` 0.01): a step costs
-    between 0 and ``c = 8.01`` (the error is charged up to 40 cm, beyond the start and the IR's
-    range). The step that touches the wall costs ``limit_penalty`` (100) more, plus ``c`` for
-    each step left in the episode (``horizon``: the registered episode length, 400 steps,
-    unless given; give it with another ``max_episode_steps``). So, from any state, driving into
-    the wall scores less than any way of finishing the episode without touching it. With v0
-    it did not: the contact cost 100 where standing still at the start cost 2000 per episode,
-    so full throttle from the start (the wall in 13 steps, -135) beat holding still; v1 scores
-    that crash -3235.
+    between 0 and ``c = 8.01`` (the error is charged up to 40 cm, beyond the start and the
+    IR's range), so an episode of ``H`` steps scores at least ``-c H``. The step that touches
+    the wall costs ``limit_penalty`` (100) more, and ``c H`` more again: an episode ended at
+    the wall scores below ``-c H``, less than any episode of up to ``H`` steps that does not
+    touch it. ``H`` is ``horizon``: by default the vector env's ``max_episode_steps``, else
+    the registered 400 steps (a single env cannot see its ``TimeLimit``: give ``horizon``
+    with another ``max_episode_steps``). With v0 a crash paid: the contact cost 100 where
+    standing still at the start cost 2000 per episode, so full throttle from the start (the
+    wall in 13 steps, -135) beat holding still; v1 scores that crash -3339.
     ``terminal_cost=False`` gives v0's reward (no cap, only the penalty at the wall).
 
     ## Starting State
@@ -89,7 +90,7 @@ class AltinoDistanceEnv(FrictionEnv):
 
     ## Version History
 
-    * v1: the tracking term capped (40 cm) and the terminal cost of the remaining steps
+    * v1: the tracking term capped (40 cm) and the terminal cost of a worst whole episode
       (``terminal_cost=True``, the default), so an episode ended at the wall never pays off.
     * v0: first release; still registered (with ``terminal_cost=False``), for the results
       made with it.

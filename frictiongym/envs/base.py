@@ -119,8 +119,9 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         #: Whether a device backend runs the env (then it is nondeterministic).
         self.on_device = self.sim.on_device
         self.dt = self.sim.dt
-        #: Largest tracking term of a step's reward (inf: no cap; v1's cap: "Rewards")
-        self.tracking_cap = self.sim.tracking_cap
+        #: Largest tracking term of a step's reward (inf: no cap; v1's cap: "Rewards"), and the
+        #: episode length its terminal cost covers (0: v0's reward)
+        self.tracking_cap, self.horizon = self.sim.tracking_cap, self.sim.horizon
         self.action_space, self.observation_space = _spaces(self.device, self.sim)
         self._command = np.zeros(1)
         self._fresh = np.zeros(1, dtype=bool)

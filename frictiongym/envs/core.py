@@ -60,6 +60,7 @@ class EnvCore(Protocol):
     limit: float
     #: Largest tracking term of a step's reward, in reward units (inf: none, the v0 reward)
     tracking_cap: float
+    horizon: int  #: episodes the v1 reward's terminal cost covers, steps (0: v0's reward)
     #: Whether a device runs the env (then it is nondeterministic).
     on_device: bool
 
@@ -129,6 +130,7 @@ class Simulation:
     limit: float
     config: FloatArray
     tracking_cap: float = math.inf
+    horizon: int = 0  #: the v1 reward's episode length (0: v0's reward)
     #: The N plants, stepped by the env kernel (their state has the env's columns after theirs).
     plants: Plant
     on_device = False
@@ -175,9 +177,9 @@ class Simulation:
         self.config = self._task_config(
             sensor_noise, quantize, effort_weight, limit_penalty, max_episode_steps
         )
-        # The registered episode length by default, for the single env (which cannot see its
-        # TimeLimit) and the vector env alike: their rewards stay equal.
-        self._bound_reward(terminal_cost, device.episode_steps if horizon is None else horizon)
+        if horizon is None:  # the episode's length, where the env knows it (the vector env)
+            horizon = max_episode_steps or device.episode_steps
+        self._bound_reward(terminal_cost, horizon)
         self.plants = self._new_plants(parallel)
         self._default_x0 = device.direction * device.start
         # A random reference is sampled per env at reset; the zero row only fills the argument.
@@ -233,6 +235,7 @@ class Simulation:
             raise ValueError(f"horizon must be a positive number of steps, got {horizon!r}")
         if terminal_cost:
             self.tracking_cap = self.device.error_cap / self.device.error_scale
+            self.horizon = int(horizon)
             self.config[env_kernel.CONFIG["error_cap"]] = self.tracking_cap
             self.config[env_kernel.CONFIG["horizon"]] = horizon
 

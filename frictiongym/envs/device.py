@@ -117,6 +117,7 @@ class DeviceSession:
             self.device, self.dt, self.plant = device, dt, self.task.plant
             self.params, self.model_friction = self.task.params, self.task.model_friction
             self.limit, self.tracking_cap = self.task.limit, self.task.tracking_cap
+            self.horizon = self.task.horizon
             self.log: RunLog | None = None
             if log is not False:
                 directory = default_directory(device.name) if log is True else Path(log)

@@ -46,15 +46,15 @@ class RotaryServoEnv(FrictionEnv):
 
     ``-min(|r - θ| / 1 rad, 2π) - effort_weight * (u / 10 V)²`` per step (v1), with the true
     angle θ and the applied voltage ``u`` (``effort_weight`` 0.01): a step costs between 0 and
-    ``c = 2π + 0.01``. The step that crosses the safety limit costs ``limit_penalty`` (100)
-    more, plus ``c`` for each step left in the episode (``horizon``: the registered episode
-    length, 2500 steps, unless given; give it with another ``max_episode_steps``). So, from any
-    state, running into the limit scores less than any way of finishing the episode without
-    it: an agent never gains by ending its episode early. With v0 it could: 10 V from rest
-    reached the limit in 79 steps for -415, where holding still scored -2500 (v1 scores that
-    run-away -15 591).
-    ``terminal_cost=False`` gives v0's reward: the tracking term uncapped and only the penalty
-    at the limit.
+    ``c = 2π + 0.01``, so an episode of ``H`` steps scores at least ``-c H``. The step that
+    crosses the safety limit costs ``limit_penalty`` (100) more, and ``c H`` more again: an
+    episode ended at the limit scores below ``-c H``, less than any episode of up to ``H``
+    steps that does not end there, so an agent never gains by running into the limit. ``H``
+    is ``horizon``: by default the vector env's ``max_episode_steps``, else the registered
+    2500 steps (a single env cannot see its ``TimeLimit``: give ``horizon`` with another
+    ``max_episode_steps``). With v0 it did pay: 10 V from rest reached the limit in 79 steps
+    for -415, where holding still scored -2500 (v1: -16 088). ``terminal_cost=False`` gives
+    v0's reward: the tracking term uncapped and only the penalty at the limit.
 
     ## Starting State
 
@@ -105,8 +105,9 @@ class RotaryServoEnv(FrictionEnv):
 
     ## Version History
 
-    * v1: the tracking term capped at 2π and the terminal cost of the remaining steps
-      (``terminal_cost=True``, the default), so an episode ended by the safety limit never pays off.
+    * v1: the tracking term capped at 2π and the terminal cost of a worst whole episode
+      (``terminal_cost=True``, the default), so an episode ended by the safety limit never
+      pays off.
     * v0: first release; still registered (with ``terminal_cost=False``), for the results
       made with it.
     """

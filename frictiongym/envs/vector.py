@@ -95,7 +95,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         )
         self.num_envs = self.sim.num_envs
         self.dt = self.sim.dt
-        self.tracking_cap = self.sim.tracking_cap  #: as the single env's
+        self.tracking_cap, self.horizon = self.sim.tracking_cap, self.sim.horizon  # as the single
         self.max_episode_steps = max_episode_steps
         self.single_action_space, self.single_observation_space = _spaces(self.device, self.sim)
         self.action_space = batch_space(self.single_action_space, self.num_envs)
