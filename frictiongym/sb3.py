@@ -125,6 +125,9 @@ class FrictionVecEnv(VecEnv):
 
     def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
         """Return an attribute of the envs ``indices`` (all by default)."""
+        own = {"action_space": self.action_space, "observation_space": self.observation_space}
+        if attr_name in own:  # what the policy sees, through any wrapper (RescaleAction)
+            return [own[attr_name] for _ in self._get_indices(indices)]
         values = self._calls.get_attr(attr_name)
         return [values[i] for i in self._get_indices(indices)]
 

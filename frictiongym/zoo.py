@@ -233,4 +233,8 @@ def episode_return(
 
 
 if __name__ == "__main__":  # python -m frictiongym.zoo ppo: the file for --conf-file
-    print(conf_file(sys.argv[1] if len(sys.argv) > 1 else "ppo"))
+    try:
+        print(conf_file(sys.argv[1] if len(sys.argv) > 1 else "ppo"))
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        sys.exit(2)

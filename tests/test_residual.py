@@ -451,3 +451,28 @@ def test_max_time_stops_training_in_time_and_keeps_the_best_policy(tmp_path):
 def test_max_time_must_be_a_positive_number_of_seconds(tmp_path, capsys):
     assert main(["train", "--env", SERVO, "--max-time", "0", "--out", str(tmp_path / "x")]) == 2
     assert "--max-time" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("residual_cost", [0.0, 2.0])
+def test_the_training_reward_keeps_crashing_worse_than_finishing(residual_cost):
+    """The precision reward charges up to log(1 + e / one count) per step, more than the v1
+    env's terminal cost covers; its own terminal term makes up the difference."""
+    from frictiongym import devices
+
+    def episode(action: float) -> float:
+        env = ResidualEnv(
+            gym.make(SERVO),
+            base=lambda e: make_base(e, "pid", gains={"kp": 0.0, "ki": 0.0, "kd": 0.0}),
+            scale=10.0,
+            precision=devices.ROTARY.training_precision,
+            residual_cost=residual_cost,
+        )
+        env.reset(seed=0, options={"position": -11.0})  # 1.6 rad inside the limit
+        total = 0.0
+        while True:
+            _, reward, terminated, truncated, _ = env.step(np.array([action], np.float32))
+            total += reward
+            if terminated or truncated:
+                return total
+
+    assert episode(-1.0) < episode(0.0)  # into the limit at full command, or held still

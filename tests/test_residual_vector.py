@@ -89,3 +89,31 @@ def test_a_given_batched_base_controller_is_used():
     info = env.step(np.zeros((2, 1), np.float32))[4]
     assert env.base is pid
     np.testing.assert_array_equal(info["base_action"], info["command"])  # residual 0
+
+
+def test_a_base_whose_history_puts_the_batch_first_is_refused_not_run_wrong():
+    """advance() restores the others' history along the last axis; (N, 1) would be mixed up."""
+    from frictiongym.controllers.base import Controller
+
+    class BatchFirst(Controller):
+        def __init__(self, spec):
+            self.spec = spec
+            self.integral = np.zeros((NUM_ENVS, 1))
+
+        def reset(self, mask=None):
+            self.integral[np.asarray(mask if mask is not None else True, bool)] = 0.0
+
+        def command(self, observation):
+            self.integral += observation[:, :1]
+            return self.integral[:, 0]
+
+    vec = gym.make_vec(
+        SERVO,
+        num_envs=NUM_ENVS,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+    env = ResidualVectorEnv(vec, BatchFirst.for_env)
+    env.reset(seed=0)
+    with pytest.raises(TypeError, match="batch on the last axis"):
+        env.reset(options={"reset_mask": np.array([True, False, False])})

@@ -159,3 +159,19 @@ def test_an_episode_ended_by_contact_on_its_last_step_is_not_called_truncated():
             *_, dones, infos = vec.step(a)
         assert dones.all()
         assert [i["TimeLimit.truncated"] for i in infos] == [False, False]
+
+
+def test_get_attr_gives_the_spaces_the_policy_sees_through_wrappers():
+    from gymnasium.vector import AutoresetMode
+    from gymnasium.wrappers.vector import RescaleAction
+
+    vec = gym.make_vec(
+        SERVO,
+        num_envs=2,
+        vectorization_mode="vector_entry_point",
+        autoreset_mode=AutoresetMode.SAME_STEP,
+    )
+    env = FrictionVecEnv(RescaleAction(vec, -1.0, 1.0))
+    assert env.get_attr("action_space") == [env.action_space] * 2
+    assert env.action_space.high[0] == 1.0
+    assert env.get_attr("dt") == [0.002, 0.002]

@@ -181,3 +181,21 @@ def test_what_the_shared_simulation_cannot_do_per_env_is_refused_clearly():
         env.set_attr("dt", 0.01)
     with pytest.raises(AttributeError, match="no method 'step'"):
         env.call("step", np.zeros((NUM_ENVS, 1)))
+
+
+def test_what_a_review_found_odd_now_answers_as_sync_does():
+    ours, theirs = native(ALTINO, AutoresetMode.NEXT_STEP), sync(ALTINO, AutoresetMode.NEXT_STEP)
+    for env in (ours, theirs):
+        env.reset(seed=0)
+        env.step(np.zeros((NUM_ENVS, 1), np.float16))  # any float dtype is a command
+        env.set_attr("offsets", [np.zeros(2)] * NUM_ENVS)  # array values compared by content
+    assert ours.get_attr("spec")[0].kwargs == {}  # the single env's spec: gym.make can use it
+    assert gym.make(ours.get_attr("spec")[0]).unwrapped.device.name == "AltinoDistance"
+    # A masked reset takes N-long positions: the masked envs' entries.
+    obs, _ = ours.reset(
+        options={
+            "reset_mask": np.array([False, True, False]),
+            "position": np.array([9.0, 12.0, 9.0]),
+        }
+    )
+    assert obs[1, 1] == pytest.approx(12.0, abs=0.1)

@@ -9,7 +9,9 @@ device.
 
 Controllers are batched: an observation of shape ``(k,)`` gives an action of shape ``(1,)``
 (a single env), one of shape ``(N, k)`` gives ``(N, 1)`` (a vector env), and
-``reset(mask)`` forgets the history of the selected envs only.
+``reset(mask)`` forgets the history of the selected envs only. A controller keeps its per-env
+history in numpy arrays with the batch on the last axis (shape ``(..., N)``): that is what
+lets :meth:`Controller.advance` step some envs and leave the others.
 """
 
 from __future__ import annotations
@@ -176,6 +178,13 @@ class Controller(ABC):
         """
         keep = ~np.asarray(mask, dtype=bool)
         saved = [(owner, name, value.copy()) for owner, name, value in _history(self)]
+        for owner, name, value in saved:
+            if value.ndim and value.shape[-1] != keep.size and keep.size in value.shape:
+                raise TypeError(
+                    f"{type(owner).__name__}.{name} has shape {value.shape}: keep per-env "
+                    f"history with the batch on the last axis (shape (..., {keep.size})), "
+                    "so that advance() and reset(mask) can tell the envs apart"
+                )
         action = self(observation)
         for owner, name, old in saved:
             new = getattr(owner, name)

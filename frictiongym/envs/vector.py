@@ -18,11 +18,13 @@ simulation can (see :meth:`FrictionVectorEnv.call`).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, ClassVar
 
 import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
+from gymnasium.envs.registration import EnvSpec
 from gymnasium.utils import seeding
 from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
@@ -168,6 +170,11 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         elif len(seed) != self.num_envs:
             raise ValueError(f"seed lists need {self.num_envs} entries, got {len(seed)}")
         targets = np.ones(self.num_envs, dtype=bool) if mask is None else mask
+        if mask is not None:  # an N-long position or velocity: the masked envs' entries
+            for key in ("position", "velocity"):
+                value = np.asarray(options.get(key, 0.0))
+                if value.ndim == 1 and value.size == self.num_envs:
+                    options[key] = value[mask]
         for i in np.flatnonzero(targets):
             if seed[i] is not None:
                 self._seeds[i], self._rngs[i] = seed[i], None
@@ -252,7 +259,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         _refuse_masked(actions)
         command = np.asarray(actions)
         if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
-            if command.dtype.kind not in "iu":
+            if command.dtype.kind not in "iuf":
                 raise ValueError(
                     f"actions must be numbers in command units, one per env, got dtype "
                     f"{command.dtype}"
@@ -290,6 +297,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             return tuple(self._rng(i) for i in range(self.num_envs))
         if name == "np_random_seed":
             return tuple(self._seed_of(i) for i in range(self.num_envs))
+        if name == "spec":  # the single env's, as gym.make would register it
+            return (self._single_spec(),) * self.num_envs
         single = {
             "action_space": "single_action_space",
             "observation_space": "single_observation_space",
@@ -302,6 +311,15 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 "attributes that are not methods (use SyncVectorEnv for other methods)"
             )
         return (value,) * self.num_envs
+
+    def _single_spec(self) -> EnvSpec | None:
+        """Return the spec of one of its envs: the vector env's own arguments left out."""
+        if self.spec is None:
+            return None
+        vector_only = ("num_envs", "vectorization_mode", "autoreset_mode", "parallel")
+        kwargs = {k: v for k, v in self.spec.kwargs.items() if k not in vector_only}
+        steps = kwargs.pop("max_episode_steps", self.spec.max_episode_steps)
+        return replace(self.spec, kwargs=kwargs, max_episode_steps=steps)
 
     def get_attr(self, name: str) -> tuple[Any, ...]:
         """One value per env, as :meth:`call` reads it."""
@@ -320,7 +338,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             raise ValueError(
                 f"set_attr needs one value or a list of {self.num_envs}, got {len(values)} values"
             )
-        if any(v is not values[0] and v != values[0] for v in values[1:]):
+        if any(not _same(v, values[0]) for v in values[1:]):
             raise ValueError(
                 f"set_attr({name!r}): the native vector env's envs share one value of each "
                 "attribute; give one value for all of them"
@@ -332,3 +350,12 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             )
         self._set_by_user.add(name)
         setattr(self, name, values[0])
+
+
+def _same(a: Any, b: Any) -> bool:
+    """Whether two attribute values are one value (arrays compared by their contents)."""
+    if a is b:
+        return True
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        return bool(np.array_equal(a, b))
+    return bool(a == b)

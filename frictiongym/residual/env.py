@@ -128,20 +128,26 @@ class ResidualEnv(gym.Wrapper[ObsArray, ObsArray, Any, Any]):
         obs, reward, terminated, truncated, info = self.env.step(total.astype(np.float32))
         info = {**info, "base_action": float(base[0]), "residual": float(residual[0])}
         shaped = self.objective.reward(
-            float(reward), info["reference"], info["position"], residual[0]
+            float(reward), info["reference"], info["position"], residual[0], terminated
         )
         return self._observe(obs), float(shaped), terminated, truncated, info
 
 
 @dataclass(frozen=True)
 class Objective:
-    """What the residual env's reward adds to the env's (the class docstring's "Rewards")."""
+    """What the residual env's reward adds to the env's (the class docstring's "Rewards").
+
+    On a v1 env (``tracking_cap`` and ``horizon`` set), the terms it adds are capped and a
+    terminated episode pays them for a whole worst episode too, as the env does its own: an
+    episode ended at a limit still scores less than any episode that avoids it.
+    """
 
     error_scale: float  #: the env's e0
     scale: float  #: the residual bound
     residual_cost: float = 0.0
     precision: float | None = None
     tracking_cap: float = math.inf  #: the env's cap of its tracking term (its v1 reward)
+    horizon: int = 0  #: the episode length the env's terminal cost covers (0: v0's reward)
 
     def reward(
         self,
@@ -149,15 +155,24 @@ class Objective:
         reference: npt.ArrayLike,
         position: npt.ArrayLike,
         residual: npt.ArrayLike,
+        terminated: npt.ArrayLike = False,
     ) -> Any:
         """Return the training reward of one env (numbers) or of a batch (arrays)."""
         shaped: Any = np.asarray(reward, dtype=np.float64)
+        worst = 0.0  # the most a step's added terms can cost beyond the env's own
         if self.precision is not None:
             error = np.abs(np.asarray(reference, np.float64) - np.asarray(position, np.float64))
-            tracking = np.minimum(error / self.error_scale, self.tracking_cap)  # the env's term
-            shaped = shaped + tracking - np.log1p(error / self.precision)
+            cap = self.tracking_cap
+            tracking = np.minimum(error / self.error_scale, cap)  # the env's term
+            charged = np.minimum(error, cap * self.error_scale)  # the error it charges
+            shaped = shaped + tracking - np.log1p(charged / self.precision)
+            if math.isfinite(cap):
+                worst = max(math.log1p(cap * self.error_scale / self.precision) - cap, 0.0)
         if self.residual_cost:
             shaped = shaped - self.residual_cost * (np.asarray(residual) / self.scale) ** 2
+            worst += self.residual_cost
+        if self.horizon and worst:
+            shaped = shaped - np.where(terminated, worst * self.horizon, 0.0)
         return shaped
 
 
@@ -197,5 +212,6 @@ def residual_setup(
         residual_cost=real_number("residual_cost", residual_cost, ">= 0"),
         precision=precision,
         tracking_cap=env.unwrapped.tracking_cap,
+        horizon=env.unwrapped.horizon,
     )
     return controller, config, objective

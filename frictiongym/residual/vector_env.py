@@ -121,7 +121,7 @@ class ResidualVectorEnv(VectorWrapper):
                 for key in ("reference", "position")
             }
         reward = self.objective.reward(
-            reward, last_info["reference"], last_info["position"], residual
+            reward, last_info["reference"], last_info["position"], residual, terminated
         )
         following = self.base(last_obs)[:, 0]  # every env's base sees its step's observation
         residual_obs = self._observe(last_obs, following)
