@@ -1,8 +1,8 @@
 """Compiled env step: plant, sensor, reference, reward and episode end for N envs at once.
 
-The single env (N = 1) and the vector env call the same element function,
-:func:`_env_element`, through :func:`step_envs` (serial) or :func:`step_envs_parallel`
-(numba threads), so their trajectories agree bit for bit. The plant part is the plant
+The single env (N = 1) and the vector env run the same code, :func:`_step_block`, through
+:func:`step_envs` (serial) or :func:`step_envs_parallel` (numba threads), so their trajectories
+agree bit for bit. The plant part is the plant
 kernel's own :func:`~frictiongym.plants._kernel.step_plant`, the sensors those of
 :mod:`frictiongym.plants.sensors`, the reference :func:`~frictiongym.envs.references.reference_at`.
 
@@ -117,16 +117,16 @@ F_TRUNCATED = 1
 F_STUCK = 2
 FLAG_SIZE = 3
 
+#: Envs per block of the batch kernels: a block's plants are stepped, then observed, while its
+#: state is in cache; the threaded kernel spreads whole blocks over its threads.
+BLOCK = 256
+
 
 @njit(cache=True, inline="always")
-def _env_element(
+def _observe_env(
     i: int,
     state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
     dt: float,
-    n_sub: int,
     plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     rng: npt.NDArray[np.uint64],
@@ -136,14 +136,8 @@ def _env_element(
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
     one_row: bool,
-    delayed: bool,
 ) -> None:
-    """Step env ``i`` (or, if ``fresh[i]``, only observe its just-reset state)."""
-    if not fresh[i]:
-        plant_kernel.step_plant(
-            i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row, False, delayed
-        )
-        state[i, E_STEPS] += 1.0
+    """Read env ``i``'s sensor and write its observation, reward and episode end."""
     x, encoder = state[i, plant_kernel.S_X], config[C_SENSOR] == SENSOR_ENCODER
     noise = 0.0
     if config[C_NOISE] > 0.0:
@@ -358,29 +352,46 @@ def observe_envs(
     What a same-step autoreset needs: the ended envs are reset and observed after the step that
     ended them, without stepping the rest a second time.
     """
-    none = np.zeros((state.shape[0], 0))
     one_row = plant_rows.shape[0] == 1
     for i in range(mask.shape[0]):
         if mask[i]:
-            _env_element(
-                i,
-                state,
-                none,
-                0,
-                none[:, 0],
-                dt,
-                1,
-                plant_rows,
-                rows,
-                rng,
-                config,
-                mask,
-                obs,
-                out,
-                flags,
-                one_row,
-                False,
+            _observe_env(i, state, dt, plant_rows, rows, rng, config, mask, obs, out, flags, one_row)
+
+
+@njit(cache=True, inline="always")
+def _step_block(
+    block: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    dt: float,
+    n_sub: int,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Step the envs of one block (those not ``fresh``), then observe them all.
+
+    Two loops, not one: fused into one loop body the plant step and the observation compiled
+    to code half as fast as the two apart (docs/benchmarks.md, "Kernel near the machine's
+    limit"); a block's state stays in cache from the first loop to the second.
+    """
+    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
+    stop = min((block + 1) * BLOCK, state.shape[0])
+    for i in range(block * BLOCK, stop):
+        if not fresh[i]:
+            plant_kernel.step_plant(
+                i, state, delay_buffer, head, command, dt, n_sub, plant_rows, one_row, False, delayed
             )
+            state[i, E_STEPS] += 1.0
+    for i in range(block * BLOCK, stop):
+        _observe_env(i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row)
 
 
 @plant_kernel.serial_njit
@@ -407,10 +418,9 @@ def step_envs(
     bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
-    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
-    for i in range(state.shape[0]):
-        _env_element(
-            i,
+    for block in range((state.shape[0] + BLOCK - 1) // BLOCK):
+        _step_block(
+            block,
             state,
             delay_buffer,
             head,
@@ -425,8 +435,6 @@ def step_envs(
             obs,
             out,
             flags,
-            one_row,
-            delayed,
         )
     return -1
 
@@ -448,14 +456,13 @@ def step_envs_parallel(
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
-    """:func:`step_envs` with the envs spread over numba's threads (bit-identical results)."""
+    """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results)."""
     bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
-    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
-    for i in prange(state.shape[0]):
-        _env_element(
-            np.int64(i),
+    for block in prange((state.shape[0] + BLOCK - 1) // BLOCK):
+        _step_block(
+            np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
             state,
             delay_buffer,
             head,
@@ -470,7 +477,5 @@ def step_envs_parallel(
             obs,
             out,
             flags,
-            one_row,
-            delayed,
         )
     return -1

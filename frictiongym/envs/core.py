@@ -347,6 +347,8 @@ class Simulation:
                 env_kernel.set_episode(self.rows, int(j), gain, reference.sample(rng))
                 if noisy:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
+            if self.randomize is not None:
+                self.plants.prime_rows(mask)
         plants = self.plants
         env_kernel.reset_envs(
             mask, plants.state, plants.delay_buffer, self.rows, x0, v0, ref_row, not draws

@@ -61,7 +61,14 @@ I_UMAX = 2
 I_LAG = 3
 I_STOP = 4  #: position of the rigid end stop ahead (inf: none)
 F0 = 5  #: offset of the friction row inside a plant row
-ROW_SIZE = F0 + friction_core.ROW_SIZE
+#: Offset of the exact step's coefficient cache: for each slope b of the static law (the Coulomb
+#: range's, then the decay range's forward and backward), the key ``l = b / J * h`` of a full
+#: substep ``h`` and ``E1(l)``, ``E2(l)`` (:func:`_phi12`). A phase uses the cached values only
+#: when its own ``l`` equals the key, so a stale or unprimed cache (NaN keys) costs speed, never
+#: accuracy; :func:`prime_rows` fills it.
+K0 = F0 + friction_core.ROW_SIZE
+CACHE_SLOPES = 3
+ROW_SIZE = K0 + 3 * CACHE_SLOPES
 if friction_core.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
     raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
 
@@ -89,8 +96,8 @@ COLUMNS = {
 def pack_row(
     plant: tuple[float, ...], friction: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
-    """Return one plant row: ``(J, B, u_max, lag, end stop)``, then the packed friction row."""
-    return np.concatenate((plant, friction))
+    """Return one plant row: ``(J, B, u_max, lag, end stop)``, the friction row, an empty cache."""
+    return np.concatenate((plant, friction, np.full(ROW_SIZE - K0, np.nan)))
 
 
 def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -115,6 +122,7 @@ def scale_row(
     scaled[levels] *= friction
     scaled[I_J] *= inertia
     scaled[[I_B, F0 + friction_core.I_VISCOUS]] *= damping
+    scaled[K0:] = np.nan  # the cache no longer matches (prime_rows refills it)
     return scaled
 
 
@@ -170,6 +178,17 @@ def _phi12(ell: float) -> tuple[float, float]:
     return -em1 / ell, (ell + em1) / (ell * ell)
 
 
+@njit(cache=True, inline="always")
+def _affine_advance_by(
+    x: float, v: float, a: float, j: float, t: float, ell: float, e1: float, e2: float
+) -> tuple[float, float]:
+    """:func:`affine_advance` given ``l = b / j * t`` and ``E1(l)``, ``E2(l)``."""
+    acc = a / j
+    v_new = v * (1.0 - ell * e1) + acc * t * e1
+    x_new = x + v * t * e1 + acc * t * t * e2
+    return x_new, v_new
+
+
 @njit(cache=True)
 def affine_advance(
     x: float, v: float, a: float, b: float, j: float, t: float
@@ -179,11 +198,47 @@ def affine_advance(
     Written with ``E1``/``E2`` so it stays accurate for ``b -> 0`` and for negative ``b``
     (the velocity-weakening part of a Stribeck curve).
     """
-    e1, e2 = _phi12(b / j * t)
-    acc = a / j
-    v_new = v * (1.0 - (b / j * t) * e1) + acc * t * e1
-    x_new = x + v * t * e1 + acc * t * t * e2
-    return x_new, v_new
+    ell = b / j * t
+    e1, e2 = _phi12(ell)
+    return _affine_advance_by(x, v, a, j, t, ell, e1, e2)
+
+
+@njit(cache=True, inline="always")
+def _cached_advance(
+    x: float, v: float, a: float, b: float, j: float, t: float, cache: Row, slope: int
+) -> tuple[float, float]:
+    """:func:`affine_advance`, with ``E1``/``E2`` from the row's cache when its key matches.
+
+    ``E1``/``E2`` are functions of ``l`` alone, so the result is bit-identical either way.
+    """
+    ell = b / j * t
+    if ell == cache[3 * slope]:
+        e1, e2 = cache[3 * slope + 1], cache[3 * slope + 2]
+    else:
+        e1, e2 = _phi12(ell)
+    return _affine_advance_by(x, v, a, j, t, ell, e1, e2)
+
+
+@njit(cache=True)
+def prime_rows(rows: npt.NDArray[np.float64], h: float) -> None:
+    """Fill the coefficient cache of each plant row for a full substep of length ``h``.
+
+    The slopes are computed as :func:`exact_phase` computes them, so a phase that spans a full
+    substep finds its key.
+    """
+    for r in range(rows.shape[0]):
+        j = rows[r, I_J]
+        b_total = rows[r, I_B] + rows[r, F0 + friction_core.I_VISCOUS]
+        us_pos, us_neg = rows[r, F0 + friction_core.I_US_POS], rows[r, F0 + friction_core.I_US_NEG]
+        uc_pos, uc_neg = rows[r, F0 + friction_core.I_UC_POS], rows[r, F0 + friction_core.I_UC_NEG]
+        v0_pos, v0_neg = rows[r, F0 + friction_core.I_V0_POS], rows[r, F0 + friction_core.I_V0_NEG]
+        slopes = (b_total, b_total - (us_pos - uc_pos) / v0_pos, b_total - (us_neg - uc_neg) / v0_neg)
+        for n in range(CACHE_SLOPES):
+            ell = slopes[n] / j * h
+            e1, e2 = _phi12(ell)
+            rows[r, K0 + 3 * n] = ell
+            rows[r, K0 + 3 * n + 1] = e1
+            rows[r, K0 + 3 * n + 2] = e2
 
 
 @njit(cache=True)
@@ -254,9 +309,112 @@ def breakaway_direction(u: float, p: Row) -> float:
     return 0.0
 
 
+@njit(cache=True, inline="always")
+def exact_phase(
+    x: float,
+    v: float,
+    u: float,
+    t_left: float,
+    j: float,
+    b_total: float,
+    p: Row,
+    stop: float,
+    cache: Row,
+) -> tuple[float, float, float, float]:
+    """One phase of the event-exact step: from ``(x, v)`` for ``t_left`` or up to its first event.
+
+    A phase is a stretch in one state (held, or sliding one way on one speed range) that ends
+    at the end of the step or at an event (stop, leaving or entering the decay range, contact
+    with the end stop), located exactly in time. Parameters as :func:`exact_static`.
+
+    Returns
+    -------
+    x, v, dt, impulse : float
+        State at the end of the phase, its length and the time integral of the nonlinear
+        friction force over it.
+    """
+    if v == 0.0:
+        s = breakaway_direction(u, p)
+        if s == 0.0:  # held: static friction balances the input exactly
+            return x, v, t_left, u * t_left
+        if held_at_stop(x, s, stop):  # pressed on the stop: friction at break-away
+            return x, v, t_left, p[friction_core.I_US_POS] * t_left
+    else:
+        s = 1.0 if v > 0.0 else -1.0
+    if s > 0.0:
+        us, uc, v0 = (
+            p[friction_core.I_US_POS],
+            p[friction_core.I_UC_POS],
+            p[friction_core.I_V0_POS],
+        )
+    else:
+        us, uc, v0 = (
+            p[friction_core.I_US_NEG],
+            p[friction_core.I_UC_NEG],
+            p[friction_core.I_V0_NEG],
+        )
+    decays = p[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR and us > uc
+    speed = s * v
+    # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
+    # linearly, u - s[us - k|v|] = (u - s us) + k v, so the slope drops by k.
+    a_out = u - s * uc
+    inner = False
+    k = 0.0
+    if decays:
+        k = (us - uc) / v0
+        if speed < v0:
+            inner = True
+        elif speed == v0:  # on the boundary: the side it is heading to
+            inner = s * (a_out - b_total * v) < 0.0
+    if inner:
+        a = u - s * us
+        bb = b_total - k
+        slope = 1 if s > 0.0 else 2  # the cache's decay-range slopes
+    else:
+        a = a_out
+        bb = b_total
+        slope = 0
+    acc = a - bb * v
+    target = math.nan
+    if s * acc < 0.0:
+        target = s * v0 if (decays and not inner) else 0.0
+    elif s * acc > 0.0 and inner:
+        target = s * v0
+    dt = t_left
+    x_new, v_new = _cached_advance(x, v, a, bb, j, dt, cache, slope)
+    # v is monotone within a phase, so the event lies in this step iff v reaches the target.
+    # Written as "not still short of it" so that an end state that overflowed (a steep
+    # velocity-weakening range grows like e^(|b|t/J)) also counts as reached.
+    short = v_new > target if v > target else v_new < target
+    if not math.isnan(target) and not short:
+        t_event = affine_time_to(v, target, a, bb, j)
+        if t_event < t_left:
+            dt = t_event
+            x_new, v_new = affine_advance(x, v, a, bb, j, dt)
+        v_new = target  # land exactly on the event: 0.0 means stuck-test next
+    if x_new > stop:  # x rises through this phase: the contact comes first
+        dt = affine_time_to_position(x, v, a, bb, j, stop, dt)
+        x_new, v_new = stop, 0.0
+    if inner:
+        impulse = s * us * dt - k * (x_new - x)
+    else:
+        impulse = s * uc * dt
+    return x_new, v_new, dt, impulse
+
+
 @njit(cache=True)
 def exact_static(
-    x: float, v: float, u: float, h: float, j: float, b_total: float, p: Row, stop: float
+    x: float,
+    v: float,
+    u: float,
+    h: float,
+    j: float,
+    b_total: float,
+    p: Row,
+    stop: float,
+    cache: Row,
+    impulse: float = 0.0,
+    phases: int = _MAX_SEGMENTS,
 ) -> tuple[float, float, float]:
     """Event-exact step of a static law with a ``step`` or ``linear`` decay.
 
@@ -274,87 +432,24 @@ def exact_static(
         Packed friction row.
     stop : float
         Position of the end stop ahead (``inf``: none).
+    cache : tuple of float
+        The plant row's coefficient cache (see ``K0``).
+    impulse : float, default 0.0
+        Impulse so far (a caller that ran the step's first phase itself goes on from there).
+    phases : int
+        At most this many phases (:func:`exact_phase`).
 
     Returns
     -------
     x, v, impulse : float
         New state and the time integral of the nonlinear friction force over the step.
     """
-    linear_shape = p[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
     t_left = h
-    impulse = 0.0
-    for _ in range(_MAX_SEGMENTS):
+    for _ in range(phases):
         if t_left <= 0.0:
             break
-        if v == 0.0:
-            s = breakaway_direction(u, p)
-            if s == 0.0:  # held: static friction balances the input exactly
-                impulse += u * t_left
-                t_left = 0.0
-                break
-            if held_at_stop(x, s, stop):  # pressed on the stop: friction at break-away
-                impulse += p[friction_core.I_US_POS] * t_left
-                t_left = 0.0
-                break
-        else:
-            s = 1.0 if v > 0.0 else -1.0
-        if s > 0.0:
-            us, uc, v0 = (
-                p[friction_core.I_US_POS],
-                p[friction_core.I_UC_POS],
-                p[friction_core.I_V0_POS],
-            )
-        else:
-            us, uc, v0 = (
-                p[friction_core.I_US_NEG],
-                p[friction_core.I_UC_NEG],
-                p[friction_core.I_V0_NEG],
-            )
-        decays = linear_shape and us > uc
-        speed = s * v
-        # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
-        # linearly, u - s[us - k|v|] = (u - s us) + k v, so the slope drops by k.
-        a_out = u - s * uc
-        inner = False
-        k = 0.0
-        if decays:
-            k = (us - uc) / v0
-            if speed < v0:
-                inner = True
-            elif speed == v0:  # on the boundary: the side it is heading to
-                inner = s * (a_out - b_total * v) < 0.0
-        if inner:
-            a = u - s * us
-            bb = b_total - k
-        else:
-            a = a_out
-            bb = b_total
-        acc = a - bb * v
-        target = math.nan
-        if s * acc < 0.0:
-            target = s * v0 if (decays and not inner) else 0.0
-        elif s * acc > 0.0 and inner:
-            target = s * v0
-        dt = t_left
-        x_new, v_new = affine_advance(x, v, a, bb, j, dt)
-        # v is monotone within a phase, so the event lies in this step iff v reaches the target.
-        # Written as "not still short of it" so that an end state that overflowed (a steep
-        # velocity-weakening range grows like e^(|b|t/J)) also counts as reached.
-        short = v_new > target if v > target else v_new < target
-        if not math.isnan(target) and not short:
-            t_event = affine_time_to(v, target, a, bb, j)
-            if t_event < t_left:
-                dt = t_event
-                x_new, v_new = affine_advance(x, v, a, bb, j, dt)
-            v_new = target  # land exactly on the event: 0.0 means stuck-test next
-        if x_new > stop:  # x rises through this phase: the contact comes first
-            dt = affine_time_to_position(x, v, a, bb, j, stop, dt)
-            x_new, v_new = stop, 0.0
-        if inner:
-            impulse += s * us * dt - k * (x_new - x)
-        else:
-            impulse += s * uc * dt
-        x, v = x_new, v_new
+        x, v, dt, imp = exact_phase(x, v, u, t_left, j, b_total, p, stop, cache)
+        impulse += imp
         t_left -= dt
     return x, v, impulse
 
@@ -429,6 +524,15 @@ def lugre_substep(
     return x + h * (v + v_new) / 2.0, v_new, z_new, f * h
 
 
+@njit(cache=True, inline="always")
+def has_exact_step(friction: Row) -> bool:
+    """Whether the law has the event-exact step: static, with a ``step`` or ``linear`` decay."""
+    return friction[friction_core.I_LAW] == friction_core.LAW_STATIC and (
+        friction[friction_core.I_SHAPE] == friction_core.SHAPE_STEP
+        or friction[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    )
+
+
 @njit(cache=True)
 def advance(
     x: float,
@@ -440,6 +544,7 @@ def advance(
     n_sub: int,
     plant: Row,
     friction: Row,
+    cache: Row,
 ) -> tuple[float, float, float, float, float]:
     """Advance one plant by one control period with input ``u``.
 
@@ -453,8 +558,9 @@ def advance(
         Control period.
     n_sub : int
         Substeps.
-    plant, friction : tuple of float
-        ``(J, B, u_max, lag, end stop)`` and the packed friction row.
+    plant, friction, cache : tuple of float
+        ``(J, B, u_max, lag, end stop)``, the packed friction row and the row's coefficient
+        cache.
 
     Returns
     -------
@@ -466,10 +572,7 @@ def advance(
     lag = plant[I_LAG]
     stop = plant[I_STOP]
     law = friction[friction_core.I_LAW]
-    exact = law == friction_core.LAW_STATIC and (
-        friction[friction_core.I_SHAPE] == friction_core.SHAPE_STEP
-        or friction[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
-    )
+    exact = has_exact_step(friction)
     x_start = x
     hs = h / n_sub
     impulse = 0.0
@@ -485,7 +588,7 @@ def advance(
         if v != 0.0 or breakaway_direction(force, friction) != 0.0:
             held = False
         if exact:
-            x, v, imp = exact_static(x, v, force, hs, j, b_total, friction, stop)
+            x, v, imp = exact_static(x, v, force, hs, j, b_total, friction, stop, cache)
         else:
             if law == friction_core.LAW_STATIC:
                 x, v, imp = split_static(x, v, force, hs, j, b_total, friction, stop)
@@ -538,6 +641,17 @@ def step_plant(
         params[r, F0 + 9],
         params[r, F0 + 10],
     )
+    cache = (
+        params[r, K0 + 0],
+        params[r, K0 + 1],
+        params[r, K0 + 2],
+        params[r, K0 + 3],
+        params[r, K0 + 4],
+        params[r, K0 + 5],
+        params[r, K0 + 6],
+        params[r, K0 + 7],
+        params[r, K0 + 8],
+    )
     c = command[0] if one_command else command[i]
     c = min(max(c, -plant[I_UMAX]), plant[I_UMAX])
     state[i, S_COMMAND] = c
@@ -545,9 +659,26 @@ def step_plant(
         due = delay_buffer[i, head]
         delay_buffer[i, head] = c
         c = due
-    x, v, z, y, f = advance(
-        state[i, S_X], state[i, S_V], state[i, S_Z], state[i, S_LAG], c, h, n_sub, plant, friction
-    )
+    x0, v0 = state[i, S_X], state[i, S_V]
+    z, y = state[i, S_Z], state[i, S_LAG]
+    if n_sub == 1 and plant[I_LAG] == 0.0 and has_exact_step(friction):
+        # The common case, inlined (a call of advance costs more than most steps): one phase,
+        # and the rest of the step phase by phase only if that one ended at an event. The same
+        # operations as advance, so the same bits.
+        j, stop = plant[I_J], plant[I_STOP]
+        b_total = plant[I_B] + friction[friction_core.I_VISCOUS]
+        x, v, dt, impulse = exact_phase(x0, v0, c, h, j, b_total, friction, stop, cache)
+        if dt != h:
+            x, v, impulse = exact_static(
+                x, v, c, h - dt, j, b_total, friction, stop, cache, 0.0 + impulse, _MAX_SEGMENTS - 1
+            )
+        impulse = 0.0 + impulse
+        if v0 == 0.0 and breakaway_direction(c, friction) == 0.0:
+            f = c  # held all step: friction equals the input exactly, as in advance
+        else:
+            f = (impulse + friction[friction_core.I_VISCOUS] * (x - x0)) / h
+    else:
+        x, v, z, y, f = advance(x0, v0, z, y, c, h, n_sub, plant, friction, cache)
     state[i, S_X] = x
     state[i, S_V] = v
     state[i, S_Z] = z

@@ -191,6 +191,7 @@ class Plant:
             strict=True,
         )
         self.rows: FloatArray = np.ascontiguousarray(np.stack([plant_row(p, f) for p, f in pairs]))
+        self.prime_rows()
         self._serial = kernels[0]
         self._step_kernel = select_kernel(*kernels, self.num_plants, parallel)
         #: whether the threaded kernel may run (always, or when the adaptive choice picks it)
@@ -230,6 +231,20 @@ class Plant:
         """Give every plant its own parameter row (to change them one by one), if they share one."""
         if self.rows.shape[0] == 1 < self.num_plants:
             self.rows = np.repeat(self.rows, self.num_plants, axis=0)
+
+    def prime_rows(self, mask: npt.ArrayLike | None = None) -> None:
+        """Refill the coefficient cache of the parameter rows (all, or those where ``mask`` is true).
+
+        Call it after writing :attr:`rows`: a row whose cache no longer matches its parameters
+        steps slower (never differently) until it is primed.
+        """
+        if mask is None or self.rows.shape[0] == 1:
+            plant_kernel.prime_rows(self.rows, self.dt / self.substeps)
+            return
+        idx = np.flatnonzero(self._selection(mask))
+        rows = self.rows[idx]
+        plant_kernel.prime_rows(rows, self.dt / self.substeps)
+        self.rows[idx] = rows
 
     def keep(self, mask: npt.ArrayLike) -> None:
         """Drop the plants where ``mask`` is false; the others go on exactly as before.

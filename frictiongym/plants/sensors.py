@@ -37,7 +37,7 @@ IR_MAX_READOUT = 800
 FLOAT32_ROUNDOFF = 2.0**-24
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def encoder_angle(angle: float, step: float) -> float:
     """Angle read through an encoder of resolution ``step`` rad: ``round(angle / step)`` counts.
 
@@ -46,7 +46,7 @@ def encoder_angle(angle: float, step: float) -> float:
     return math.floor(angle / step + 0.5) * step
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ir_count(
     distance: float, gain: float, offset: float, noise: float, quantize: bool = True
 ) -> float:
@@ -59,7 +59,7 @@ def ir_count(
     return min(raw, float(IR_MAX_READOUT))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ir_estimate(readout: float) -> float:
     """Distance in cm that a readout stands for, by the paper's calibration, Eq. (1)."""
     return IR_NUMERATOR / (readout + IR_OFFSET)
@@ -148,7 +148,7 @@ def measure(
     return ir_count(distance, gain, offset, noise, quantize)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def derivative_update(
     estimate: float, position: float, previous: float, pole: float, dt: float, floor: float
 ) -> float:
