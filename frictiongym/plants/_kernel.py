@@ -228,11 +228,17 @@ def prime_rows(rows: npt.NDArray[np.float64], h: float) -> None:
     """
     for r in range(rows.shape[0]):
         j = rows[r, I_J]
-        b_total = rows[r, I_B] + rows[r, F0 + friction_core.I_VISCOUS]
-        us_pos, us_neg = rows[r, F0 + friction_core.I_US_POS], rows[r, F0 + friction_core.I_US_NEG]
-        uc_pos, uc_neg = rows[r, F0 + friction_core.I_UC_POS], rows[r, F0 + friction_core.I_UC_NEG]
-        v0_pos, v0_neg = rows[r, F0 + friction_core.I_V0_POS], rows[r, F0 + friction_core.I_V0_NEG]
-        slopes = (b_total, b_total - (us_pos - uc_pos) / v0_pos, b_total - (us_neg - uc_neg) / v0_neg)
+        p = rows[r, F0 : F0 + friction_core.ROW_SIZE]
+        b_total = rows[r, I_B] + p[friction_core.I_VISCOUS]
+        slopes = [b_total, math.nan, math.nan]
+        for n, (us, uc, v0) in enumerate(
+            (
+                (p[friction_core.I_US_POS], p[friction_core.I_UC_POS], p[friction_core.I_V0_POS]),
+                (p[friction_core.I_US_NEG], p[friction_core.I_UC_NEG], p[friction_core.I_V0_NEG]),
+            )
+        ):
+            if v0 > 0.0:  # a decay range (the law's own checks decide whether it is used)
+                slopes[1 + n] = b_total - (us - uc) / v0
         for n in range(CACHE_SLOPES):
             ell = slopes[n] / j * h
             e1, e2 = _phi12(ell)

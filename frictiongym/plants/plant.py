@@ -233,7 +233,7 @@ class Plant:
             self.rows = np.repeat(self.rows, self.num_plants, axis=0)
 
     def prime_rows(self, mask: npt.ArrayLike | None = None) -> None:
-        """Refill the coefficient cache of the parameter rows (all, or those where ``mask`` is true).
+        """Refill the coefficient cache of the parameter rows (all, or those of ``mask``).
 
         Call it after writing :attr:`rows`: a row whose cache no longer matches its parameters
         steps slower (never differently) until it is primed.
