@@ -386,10 +386,21 @@ def _step_block(
     """
     one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
     stop = min((block + 1) * BLOCK, state.shape[0])
-    plant = (delay_buffer, head, command, dt, n_sub, plant_rows, one_row, False, delayed)
     for i in range(block * BLOCK, stop):
         if not fresh[i]:
-            plant_kernel.step_plant(i, state, *plant)
+            plant_kernel.step_plant(
+                i,
+                state,
+                delay_buffer,
+                head,
+                command,
+                dt,
+                n_sub,
+                plant_rows,
+                one_row,
+                False,
+                delayed,
+            )
             state[i, E_STEPS] += 1.0
     for i in range(block * BLOCK, stop):
         _observe_env(i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row)
