@@ -136,9 +136,11 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         """Return the envs' info with Gymnasium's ``_key`` masks (only the envs of ``mask``)."""
         values = [out[row] for row in _OUT_ROWS] + [flags[env_kernel.F_STUCK]]
         info: dict[str, Any] = {}
-        for key, value in zip((*INFO_KEYS, "stuck"), values, strict=True):
-            if mask is None:  # every env reports every key; new masks each call
-                info[key], info["_" + key] = value, np.ones(self.num_envs, dtype=bool)
+        if mask is None:  # every env reports every key: new masks each call, allocated at once
+            masks = np.ones((len(values), self.num_envs), dtype=bool)
+        for n, (key, value) in enumerate(zip((*INFO_KEYS, "stuck"), values, strict=True)):
+            if mask is None:
+                info[key], info["_" + key] = value, masks[n]
             else:  # as SyncVectorEnv gathers a subset: zeros elsewhere
                 info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
         return info
@@ -230,11 +232,14 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
         self.sim.run(command, fresh, obs, out, flags)
-        reward = out[env_kernel.O_REWARD].copy()
-        terminated = flags[env_kernel.F_TERMINATED].copy()
-        truncated = flags[env_kernel.F_TRUNCATED].copy()
+        # Rows of this step's own output arrays, fresh every step (copied below only where a
+        # same-step reset writes them again).
+        reward = out[env_kernel.O_REWARD]
+        terminated = flags[env_kernel.F_TERMINATED]
+        truncated = flags[env_kernel.F_TRUNCATED]
         done = terminated | truncated
         if mode is AutoresetMode.SAME_STEP and done.any():
+            reward, terminated, truncated = reward.copy(), terminated.copy(), truncated.copy()
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(done):
                 final_obs[i] = obs[i].copy()
