@@ -437,7 +437,7 @@ def plant_threads_runner(
         policy.hold_threads()
         for u in islice(cycle(rows), steps):
             step(u)
-            policy(state[:, :2].astype(np.float32))
+            policy(state[:2].T.astype(np.float32))
 
     return run_with_policy, plant._step_kernel
 

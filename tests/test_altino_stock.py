@@ -346,7 +346,7 @@ def test_the_brake_outlasts_the_end_of_the_episode(mass_factor: float) -> None:
         brakes = after.index(0)
         assert brakes >= 2, f"the stop cancelled the brake at once: {after}"
         assert after == [-1000] * brakes + [0] * STOP_REPEATS
-        assert fake.car.sim.state[0, S_V] <= STOPPED_SPEED, "still approaching at the stop"
+        assert fake.car.sim.state[S_V, 0] <= STOPPED_SPEED, "still approaching at the stop"
         assert fake.car.position > 1.5
         env.close()
 

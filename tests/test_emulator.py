@@ -194,12 +194,12 @@ def test_lockstep_episode_equals_the_simulated_env(serve, kind, env_id, commands
         assert state.applied == counts
         obs, *_ = env.step(np.array([state.applied / hello.command_scale], np.float32))
         if kind == "rotary":  # the env's own float product: bit-identical
-            assert state.sensor * STEP == env.sim.state[0, env_kernel.E_ESTIMATE]
+            assert state.sensor * STEP == env.sim.state[env_kernel.E_ESTIMATE, 0]
             assert np.float32(state.sensor * STEP) == obs[0]
         else:
             assert state.sensor == obs[0]
     assert emu.position == pytest.approx(
-        env.sim.state[0, plant_kernel.S_X] * (1 if kind == "rotary" else -1)
+        env.sim.state[plant_kernel.S_X, 0] * (1 if kind == "rotary" else -1)
     )
     assert [t.sensor for t in emu.history[-len(commands) :]] != [0] * len(commands)
     assert emu.stats().ticks == len(commands) + 1
@@ -222,7 +222,8 @@ def test_zero_position_at_rest_equals_a_fresh_reset(law):
     fresh.prepare_reset(np.ones(1, bool), lambda _: np.random.default_rng(0))
     if law in ("paper", "coulomb", "stribeck"):  # laws with stiction come to rest exactly
         assert velocity == 0.0
-        np.testing.assert_array_equal(fw.plant.state[0], fresh.state[0, : plant_kernel.STATE_SIZE])
+        plant_state = fresh.state[: plant_kernel.STATE_SIZE, 0]
+        np.testing.assert_array_equal(fw.plant.state[:, 0], plant_state)
         assert fw.sensor == env_kernel.task_state(fresh.state, "estimate")[0] == 0.0
 
 
@@ -261,7 +262,7 @@ def test_firmware_reads_the_env_sensor_with_the_env_draws(kind):
         fw.hold(count)
         readings.append(fw.sensor)
         assert fw.sensor == env_reading(count / fw.scale)
-        np.testing.assert_array_equal(fw.plant.state[0], sim.state[0, : plant_kernel.STATE_SIZE])
+        np.testing.assert_array_equal(fw.plant.state[:, 0], sim.state[: plant_kernel.STATE_SIZE, 0])
     assert len(set(readings)) > 10  # the plant moved and the noise showed
 
 

@@ -113,7 +113,7 @@ def test_a_diverged_plant_terminates_instead_of_running_on(env_id: str) -> None:
 
     env = gym.make(env_id).unwrapped
     env.reset(seed=0)
-    env.sim.state[0, plant_kernel.S_X] = np.nan  # what a diverging integration would leave
+    env.sim.state[plant_kernel.S_X, 0] = np.nan  # what a diverging integration would leave
     assert env.step(np.array([0.0], np.float32))[2]
 
 

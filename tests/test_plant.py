@@ -48,7 +48,7 @@ def test_scalar_equals_batch_bit_for_bit() -> None:
     for i in range(n_plants):
         # one batch shares one substep count: give the single plant the same
         single = Plant(BATCH_PARAMS[i], BATCH_LAWS[i], DT, substeps=batch.substeps)
-        single.reset(position=start[i, plant_kernel.S_X], velocity=start[i, plant_kernel.S_V])
+        single.reset(position=start[plant_kernel.S_X, i], velocity=start[plant_kernel.S_V, i])
         ts = run(single, n, commands=u[:, i])
         for field in ("x", "v", "stuck", "command", "friction"):
             assert np.array_equal(getattr(ts, field)[:, 0], getattr(tb, field)[:, i]), (i, field)
@@ -116,7 +116,7 @@ def test_pure_python_kernel_agrees_with_compiled(tmp_path: Path) -> None:
 def test_py_func_batch_loop_agrees_with_compiled() -> None:
     plant = Plant(BATCH_PARAMS, BATCH_LAWS, DT, num_plants=len(BATCH_LAWS))
     state_a, state_b = plant.state.copy(), plant.state.copy()
-    buf_a, buf_b = np.zeros((len(BATCH_LAWS), 0)), np.zeros((len(BATCH_LAWS), 0))
+    buf_a, buf_b = np.zeros((0, len(BATCH_LAWS))), np.zeros((0, len(BATCH_LAWS)))
     rng = np.random.default_rng(1)
     for _ in range(200):
         u = rng.uniform(-1.3, 1.3, len(BATCH_LAWS))
@@ -181,16 +181,16 @@ def test_place_moves_plants_and_keeps_the_rest_of_their_state() -> None:
     moving = plant.state.copy()
     buffer = plant.delay_buffer.copy()
     plant.place(0.25, mask=[True, False])  # an encoder reset: only the position changes
-    assert plant.position.tolist() == [0.25, moving[1, plant_kernel.S_X]]
+    assert plant.position.tolist() == [0.25, moving[plant_kernel.S_X, 1]]
     others = [c for c in range(plant_kernel.STATE_SIZE) if c != plant_kernel.S_X]
-    np.testing.assert_array_equal(plant.state[:, others], moving[:, others])
+    np.testing.assert_array_equal(plant.state[others], moving[others])
     np.testing.assert_array_equal(plant.delay_buffer, buffer)
     plant.place(-1.0, stop=True)  # an inelastic stop: at rest and stuck there
     assert plant.position.tolist() == [-1.0, -1.0]
     assert plant.velocity.tolist() == [0.0, 0.0]
     assert plant.stuck.all()
     kept = [plant_kernel.S_Z, plant_kernel.S_LAG, plant_kernel.S_FRICTION, plant_kernel.S_COMMAND]
-    np.testing.assert_array_equal(plant.state[:, kept], moving[:, kept])
+    np.testing.assert_array_equal(plant.state[kept], moving[kept])
 
 
 @pytest.mark.parametrize("lag", [0.005, 0.02])
@@ -205,7 +205,7 @@ def test_actuator_lag_first_order_response(lag: float) -> None:
     y, v = [], []
     for _ in range(n):
         plant.step(u)
-        y.append(plant.state[0, plant_kernel.S_LAG])
+        y.append(plant.state[plant_kernel.S_LAG, 0])
         v.append(plant.velocity[0])
     np.testing.assert_allclose(y, -u * np.expm1(-t / lag), rtol=1e-12, atol=1e-15)
     np.testing.assert_allclose(v, u / inertia * (t + lag * np.expm1(-t / lag)), rtol=1e-12)
@@ -298,9 +298,9 @@ def test_reset_with_mask_touches_only_selected_plants() -> None:
     assert plant.stuck.tolist() == [True, False, False]
     for _ in range(10):
         plant.step(0.0)
-    kept = plant.state[[0, 2]].copy()
+    kept = plant.state[:, [0, 2]].copy()
     plant.reset(position=9.0, velocity=0.25, mask=[False, True, False])
-    assert np.array_equal(plant.state[[0, 2]], kept)
+    assert np.array_equal(plant.state[:, [0, 2]], kept)
     assert (plant.position[1], plant.velocity[1], plant.stuck[1]) == (9.0, 0.25, False)
 
 

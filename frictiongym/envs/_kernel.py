@@ -12,7 +12,7 @@ Layouts (all float64 unless noted):
   envs unless they are randomised (a shared row keeps the working set of 4 096 envs in cache);
 * task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
   the episode;
-* state (N, ``ENV_STATE_SIZE``): the plant state, then the step count, the estimated
+* state (``ENV_STATE_SIZE``, N): the plant state, then the step count, the estimated
   position, the estimated velocity and the reference of the last observation;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
@@ -93,7 +93,7 @@ def setting(config: npt.NDArray[np.float64], name: str) -> float:
 
 def task_state(state: npt.NDArray[np.float64], name: str) -> npt.NDArray[np.float64]:
     """One of the env's own state columns (a view), by its name in :data:`STATE_COLUMNS`."""
-    return state[:, STATE_COLUMNS[name]]
+    return state[STATE_COLUMNS[name]]
 
 
 def set_episode(
@@ -138,23 +138,23 @@ def _observe_env(
     one_row: bool,
 ) -> None:
     """Read env ``i``'s sensor and write its observation, reward and episode end."""
-    x, encoder = state[i, plant_kernel.S_X], config[C_SENSOR] == SENSOR_ENCODER
+    x, encoder = state[plant_kernel.S_X, i], config[C_SENSOR] == SENSOR_ENCODER
     noise = 0.0
     if config[C_NOISE] > 0.0:
         noise = config[C_NOISE] * normal_draw(rng, i)
     quantize, gain, offset = config[C_QUANTIZE] != 0.0, rows[i, T_GAIN], rows[i, T_OFFSET]
     measured = measure(x, encoder, gain, offset, noise, quantize, config[C_ENCODER_STEP])
     if encoder:
-        position, velocity = x, state[i, plant_kernel.S_V]
+        position, velocity = x, state[plant_kernel.S_V, i]
     else:  # IR: the plant moves toward the wall, so the distance is -x
-        position, velocity = 0.0 - x, 0.0 - state[i, plant_kernel.S_V]  # not -0.0 at the wall
+        position, velocity = 0.0 - x, 0.0 - state[plant_kernel.S_V, i]  # not -0.0 at the wall
     umax = plant_rows[0 if one_row else i, plant_kernel.I_UMAX]
     _observe(
         i,
         measured,
         position,
         velocity,
-        state[i, plant_kernel.S_COMMAND],
+        state[plant_kernel.S_COMMAND, i],
         umax,
         dt,
         state,
@@ -166,7 +166,7 @@ def _observe_env(
         flags,
         False,
     )
-    flags[F_STUCK, i] = state[i, plant_kernel.S_STUCK] != 0.0
+    flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
 
 
 #: The smallest normal float32: an observation below it would be subnormal (slow to compute
@@ -209,7 +209,7 @@ def _observe(
     readout. A device knows no true ``position`` and ``velocity``; with ``measured_only`` the
     estimates stand for them in the reward, the limit and the outputs.
     """
-    t = state[i, E_STEPS] * dt
+    t = state[E_STEPS, i] * dt
     if config[C_SENSOR] == SENSOR_ENCODER:
         estimate = measured
     else:
@@ -218,9 +218,9 @@ def _observe(
         estimated_velocity = 0.0
     else:
         estimated_velocity = derivative_update(
-            state[i, E_VELOCITY],
+            state[E_VELOCITY, i],
             estimate,
-            state[i, E_ESTIMATE],
+            state[E_ESTIMATE, i],
             config[C_POLE],
             dt,
             config[C_VELOCITY_FLOOR],
@@ -233,9 +233,9 @@ def _observe(
     else:
         terminated = not position > config[C_LIMIT]
     reference = reference_at(t, rows, i, T_REF)
-    state[i, E_ESTIMATE] = estimate
-    state[i, E_VELOCITY] = estimated_velocity
-    state[i, E_REFERENCE] = reference
+    state[E_ESTIMATE, i] = estimate
+    state[E_VELOCITY, i] = estimated_velocity
+    state[E_REFERENCE, i] = reference
 
     if fresh[i]:
         reward, terminated, truncated = 0.0, False, False
@@ -251,7 +251,7 @@ def _observe(
             reward -= config[C_PENALTY] + config[C_HORIZON] * (
                 config[C_ERROR_CAP] + config[C_EFFORT_WEIGHT]
             )
-        truncated = 0.0 < config[C_MAX_STEPS] <= state[i, E_STEPS]
+        truncated = 0.0 < config[C_MAX_STEPS] <= state[E_STEPS, i]
 
     if config[C_SENSOR] == SENSOR_ENCODER:
         obs[i, 0], obs[i, 1] = _float32_normal(measured), estimated_velocity
@@ -288,7 +288,7 @@ def observe_device(
     The same :func:`_observe` as the simulator's: identical readings give identical observations.
     """
     if not fresh[0]:
-        state[0, E_STEPS] += 1.0
+        state[E_STEPS, 0] += 1.0
     _observe(
         0,
         measured,
@@ -384,8 +384,8 @@ def _step_block(
     to code half as fast as the two apart (docs/benchmarks.md, "Kernel near the machine's
     limit"); a block's state stays in cache from the first loop to the second.
     """
-    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[1] > 0
-    stop = min((block + 1) * BLOCK, state.shape[0])
+    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[0] > 0
+    stop = min((block + 1) * BLOCK, state.shape[1])
     for i in range(block * BLOCK, stop):
         if not fresh[i]:
             plant_kernel.step_plant(
@@ -401,7 +401,7 @@ def _step_block(
                 False,
                 delayed,
             )
-            state[i, E_STEPS] += 1.0
+            state[E_STEPS, i] += 1.0
     for i in range(block * BLOCK, stop):
         _observe_env(i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row)
 
@@ -430,7 +430,7 @@ def step_envs(
     bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
-    for block in range((state.shape[0] + BLOCK - 1) // BLOCK):
+    for block in range((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             block,
             state,
@@ -472,7 +472,7 @@ def step_envs_parallel(
     bad = plant_kernel.first_non_finite(command)
     if bad >= 0:
         return bad
-    for block in prange((state.shape[0] + BLOCK - 1) // BLOCK):
+    for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
             state,

@@ -142,11 +142,11 @@ def reset_plants(
     k = 0
     for i in range(mask.shape[0]):
         if mask[i]:
-            state[i, :] = 0.0
-            state[i, S_X] = position[k]
-            state[i, S_V] = velocity[k]
-            state[i, S_STUCK] = 1.0 if velocity[k] == 0.0 else 0.0
-            delay_buffer[i, :] = 0.0
+            state[:, i] = 0.0
+            state[S_X, i] = position[k]
+            state[S_V, i] = velocity[k]
+            state[S_STUCK, i] = 1.0 if velocity[k] == 0.0 else 0.0
+            delay_buffer[:, i] = 0.0
             k += 1
 
 
@@ -660,13 +660,13 @@ def step_plant(
     )
     c = command[0] if one_command else command[i]
     c = min(max(c, -plant[I_UMAX]), plant[I_UMAX])
-    state[i, S_COMMAND] = c
+    state[S_COMMAND, i] = c
     if delayed:
-        due = delay_buffer[i, head]
-        delay_buffer[i, head] = c
+        due = delay_buffer[head, i]
+        delay_buffer[head, i] = c
         c = due
-    x0, v0 = state[i, S_X], state[i, S_V]
-    z, y = state[i, S_Z], state[i, S_LAG]
+    x0, v0 = state[S_X, i], state[S_V, i]
+    z, y = state[S_Z, i], state[S_LAG, i]
     if n_sub == 1 and plant[I_LAG] == 0.0 and has_exact_step(friction):
         # The common case, inlined (a call of advance costs more than most steps): one phase,
         # and the rest of the step phase by phase only if that one ended at an event. The same
@@ -685,12 +685,12 @@ def step_plant(
             f = (impulse + friction[friction_core.I_VISCOUS] * (x - x0)) / h
     else:
         x, v, z, y, f = advance(x0, v0, z, y, c, h, n_sub, plant, friction, cache)
-    state[i, S_X] = x
-    state[i, S_V] = v
-    state[i, S_Z] = z
-    state[i, S_LAG] = y
-    state[i, S_FRICTION] = f
-    state[i, S_STUCK] = 1.0 if v == 0.0 else 0.0
+    state[S_X, i] = x
+    state[S_V, i] = v
+    state[S_Z, i] = z
+    state[S_LAG, i] = y
+    state[S_FRICTION, i] = f
+    state[S_STUCK, i] = 1.0 if v == 0.0 else 0.0
 
 
 @serial_njit
@@ -707,9 +707,9 @@ def step_batch(
 
     Parameters
     ----------
-    state : ndarray, shape (N, STATE_SIZE)
+    state : ndarray, shape (STATE_SIZE, N)
         Plant states, updated in place.
-    delay_buffer : ndarray, shape (N, D)
+    delay_buffer : ndarray, shape (D, N)
         Commands in flight for a dead time of D control periods (D may be 0).
     head : int
         Slot of ``delay_buffer`` holding the command that is due now.
@@ -732,8 +732,8 @@ def step_batch(
     if bad >= 0:
         return bad
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
-    delayed = delay_buffer.shape[1] > 0
-    for i in range(state.shape[0]):
+    delayed = delay_buffer.shape[0] > 0
+    for i in range(state.shape[1]):
         step_plant(
             i, state, delay_buffer, head, command, h, n_sub, params, one_row, one_command, delayed
         )
@@ -755,8 +755,8 @@ def step_batch_parallel(
     if bad >= 0:
         return bad
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
-    delayed = delay_buffer.shape[1] > 0
-    for i in prange(state.shape[0]):
+    delayed = delay_buffer.shape[0] > 0
+    for i in prange(state.shape[1]):
         step_plant(
             np.int64(i),  # prange's index is unsigned; the body indexes with signed integers
             state,

@@ -138,8 +138,9 @@ class Plant:
 
     Notes
     -----
-    The state lives in one ``(N, 7 + task_columns)`` float64 array (:attr:`state`, columns in
-    :mod:`frictiongym.plants._kernel`); the properties below are views into it.
+    The state lives in one ``(7 + task_columns, N)`` float64 array (:attr:`state`, one row per
+    quantity, its index in :mod:`frictiongym.plants._kernel`); the properties below are views
+    into it.
     """
 
     dt: float
@@ -196,9 +197,11 @@ class Plant:
         self._step_kernel = select_kernel(*kernels, self.num_plants, parallel)
         #: whether the threaded kernel may run (always, or when the adaptive choice picks it)
         self.parallel = self._step_kernel is not self._serial
-        self.state: FloatArray = np.zeros((self.num_plants, plant_kernel.STATE_SIZE + task_columns))
-        #: Commands in flight over the dead time, ``(N, delay_steps)``.
-        self.delay_buffer: FloatArray = np.zeros((self.num_plants, self.delay_steps))
+        #: One row per state column, one entry per plant: the kernel reads each column as a
+        #: contiguous vector (a plant per entry), which lets its common path run in SIMD lanes.
+        self.state: FloatArray = np.zeros((plant_kernel.STATE_SIZE + task_columns, self.num_plants))
+        #: Commands in flight over the dead time, ``(delay_steps, N)``.
+        self.delay_buffer: FloatArray = np.zeros((self.delay_steps, self.num_plants))
         self.head = 0
         self.reset()
 
@@ -263,8 +266,8 @@ class Plant:
             self._params = [self._params[i] for i in idx]
         if self.rows.shape[0] > 1:
             self.rows = np.ascontiguousarray(self.rows[idx])
-        self.state = np.ascontiguousarray(self.state[idx])
-        self.delay_buffer = np.ascontiguousarray(self.delay_buffer[idx])
+        self.state = np.ascontiguousarray(self.state[:, idx])
+        self.delay_buffer = np.ascontiguousarray(self.delay_buffer[:, idx])
         size, self.num_plants = self.num_plants, int(idx.size)
         kernel = self._step_kernel
         if isinstance(kernel, AdaptiveKernel) and self.num_plants < PARALLEL_MIN_PLANTS:
@@ -356,7 +359,7 @@ class Plant:
         return bad
 
     def _column(self, name: str) -> FloatArray:
-        return self.state[:, plant_kernel.COLUMNS[name]]
+        return self.state[plant_kernel.COLUMNS[name]]
 
     @property
     def position(self) -> FloatArray:
