@@ -30,6 +30,7 @@ from frictiongym.friction import (
     NoFriction,
 )
 from frictiongym.plants import Plant, PlantParams
+from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants import _kernel as plant_kernel
 
 
@@ -73,11 +74,11 @@ PURE_PYTHON_SCRIPT = """
 import sys
 import numpy as np
 from frictiongym.plants import Plant, PlantParams
-from frictiongym.plants import _kernel
+from frictiongym.plants import _batch
 from frictiongym.friction import (
     ROTARY_LUGRE, ROTARY_PAPER, CoulombViscous, NoFriction, StictionCoulomb)
 
-compiled = hasattr(_kernel.step_batch, "py_func")
+compiled = hasattr(_batch.step_batch, "py_func")
 assert compiled == (sys.argv[2] == "jit"), "NUMBA_DISABLE_JIT did not take effect"
 laws = [StictionCoulomb(0.5, 0.4, 0.3, 0.2, 0.3, 0.2, 0.1, s)
         for s in ("step", "linear", "smooth", "exponential")]
@@ -120,9 +121,9 @@ def test_py_func_batch_loop_agrees_with_compiled() -> None:
     rng = np.random.default_rng(1)
     for _ in range(200):
         u = rng.uniform(-1.3, 1.3, len(BATCH_LAWS))
-        assert plant_kernel.step_batch(state_a, buf_a, 0, u, DT, plant.substeps, plant.rows) == -1
+        assert plant_batch.step_batch(state_a, buf_a, 0, u, DT, plant.substeps, plant.rows) == -1
         assert (
-            plant_kernel.step_batch.py_func(state_b, buf_b, 0, u, DT, plant.substeps, plant.rows)
+            plant_batch.step_batch.py_func(state_b, buf_b, 0, u, DT, plant.substeps, plant.rows)
             == -1
         )
         assert np.array_equal(state_a, state_b)

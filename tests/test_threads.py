@@ -16,7 +16,7 @@ import pytest
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.friction import ROTARY_PAPER
 from frictiongym.plants import Plant, PlantParams, threads
-from frictiongym.plants import _kernel as plant_kernel
+from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, select_kernel
 from tests._envs import IDS, RANDOM_KWARGS, commands
 
@@ -72,7 +72,7 @@ def run(kernel: AdaptiveKernel, calls: int) -> list[bool]:
 
 
 def test_small_batches_and_one_thread_run_serially() -> None:
-    serial, threaded = plant_kernel.step_batch, plant_kernel.step_batch_parallel
+    serial, threaded = plant_batch.step_batch, plant_batch.step_batch_parallel
     assert select_kernel(serial, threaded, PARALLEL_MIN_PLANTS - 1, None) is serial
     assert select_kernel(serial, threaded, 1, None) is serial
     large = select_kernel(serial, threaded, PARALLEL_MIN_PLANTS, None)
@@ -80,7 +80,7 @@ def test_small_batches_and_one_thread_run_serially() -> None:
 
 
 def test_parallel_true_or_false_forces_a_twin() -> None:
-    serial, threaded = plant_kernel.step_batch, plant_kernel.step_batch_parallel
+    serial, threaded = plant_batch.step_batch, plant_batch.step_batch_parallel
     for size in (1, PARALLEL_MIN_PLANTS, 65536):
         assert select_kernel(serial, threaded, size, True) is threaded
         assert select_kernel(serial, threaded, size, False) is serial
@@ -92,15 +92,15 @@ def test_parallel_true_or_false_forces_a_twin() -> None:
 def test_plant_and_envs_take_their_kernel_from_the_policy() -> None:
     small = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS - 1)
     large = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS)
-    assert small._step_kernel is plant_kernel.step_batch
+    assert small._step_kernel is plant_batch.step_batch
     assert not small.parallel
     assert isinstance(large._step_kernel, AdaptiveKernel) == THREADS
     forced = Plant(PARAMS, ROTARY_PAPER, 0.002, num_plants=PARALLEL_MIN_PLANTS, parallel=False)
-    assert forced._step_kernel is plant_kernel.step_batch
+    assert forced._step_kernel is plant_batch.step_batch
     assert not forced.parallel
     assert (
         Plant(PARAMS, ROTARY_PAPER, 0.002, parallel=True)._step_kernel
-        is plant_kernel.step_batch_parallel
+        is plant_batch.step_batch_parallel
     )
     vec = gym.make_vec(
         IDS[0], num_envs=PARALLEL_MIN_PLANTS, vectorization_mode="vector_entry_point"
@@ -239,9 +239,9 @@ def test_keep_drops_plants_and_the_others_go_on_exactly() -> None:
         part.step(row[kept])
         np.testing.assert_array_equal(part.state, full.state[:, kept])
         if t == 60:
-            assert part._step_kernel is (kernel if THREADS else plant_kernel.step_batch)
+            assert part._step_kernel is (kernel if THREADS else plant_batch.step_batch)
     assert part.num_plants == kept.size < PARALLEL_MIN_PLANTS
-    assert part._step_kernel is plant_kernel.step_batch
+    assert part._step_kernel is plant_batch.step_batch
     assert not part.parallel
     assert part.params == [params[i] for i in kept]
 

@@ -2,8 +2,8 @@
 
 The single env (N = 1) and the vector env run the same code, :func:`_step_block`, through
 :func:`step_envs` (serial) or :func:`step_envs_parallel` (numba threads), so their trajectories
-agree bit for bit. The plant part is the plant
-kernel's own :func:`~frictiongym.plants._kernel.step_plant`, the sensors those of
+agree bit for bit. The plant part is the plant kernel's own
+:func:`~frictiongym.plants._batch.step_plants`, the sensors those of
 :mod:`frictiongym.plants.sensors`, the reference :func:`~frictiongym.envs.references.reference_at`.
 
 Layouts (all float64 unless noted):
@@ -26,6 +26,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.envs.references import REF_SIZE, reference_at
+from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.sensors import (
     SENSOR_ENCODER,
@@ -117,9 +118,8 @@ F_TRUNCATED = 1
 F_STUCK = 2
 FLAG_SIZE = 3
 
-#: Envs per block of the batch kernels: a block's plants are stepped, then observed, while its
-#: state is in cache; the threaded kernel spreads whole blocks over its threads.
-BLOCK = 256
+#: Envs per block: the plant kernel's blocks.
+BLOCK = plant_batch.BLOCK
 
 
 @njit(cache=True, inline="always")
@@ -384,25 +384,15 @@ def _step_block(
     to code half as fast as the two apart (docs/benchmarks.md, "Kernel near the machine's
     limit"); a block's state stays in cache from the first loop to the second.
     """
-    one_row, delayed = plant_rows.shape[0] == 1, delay_buffer.shape[0] > 0
-    stop = min((block + 1) * BLOCK, state.shape[1])
-    for i in range(block * BLOCK, stop):
+    one_row = plant_rows.shape[0] == 1
+    start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
+    plant_batch.step_plants(
+        start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
+    )
+    for i in range(start, stop):
         if not fresh[i]:
-            plant_kernel.step_plant(
-                i,
-                state,
-                delay_buffer,
-                head,
-                command,
-                dt,
-                n_sub,
-                plant_rows,
-                one_row,
-                False,
-                delayed,
-            )
             state[E_STEPS, i] += 1.0
-    for i in range(block * BLOCK, stop):
+    for i in range(start, stop):
         _observe_env(i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row)
 
 
@@ -427,7 +417,7 @@ def step_envs(
 
     Returns -1, or the index of the first non-finite command (then nothing changed).
     """
-    bad = plant_kernel.first_non_finite(command)
+    bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     for block in range((state.shape[1] + BLOCK - 1) // BLOCK):
@@ -469,7 +459,7 @@ def step_envs_parallel(
     flags: npt.NDArray[np.bool_],
 ) -> int:
     """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results)."""
-    bad = plant_kernel.first_non_finite(command)
+    bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):

@@ -36,7 +36,7 @@ import warnings
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit, prange
+from numba import njit
 from numba.core.errors import NumbaPerformanceWarning
 
 from frictiongym.friction import _core as friction_core
@@ -316,6 +316,67 @@ def breakaway_direction(u: float, p: Row) -> float:
 
 
 @njit(cache=True, inline="always")
+def direction_levels(s: float, p: Row) -> tuple[float, float, float]:
+    """Break-away level, Coulomb level and decay speed of direction ``s`` (+1.0 or -1.0)."""
+    if s > 0.0:
+        return p[friction_core.I_US_POS], p[friction_core.I_UC_POS], p[friction_core.I_V0_POS]
+    return p[friction_core.I_US_NEG], p[friction_core.I_UC_NEG], p[friction_core.I_V0_NEG]
+
+
+@njit(cache=True, inline="always")
+def sliding_setup(
+    v: float, u: float, s: float, b_total: float, us: float, uc: float, v0: float, linear: bool
+) -> tuple[float, float, float, bool, int, float]:
+    """Return the affine law ``j v' = a - bb v`` of a body sliding in direction ``s``, its event.
+
+    The body slides in direction ``s`` at ``v`` (``s v >= 0``; ``v`` may be 0.0 just after
+    break-away) under input ``u``, with the levels and decay speed of that direction
+    (``linear``: the decay is linear; otherwise a step).
+
+    Returns
+    -------
+    a, bb : float
+        Force and slope of the speed range the body is on.
+    k : float
+        Slope of the linear decay (0.0 without one).
+    inner : bool
+        Whether it is on the decay range.
+    slope : int
+        Which of the row cache's slopes ``bb`` is: 0 Coulomb range, 1 and 2 the decay range
+        forward and backward.
+    target : float
+        The velocity whose crossing ends the phase (stop, or the edge of the decay range), NaN
+        if none lies ahead.
+
+    Written with conditional expressions only, so that a loop over plants compiles to SIMD.
+    """
+    decays = linear and us > uc
+    speed = s * v
+    # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
+    # linearly, u - s[us - k|v|] = (u - s us) + k v, so the slope drops by k.
+    a_out = u - s * uc
+    k = (us - uc) / v0 if decays else 0.0
+    # on the boundary speed == v0: the side it is heading to
+    inner = decays and (speed < v0 or (speed == v0 and s * (a_out - b_total * v) < 0.0))
+    a = u - s * us if inner else a_out
+    bb = b_total - k if inner else b_total
+    slope = (1 if s > 0.0 else 2) if inner else 0
+    acc = a - bb * v
+    slowing, speeding = s * acc < 0.0, s * acc > 0.0
+    beyond = s * v0 if decays and not inner else 0.0  # the next event when slowing down
+    target = beyond if slowing else (s * v0 if speeding and inner else math.nan)
+    return a, bb, k, inner, slope, target
+
+
+@njit(cache=True, inline="always")
+def phase_impulse(
+    inner: bool, s: float, us: float, uc: float, k: float, dt: float, dx: float
+) -> float:
+    """Time integral of the nonlinear friction over a sliding phase of length ``dt`` and ``dx``."""
+    return s * us * dt - k * dx if inner else s * uc * dt
+
+
+@njit(cache=True, inline="always")
 def exact_phase(
     x: float,
     v: float,
@@ -347,45 +408,10 @@ def exact_phase(
             return x, v, t_left, p[friction_core.I_US_POS] * t_left
     else:
         s = 1.0 if v > 0.0 else -1.0
-    if s > 0.0:
-        us, uc, v0 = (
-            p[friction_core.I_US_POS],
-            p[friction_core.I_UC_POS],
-            p[friction_core.I_V0_POS],
-        )
-    else:
-        us, uc, v0 = (
-            p[friction_core.I_US_NEG],
-            p[friction_core.I_UC_NEG],
-            p[friction_core.I_V0_NEG],
-        )
-    decays = p[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR and us > uc
-    speed = s * v
-    # Coulomb range: a = u - s uc, slope b_total. Decay range (|v| < v0): the level falls
-    # linearly, u - s[us - k|v|] = (u - s us) + k v, so the slope drops by k.
-    a_out = u - s * uc
-    inner = False
-    k = 0.0
-    if decays:
-        k = (us - uc) / v0
-        if speed < v0:
-            inner = True
-        elif speed == v0:  # on the boundary: the side it is heading to
-            inner = s * (a_out - b_total * v) < 0.0
-    if inner:
-        a = u - s * us
-        bb = b_total - k
-        slope = 1 if s > 0.0 else 2  # the cache's decay-range slopes
-    else:
-        a = a_out
-        bb = b_total
-        slope = 0
-    acc = a - bb * v
-    target = math.nan
-    if s * acc < 0.0:
-        target = s * v0 if (decays and not inner) else 0.0
-    elif s * acc > 0.0 and inner:
-        target = s * v0
+    us, uc, v0 = direction_levels(s, p)
+    a, bb, k, inner, slope, target = sliding_setup(
+        v, u, s, b_total, us, uc, v0, p[friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    )
     dt = t_left
     x_new, v_new = _cached_advance(x, v, a, bb, j, dt, cache, slope)
     # v is monotone within a phase, so the event lies in this step iff v reaches the target.
@@ -401,11 +427,7 @@ def exact_phase(
     if x_new > stop:  # x rises through this phase: the contact comes first
         dt = affine_time_to_position(x, v, a, bb, j, stop, dt)
         x_new, v_new = stop, 0.0
-    if inner:
-        impulse = s * us * dt - k * (x_new - x)
-    else:
-        impulse = s * uc * dt
-    return x_new, v_new, dt, impulse
+    return x_new, v_new, dt, phase_impulse(inner, s, us, uc, k, dt, x_new - x)
 
 
 @njit(cache=True)
@@ -606,168 +628,3 @@ def advance(
     if held:
         return x, v, z, y, u
     return x, v, z, y, (impulse + friction[friction_core.I_VISCOUS] * (x - x_start)) / h
-
-
-@njit(cache=True)
-def first_non_finite(command: npt.NDArray[np.float64]) -> int:
-    """Index of the first NaN or infinite command, or -1."""
-    for i in range(command.shape[0]):
-        if not math.isfinite(command[i]):
-            return i
-    return -1
-
-
-@njit(cache=True, inline="always")
-def step_plant(
-    i: int,
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
-    h: float,
-    n_sub: int,
-    params: npt.NDArray[np.float64],
-    one_row: bool,
-    one_command: bool,
-    delayed: bool,
-) -> None:
-    """Saturate, delay and apply the command of plant ``i`` (inlined into every batch loop)."""
-    r = 0 if one_row else i
-    plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG], params[r, I_STOP])
-    friction = (
-        params[r, F0 + 0],
-        params[r, F0 + 1],
-        params[r, F0 + 2],
-        params[r, F0 + 3],
-        params[r, F0 + 4],
-        params[r, F0 + 5],
-        params[r, F0 + 6],
-        params[r, F0 + 7],
-        params[r, F0 + 8],
-        params[r, F0 + 9],
-        params[r, F0 + 10],
-    )
-    cache = (
-        params[r, K0 + 0],
-        params[r, K0 + 1],
-        params[r, K0 + 2],
-        params[r, K0 + 3],
-        params[r, K0 + 4],
-        params[r, K0 + 5],
-        params[r, K0 + 6],
-        params[r, K0 + 7],
-        params[r, K0 + 8],
-    )
-    c = command[0] if one_command else command[i]
-    c = min(max(c, -plant[I_UMAX]), plant[I_UMAX])
-    state[S_COMMAND, i] = c
-    if delayed:
-        due = delay_buffer[head, i]
-        delay_buffer[head, i] = c
-        c = due
-    x0, v0 = state[S_X, i], state[S_V, i]
-    z, y = state[S_Z, i], state[S_LAG, i]
-    if n_sub == 1 and plant[I_LAG] == 0.0 and has_exact_step(friction):
-        # The common case, inlined (a call of advance costs more than most steps): one phase,
-        # and the rest of the step phase by phase only if that one ended at an event. The same
-        # operations as advance, so the same bits.
-        j, stop = plant[I_J], plant[I_STOP]
-        b_total = plant[I_B] + friction[friction_core.I_VISCOUS]
-        x, v, dt, impulse = exact_phase(x0, v0, c, h, j, b_total, friction, stop, cache)
-        if dt != h:
-            x, v, impulse = exact_static(
-                x, v, c, h - dt, j, b_total, friction, stop, cache, 0.0 + impulse, _MAX_SEGMENTS - 1
-            )
-        impulse = 0.0 + impulse
-        if v0 == 0.0 and breakaway_direction(c, friction) == 0.0:
-            f = c  # held all step: friction equals the input exactly, as in advance
-        else:
-            f = (impulse + friction[friction_core.I_VISCOUS] * (x - x0)) / h
-    else:
-        x, v, z, y, f = advance(x0, v0, z, y, c, h, n_sub, plant, friction, cache)
-    state[S_X, i] = x
-    state[S_V, i] = v
-    state[S_Z, i] = z
-    state[S_LAG, i] = y
-    state[S_FRICTION, i] = f
-    state[S_STUCK, i] = 1.0 if v == 0.0 else 0.0
-
-
-@serial_njit
-def step_batch(
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
-    h: float,
-    n_sub: int,
-    params: npt.NDArray[np.float64],
-) -> int:
-    """Step N plants in place.
-
-    Parameters
-    ----------
-    state : ndarray, shape (STATE_SIZE, N)
-        Plant states, updated in place.
-    delay_buffer : ndarray, shape (D, N)
-        Commands in flight for a dead time of D control periods (D may be 0).
-    head : int
-        Slot of ``delay_buffer`` holding the command that is due now.
-    command : ndarray, shape (N,) or (1,)
-        Commands (broadcast if of length 1).
-    h : float
-        Control period.
-    n_sub : int
-        Substeps per control period.
-    params : ndarray, shape (N, ROW_SIZE) or (1, ROW_SIZE)
-        Plant rows (broadcast if one row).
-
-    Returns
-    -------
-    int
-        -1 on success; otherwise the index of the first non-finite command, in which case
-        no state was changed.
-    """
-    bad = first_non_finite(command)
-    if bad >= 0:
-        return bad
-    one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
-    delayed = delay_buffer.shape[0] > 0
-    for i in range(state.shape[1]):
-        step_plant(
-            i, state, delay_buffer, head, command, h, n_sub, params, one_row, one_command, delayed
-        )
-    return -1
-
-
-@njit(cache=True, parallel=True)
-def step_batch_parallel(
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
-    h: float,
-    n_sub: int,
-    params: npt.NDArray[np.float64],
-) -> int:
-    """:func:`step_batch` with the plants spread over numba's threads (bit-identical results)."""
-    bad = first_non_finite(command)
-    if bad >= 0:
-        return bad
-    one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
-    delayed = delay_buffer.shape[0] > 0
-    for i in prange(state.shape[1]):
-        step_plant(
-            np.int64(i),  # prange's index is unsigned; the body indexes with signed integers
-            state,
-            delay_buffer,
-            head,
-            command,
-            h,
-            n_sub,
-            params,
-            one_row,
-            one_command,
-            delayed,
-        )
-    return -1

@@ -18,6 +18,7 @@ import numpy.typing as npt
 
 from frictiongym._validation import check_finite, check_nonnegative, check_positive
 from frictiongym.friction.laws import FrictionModel, LuGre
+from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants.threads import PARALLEL_MIN_PLANTS, AdaptiveKernel, Kernel, select_kernel
 
@@ -132,7 +133,7 @@ class Plant:
         estimates and reference there).
     kernels : (Kernel, Kernel), optional
         The serial and threaded batch kernels: by default the plant kernel's
-        (:func:`~frictiongym.plants._kernel.step_batch`); a task kernel such as
+        (:func:`~frictiongym.plants._batch.step_batch`); a task kernel such as
         :func:`~frictiongym.envs._kernel.step_envs` takes the same first seven arguments and
         steps the plant inside its own loop.
 
@@ -164,8 +165,8 @@ class Plant:
         *,
         task_columns: int = 0,
         kernels: tuple[Kernel, Kernel] = (
-            plant_kernel.step_batch,
-            plant_kernel.step_batch_parallel,
+            plant_batch.step_batch,
+            plant_batch.step_batch_parallel,
         ),
     ) -> None:
         if not (isinstance(dt, numbers.Real) and math.isfinite(dt) and dt > 0.0):

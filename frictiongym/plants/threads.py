@@ -1,6 +1,6 @@
 """Which twin of a batched kernel runs a call: the serial loop, numba's threads, or the faster now.
 
-Each batched kernel (:func:`~frictiongym.plants._kernel.step_batch`,
+Each batched kernel (:func:`~frictiongym.plants._batch.step_batch`,
 :func:`~frictiongym.envs._kernel.step_envs`) has a serial twin and a threaded ``prange`` twin
 that give bit-identical results. The threads pay off on an idle machine, but every call ends in a
 join that waits for all of numba's threads: when another process, or torch's own OpenMP threads

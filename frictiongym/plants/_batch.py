@@ -1,0 +1,450 @@
+"""Batch kernels: N plants stepped by one compiled call, the common case in SIMD lanes.
+
+A batch is stepped in blocks of ``BLOCK`` plants (:func:`step_plants`). Each block takes two
+passes over its plants:
+
+1. :func:`slide_lanes`, a loop with no branches that the compiler turns into SIMD code over the
+   state's contiguous columns: it saturates and delays each command, and finishes every step
+   that needs no event of the event-exact law (a held body; a body sliding on one speed range
+   all step). The rest it marks pending (``S_STUCK = PENDING``, the command due in
+   ``S_FRICTION``).
+2. A scalar loop over the pending plants (about one in twenty under commands around the
+   break-away band) through :func:`advance_plant`, the element step that handles every law
+   and every event.
+
+Both passes compute with the same operations in the same order as the element step alone
+(:func:`~frictiongym.plants._kernel.sliding_setup` is the one copy of the sliding arithmetic),
+so a plant's trajectory is bit-identical whichever pass steps it, alone or in a batch, serially
+or on threads. Batches whose law has no exact step, or that take substeps, skip pass 1.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import numpy.typing as npt
+from numba import njit, prange
+
+from frictiongym.friction import _core as friction_core
+from frictiongym.plants._kernel import (
+    _MAX_SEGMENTS,
+    F0,
+    I_B,
+    I_J,
+    I_LAG,
+    I_STOP,
+    I_UMAX,
+    K0,
+    ROW_SIZE,
+    S_COMMAND,
+    S_FRICTION,
+    S_LAG,
+    S_STUCK,
+    S_V,
+    S_X,
+    S_Z,
+    _affine_advance_by,
+    advance,
+    breakaway_direction,
+    exact_phase,
+    exact_static,
+    has_exact_step,
+    phase_impulse,
+    serial_njit,
+    sliding_setup,
+)
+
+#: Plants per block: pass 2 of a block follows pass 1 while its state is in cache, and the
+#: threaded kernels spread whole blocks over their threads.
+BLOCK = 256
+#: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
+PENDING = 2.0
+if ROW_SIZE != 25:  # slide_lanes unpacks the plant row by hand
+    raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
+
+
+@njit(cache=True)
+def first_non_finite(command: npt.NDArray[np.float64]) -> int:
+    """Index of the first NaN or infinite command, or -1."""
+    for i in range(command.shape[0]):
+        if not math.isfinite(command[i]):
+            return i
+    return -1
+
+
+@njit(cache=True, inline="always")
+def advance_plant(
+    i: int,
+    state: npt.NDArray[np.float64],
+    u: float,
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    one_row: bool,
+) -> None:
+    """Step plant ``i`` under the command ``u`` due now (saturated, after the dead time)."""
+    r = 0 if one_row else i
+    plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG], params[r, I_STOP])
+    friction = (
+        params[r, F0 + 0],
+        params[r, F0 + 1],
+        params[r, F0 + 2],
+        params[r, F0 + 3],
+        params[r, F0 + 4],
+        params[r, F0 + 5],
+        params[r, F0 + 6],
+        params[r, F0 + 7],
+        params[r, F0 + 8],
+        params[r, F0 + 9],
+        params[r, F0 + 10],
+    )
+    cache = (
+        params[r, K0 + 0],
+        params[r, K0 + 1],
+        params[r, K0 + 2],
+        params[r, K0 + 3],
+        params[r, K0 + 4],
+        params[r, K0 + 5],
+        params[r, K0 + 6],
+        params[r, K0 + 7],
+        params[r, K0 + 8],
+    )
+    x0, v0 = state[S_X, i], state[S_V, i]
+    z, y = state[S_Z, i], state[S_LAG, i]
+    if n_sub == 1 and plant[I_LAG] == 0.0 and has_exact_step(friction):
+        # The exact law's step without advance's substep loop (a call of advance costs more
+        # than most steps): one phase, and the rest phase by phase only if that one ended at
+        # an event. The same operations as advance, so the same bits.
+        j, stop = plant[I_J], plant[I_STOP]
+        b_total = plant[I_B] + friction[friction_core.I_VISCOUS]
+        x, v, dt, impulse = exact_phase(x0, v0, u, h, j, b_total, friction, stop, cache)
+        if dt != h:
+            x, v, impulse = exact_static(
+                x, v, u, h - dt, j, b_total, friction, stop, cache, 0.0 + impulse, _MAX_SEGMENTS - 1
+            )
+        impulse = 0.0 + impulse
+        if v0 == 0.0 and breakaway_direction(u, friction) == 0.0:
+            f = u  # held all step: friction equals the input exactly, as in advance
+        else:
+            f = (impulse + friction[friction_core.I_VISCOUS] * (x - x0)) / h
+    else:
+        x, v, z, y, f = advance(x0, v0, z, y, u, h, n_sub, plant, friction, cache)
+    state[S_X, i] = x
+    state[S_V, i] = v
+    state[S_Z, i] = z
+    state[S_LAG, i] = y
+    state[S_FRICTION, i] = f
+    state[S_STUCK, i] = 1.0 if v == 0.0 else 0.0
+
+
+@njit(cache=True, inline="always")
+def apply_command(
+    i: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    c: float,
+    umax: float,
+    delayed: bool,
+) -> float:
+    """Saturate plant ``i``'s command ``c``, record it, and return the command due now."""
+    c = min(max(c, -umax), umax)
+    state[S_COMMAND, i] = c
+    if delayed:
+        due = delay_buffer[head, i]
+        delay_buffer[head, i] = c
+        return due
+    return c
+
+
+@njit(cache=True, inline="always")
+def step_plant(
+    i: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    one_row: bool,
+    one_command: bool,
+    delayed: bool,
+) -> None:
+    """Saturate, delay and apply the command of plant ``i`` (the element step, scalar)."""
+    c = command[0] if one_command else command[i]
+    u = apply_command(i, state, delay_buffer, head, c, params[0 if one_row else i, I_UMAX], delayed)
+    advance_plant(i, state, u, h, n_sub, params, one_row)
+
+
+@njit(cache=True, inline="always")
+def _lane(
+    x: float, v: float, c: float, due: float, h: float, delayed: bool, row: tuple[float, ...]
+) -> tuple[float, float, float, float, float]:
+    """Pass 1 for one plant: returns x, v, the command recorded, friction/u, and S_STUCK."""
+    umax, j, stop = row[I_UMAX], row[I_J], row[I_STOP]
+    us_pos, us_neg = row[F0 + friction_core.I_US_POS], row[F0 + friction_core.I_US_NEG]
+    visc = row[F0 + friction_core.I_VISCOUS]
+    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    eligible = row[I_LAG] == 0.0 and (
+        row[F0 + friction_core.I_LAW] == friction_core.LAW_STATIC
+        and (linear or row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_STEP)
+    )
+    b_total = row[I_B] + visc
+    c = min(max(c, -umax), umax)
+    u = due if delayed else c
+    moving = v != 0.0
+    s_rest = 1.0 if u > us_pos else (-1.0 if u < -us_neg else 0.0)
+    s = (1.0 if v > 0.0 else -1.0) if moving else s_rest
+    held = s == 0.0
+    forward = s > 0.0
+    pressed = not moving and forward and x >= stop
+    us = us_pos if forward else us_neg
+    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
+    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
+    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
+    key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
+    e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
+    e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
+    ell = bb / j * h
+    x_new, v_new = _affine_advance_by(x, v, a, j, h, ell, e1, e2)
+    short = v_new > target if v > target else v_new < target
+    event = (target == target and not short) or x_new > stop
+    pending = not held and (pressed or event or ell != key or not eligible)
+    dx = x_new - x
+    f = (0.0 + phase_impulse(inner, s, us, uc, k, h, dx) + visc * dx) / h
+    keep = held or pending
+    stuck = PENDING if pending else (1.0 if held or v_new == 0.0 else 0.0)
+    return (x if keep else x_new), (v if keep else v_new), c, (u if keep else f), stuck
+
+
+@njit(cache=True, inline="always")
+def _row(params: npt.NDArray[np.float64], r: int) -> tuple[float, ...]:
+    """Plant row ``r`` as a tuple (the fields :func:`_lane` reads)."""
+    return (
+        params[r, 0],
+        params[r, 1],
+        params[r, 2],
+        params[r, 3],
+        params[r, 4],
+        params[r, 5],
+        params[r, 6],
+        params[r, 7],
+        params[r, 8],
+        params[r, 9],
+        params[r, 10],
+        params[r, 11],
+        params[r, 12],
+        params[r, 13],
+        params[r, 14],
+        params[r, 15],
+        params[r, 16],
+        params[r, 17],
+        params[r, 18],
+        params[r, 19],
+        params[r, 20],
+        params[r, 21],
+        params[r, 22],
+        params[r, 23],
+        params[r, 24],
+    )
+
+
+@njit(cache=True, inline="always")
+def _lanes(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    params: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    one_row: bool,
+    delayed: bool,
+    check: bool,
+) -> None:
+    """The loop of pass 1; the flags are constants where it is inlined, so it has no branches."""
+    row = _row(params, 0)
+    # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
+    # from the compiler that the loop walks each column with unit stride
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        if not one_row:
+            row = _row(params, i)
+        skip = check and fresh[i]
+        due = delay_buffer[head, i] if delayed else 0.0
+        x, v, c, f, stuck = _lane(state[S_X, i], state[S_V, i], command[i], due, h, delayed, row)
+        if not skip:
+            state[S_X, i] = x
+            state[S_V, i] = v
+            state[S_COMMAND, i] = c
+            state[S_FRICTION, i] = f
+            state[S_STUCK, i] = stuck
+            if delayed:
+                delay_buffer[head, i] = c
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def slide_lanes(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    params: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    lo: int,
+    hi: int,
+) -> None:
+    """Pass 1 over plants ``lo`` to ``hi - 1`` (those not ``fresh``; ``fresh`` may be empty).
+
+    One loop for each combination of shared or own rows, dead time or none, and ``fresh`` or
+    not, so that none branches inside. Compiled on its own with NumPy's error model: a division
+    by zero gives inf instead of raising, so no branch keeps the loop out of SIMD code (every
+    divisor here is a positive parameter). The state is indexed as one 2-D array, never through
+    row views: the compiler then sees that the columns cannot overlap.
+    """
+    one_row, delayed, check = params.shape[0] == 1, delay_buffer.shape[0] > 0, fresh.shape[0] > 0
+    if one_row:
+        if delayed:
+            if check:
+                _lanes(
+                    lo, hi, state, delay_buffer, head, command, h, params, fresh, True, True, True
+                )
+            else:
+                _lanes(
+                    lo, hi, state, delay_buffer, head, command, h, params, fresh, True, True, False
+                )
+        elif check:
+            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, True, False, True)
+        else:
+            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, True, False, False)
+    elif delayed:
+        if check:
+            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, True, True)
+        else:
+            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, True, False)
+    elif check:
+        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, False, True)
+    else:
+        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, False, False)
+
+
+@njit(cache=True, inline="always")
+def step_plants(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+) -> None:
+    """Step plants ``lo`` to ``hi - 1`` (those not ``fresh``; ``fresh`` may be empty).
+
+    ``command`` holds one command per plant, or one for all.
+    """
+    one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
+    delayed = delay_buffer.shape[0] > 0
+    check = fresh.shape[0] > 0
+    lanes = n_sub == 1 and not (one_command and state.shape[1] > 1)
+    if lanes and one_row:  # a shared row whose law has no exact step would be all pending
+        lanes = params[0, I_LAG] == 0.0 and has_exact_step(params[0, F0:K0])
+    if lanes:
+        slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
+        for i in range(lo, hi):  # pass 2 (plants skipped in pass 1 are never pending)
+            if state[S_STUCK, i] == PENDING:
+                advance_plant(i, state, state[S_FRICTION, i], h, n_sub, params, one_row)
+        return
+    for i in range(lo, hi):
+        if not (check and fresh[i]):
+            step_plant(
+                i,
+                state,
+                delay_buffer,
+                head,
+                command,
+                h,
+                n_sub,
+                params,
+                one_row,
+                one_command,
+                delayed,
+            )
+
+
+@serial_njit
+def step_batch(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+) -> int:
+    """Step N plants in place.
+
+    Parameters
+    ----------
+    state : ndarray, shape (STATE_SIZE, N)
+        Plant states, updated in place.
+    delay_buffer : ndarray, shape (D, N)
+        Commands in flight for a dead time of D control periods (D may be 0).
+    head : int
+        Slot of ``delay_buffer`` holding the command that is due now.
+    command : ndarray, shape (N,) or (1,)
+        Commands (broadcast if of length 1).
+    h : float
+        Control period.
+    n_sub : int
+        Substeps per control period.
+    params : ndarray, shape (N, ROW_SIZE) or (1, ROW_SIZE)
+        Plant rows (broadcast if one row).
+
+    Returns
+    -------
+    int
+        -1 on success; otherwise the index of the first non-finite command, in which case
+        no state was changed.
+    """
+    bad = first_non_finite(command)
+    if bad >= 0:
+        return bad
+    n = state.shape[1]
+    everyone = np.zeros(0, dtype=np.bool_)
+    for block in range((n + BLOCK - 1) // BLOCK):
+        lo = block * BLOCK
+        step_plants(
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, everyone
+        )
+    return -1
+
+
+@njit(cache=True, parallel=True)
+def step_batch_parallel(
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+) -> int:
+    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results)."""
+    bad = first_non_finite(command)
+    if bad >= 0:
+        return bad
+    n = state.shape[1]
+    everyone = np.zeros(0, dtype=np.bool_)
+    for block in prange((n + BLOCK - 1) // BLOCK):
+        lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
+        step_plants(
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, everyone
+        )
+    return -1
