@@ -12,8 +12,9 @@ Layouts (all float64 unless noted):
   envs unless they are randomised (a shared row keeps the working set of 4 096 envs in cache);
 * task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
   the episode;
-* state (``ENV_STATE_SIZE``, N): the plant state, then the step count, the estimated
-  position, the estimated velocity and the reference of the last observation;
+* state (``ENV_STATE_SIZE``, N): the plant state, then the step count, and of the last
+  observation the estimated position, the estimated velocity, the reference, the reading and
+  the episode-end flags;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
   (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
@@ -28,6 +29,7 @@ from numba import njit, prange
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants import _kernel as plant_kernel
+from frictiongym.plants._kernel import I_UMAX
 from frictiongym.plants.sensors import (
     SENSOR_ENCODER,
     derivative_update,
@@ -48,7 +50,10 @@ E_STEPS = plant_kernel.STATE_SIZE
 E_ESTIMATE = E_STEPS + 1  #: estimated position: angle (rad) or distance (cm)
 E_VELOCITY = E_STEPS + 2  #: filtered derivative of the estimate
 E_REFERENCE = E_STEPS + 3
-ENV_STATE_SIZE = E_STEPS + 4
+E_MEASURED = E_STEPS + 4  #: the sensor reading: encoder angle (rad) or IR readout
+E_TERMINATED = E_STEPS + 5  #: 1.0 if the last observation ended the episode at a limit
+E_TRUNCATED = E_STEPS + 6  #: 1.0 if it truncated the episode
+ENV_STATE_SIZE = E_STEPS + 7
 
 # Config.
 C_SENSOR = 0
@@ -122,53 +127,6 @@ FLAG_SIZE = 3
 BLOCK = plant_batch.BLOCK
 
 
-@njit(cache=True, inline="always")
-def _observe_env(
-    i: int,
-    state: npt.NDArray[np.float64],
-    dt: float,
-    plant_rows: npt.NDArray[np.float64],
-    rows: npt.NDArray[np.float64],
-    rng: npt.NDArray[np.uint64],
-    config: npt.NDArray[np.float64],
-    fresh: npt.NDArray[np.bool_],
-    obs: npt.NDArray[np.float32],
-    out: npt.NDArray[np.float64],
-    flags: npt.NDArray[np.bool_],
-    one_row: bool,
-) -> None:
-    """Read env ``i``'s sensor and write its observation, reward and episode end."""
-    x, encoder = state[plant_kernel.S_X, i], config[C_SENSOR] == SENSOR_ENCODER
-    noise = 0.0
-    if config[C_NOISE] > 0.0:
-        noise = config[C_NOISE] * normal_draw(rng, i)
-    quantize, gain, offset = config[C_QUANTIZE] != 0.0, rows[i, T_GAIN], rows[i, T_OFFSET]
-    measured = measure(x, encoder, gain, offset, noise, quantize, config[C_ENCODER_STEP])
-    if encoder:
-        position, velocity = x, state[plant_kernel.S_V, i]
-    else:  # IR: the plant moves toward the wall, so the distance is -x
-        position, velocity = 0.0 - x, 0.0 - state[plant_kernel.S_V, i]  # not -0.0 at the wall
-    umax = plant_rows[0 if one_row else i, plant_kernel.I_UMAX]
-    _observe(
-        i,
-        measured,
-        position,
-        velocity,
-        state[plant_kernel.S_COMMAND, i],
-        umax,
-        dt,
-        state,
-        rows,
-        config,
-        fresh,
-        obs,
-        out,
-        flags,
-        False,
-    )
-    flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
-
-
 #: The smallest normal float32: an observation below it would be subnormal (slow to compute
 #: with on x86) or round to -0.0.
 FLOAT32_TINY = float(np.finfo(np.float32).tiny)
@@ -186,87 +144,316 @@ def _float32_normal(value: float) -> float:
 
 
 @njit(cache=True, inline="always")
-def _observe(
-    i: int,
+def _settings(config: npt.NDArray[np.float64]) -> tuple[float, ...]:
+    """Return the config as a tuple (read once per call, not per env)."""
+    return (
+        config[0],
+        config[1],
+        config[2],
+        config[3],
+        config[4],
+        config[5],
+        config[6],
+        config[7],
+        config[8],
+        config[9],
+        config[10],
+        config[11],
+        config[12],
+    )
+
+
+if CONFIG_SIZE != 13:  # _settings unpacks the config by hand
+    raise ImportError("frictiongym.envs._kernel._settings must unpack every config entry")
+
+
+@njit(cache=True, inline="always")
+def _reading(
+    x: float, v: float, gain: float, offset: float, noise: float, cfg: tuple[float, ...]
+) -> tuple[float, float, float]:
+    """Return the sensor reading of a plant at ``x`` moving at ``v``, its position and rate."""
+    encoder = cfg[C_SENSOR] == SENSOR_ENCODER
+    measured = measure(x, encoder, gain, offset, noise, cfg[C_QUANTIZE] != 0.0, cfg[C_ENCODER_STEP])
+    # IR: the plant moves toward the wall, so the distance is -x (written 0.0 - x: not -0.0)
+    position = x if encoder else 0.0 - x
+    velocity = v if encoder else 0.0 - v
+    return measured, position, velocity
+
+
+@njit(cache=True, inline="always")
+def _scored(
     measured: float,
     position: float,
     velocity: float,
     applied: float,
     umax: float,
+    steps: float,
+    previous_velocity: float,
+    previous_estimate: float,
+    fresh: bool,
+    reference: float,
     dt: float,
-    state: npt.NDArray[np.float64],
-    rows: npt.NDArray[np.float64],
-    config: npt.NDArray[np.float64],
-    fresh: npt.NDArray[np.bool_],
-    obs: npt.NDArray[np.float32],
-    out: npt.NDArray[np.float64],
-    flags: npt.NDArray[np.bool_],
+    cfg: tuple[float, ...],
     measured_only: bool,
-) -> None:
-    """Turn env ``i``'s sensor reading into its observation, reward and episode end.
+) -> tuple[float, float, float, float, float, bool, bool]:
+    """Turn a sensor reading into the estimates, the reward and the episode end.
 
     The simulator and a device share this: ``measured`` is the encoder angle (rad) or the IR
     readout. A device knows no true ``position`` and ``velocity``; with ``measured_only`` the
-    estimates stand for them in the reward, the limit and the outputs.
+    estimates stand for them in the reward, the limit and the outputs. Conditional expressions
+    only, so that a loop over envs compiles to SIMD code.
+
+    Returns
+    -------
+    estimate, estimated_velocity, position, velocity, reward : float
+    terminated, truncated : bool
     """
-    t = state[E_STEPS, i] * dt
-    if config[C_SENSOR] == SENSOR_ENCODER:
-        estimate = measured
-    else:
-        estimate = ir_estimate(measured)
-    if fresh[i]:
-        estimated_velocity = 0.0
-    else:
-        estimated_velocity = derivative_update(
-            state[E_VELOCITY, i],
-            estimate,
-            state[E_ESTIMATE, i],
-            config[C_POLE],
-            dt,
-            config[C_VELOCITY_FLOOR],
-        )
-    if measured_only:
-        position, velocity = estimate, estimated_velocity
+    encoder = cfg[C_SENSOR] == SENSOR_ENCODER
+    estimate = measured if encoder else ir_estimate(measured)
+    rate = derivative_update(
+        previous_velocity, estimate, previous_estimate, cfg[C_POLE], dt, cfg[C_VELOCITY_FLOOR]
+    )
+    estimated_velocity = 0.0 if fresh else rate
+    position = estimate if measured_only else position
+    velocity = estimated_velocity if measured_only else velocity
     # Written so that a NaN position (a diverged plant) terminates instead of running on.
-    if config[C_SENSOR] == SENSOR_ENCODER:
-        terminated = not abs(position) <= config[C_LIMIT]
-    else:
-        terminated = not position > config[C_LIMIT]
-    reference = reference_at(t, rows, i, T_REF)
+    beyond = not abs(position) <= cfg[C_LIMIT] if encoder else not position > cfg[C_LIMIT]
+    effort = applied / umax
+    tracking = abs(reference - position) / cfg[C_ERROR_SCALE]
+    capped = cfg[C_ERROR_CAP] > 0.0 and tracking > cfg[C_ERROR_CAP]
+    tracking = cfg[C_ERROR_CAP] if capped else tracking
+    reward = -(tracking + cfg[C_EFFORT_WEIGHT] * effort * effort)
+    # v1: and the worst whole episode, so that no ending by the limit scores better than an
+    # episode without one (the env classes' "Rewards")
+    ending = cfg[C_PENALTY] + cfg[C_HORIZON] * (cfg[C_ERROR_CAP] + cfg[C_EFFORT_WEIGHT])
+    reward = reward - ending if beyond else reward
+    truncated = 0.0 < cfg[C_MAX_STEPS] <= steps
+    return (
+        estimate,
+        estimated_velocity,
+        position,
+        velocity,
+        0.0 if fresh else reward,
+        False if fresh else beyond,
+        False if fresh else truncated,
+    )
+
+
+@njit(cache=True, inline="always")
+def _write(
+    i: int,
+    measured: float,
+    scored: tuple[float, float, float, float, float, bool, bool],
+    applied: float,
+    reference: float,
+    t: float,
+    encoder: bool,
+    state: npt.NDArray[np.float64],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Store env ``i``'s estimates, observation and outputs."""
+    _store(i, measured, scored, applied, reference, t, state, out)
+    _publish(i, encoder, state, obs, flags)
+
+
+@njit(cache=True, inline="always")
+def _store(
+    i: int,
+    measured: float,
+    scored: tuple[float, float, float, float, float, bool, bool],
+    applied: float,
+    reference: float,
+    t: float,
+    state: npt.NDArray[np.float64],
+    out: npt.NDArray[np.float64],
+) -> None:
+    """Store env ``i``'s estimates, flags and outputs in the state and ``out``."""
+    estimate, estimated_velocity, position, velocity, reward, terminated, truncated = scored
     state[E_ESTIMATE, i] = estimate
     state[E_VELOCITY, i] = estimated_velocity
     state[E_REFERENCE, i] = reference
-
-    if fresh[i]:
-        reward, terminated, truncated = 0.0, False, False
-    else:
-        effort = applied / umax
-        tracking = abs(reference - position) / config[C_ERROR_SCALE]
-        if config[C_ERROR_CAP] > 0.0 and tracking > config[C_ERROR_CAP]:
-            tracking = config[C_ERROR_CAP]
-        reward = -(tracking + config[C_EFFORT_WEIGHT] * effort * effort)
-        if terminated:
-            # v1: and the worst whole episode, so that no ending by the limit scores better
-            # than an episode without one (the env classes' "Rewards")
-            reward -= config[C_PENALTY] + config[C_HORIZON] * (
-                config[C_ERROR_CAP] + config[C_EFFORT_WEIGHT]
-            )
-        truncated = 0.0 < config[C_MAX_STEPS] <= state[E_STEPS, i]
-
-    if config[C_SENSOR] == SENSOR_ENCODER:
-        obs[i, 0], obs[i, 1] = _float32_normal(measured), estimated_velocity
-        obs[i, 2] = _float32_normal(reference)
-    else:
-        obs[i, 0], obs[i, 1] = _float32_normal(measured), estimate
-        obs[i, 2], obs[i, 3] = estimated_velocity, _float32_normal(reference)
+    state[E_MEASURED, i] = measured
+    state[E_TERMINATED, i] = 1.0 if terminated else 0.0
+    state[E_TRUNCATED, i] = 1.0 if truncated else 0.0
     out[O_REWARD, i] = reward
     out[O_POSITION, i] = position
     out[O_VELOCITY, i] = velocity
     out[O_COMMAND, i] = applied
     out[O_REFERENCE, i] = reference
     out[O_TIME, i] = t
-    flags[F_TERMINATED, i] = terminated
-    flags[F_TRUNCATED, i] = truncated
+
+
+@njit(cache=True, inline="always")
+def _publish(
+    i: int,
+    encoder: bool,
+    state: npt.NDArray[np.float64],
+    obs: npt.NDArray[np.float32],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Write env ``i``'s observation and flags from what :func:`_store` stored."""
+    obs[i, 0] = _float32_normal(state[E_MEASURED, i])
+    if encoder:
+        obs[i, 1] = state[E_VELOCITY, i]
+        obs[i, 2] = _float32_normal(state[E_REFERENCE, i])
+    else:
+        obs[i, 1] = state[E_ESTIMATE, i]
+        obs[i, 2] = state[E_VELOCITY, i]
+        obs[i, 3] = _float32_normal(state[E_REFERENCE, i])
+    flags[F_TERMINATED, i] = state[E_TERMINATED, i] != 0.0
+    flags[F_TRUNCATED, i] = state[E_TRUNCATED, i] != 0.0
+
+
+@njit(cache=True, inline="always")
+def _observe_env(
+    i: int,
+    state: npt.NDArray[np.float64],
+    dt: float,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+    one_row: bool,
+) -> None:
+    """Read env ``i``'s sensor and write its observation, reward and episode end (scalar)."""
+    cfg = _settings(config)
+    noise = cfg[C_NOISE] * normal_draw(rng, i) if cfg[C_NOISE] > 0.0 else 0.0
+    x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
+    measured, position, velocity = _reading(x, v, rows[i, T_GAIN], rows[i, T_OFFSET], noise, cfg)
+    applied, umax = state[plant_kernel.S_COMMAND, i], plant_rows[0 if one_row else i, I_UMAX]
+    steps = state[E_STEPS, i]
+    t = steps * dt
+    reference = reference_at(t, rows, i, T_REF)
+    previous_velocity, previous_estimate = state[E_VELOCITY, i], state[E_ESTIMATE, i]
+    scored = _scored(
+        measured,
+        position,
+        velocity,
+        applied,
+        umax,
+        steps,
+        previous_velocity,
+        previous_estimate,
+        fresh[i],
+        reference,
+        dt,
+        cfg,
+        False,
+    )
+    encoder = cfg[C_SENSOR] == SENSOR_ENCODER
+    _write(i, measured, scored, applied, reference, t, encoder, state, obs, out, flags)
+    flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
+
+
+@njit(cache=True, inline="always")
+def _observe_lanes(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    dt: float,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+    encoder: bool,
+    one_row: bool,
+) -> None:
+    """:func:`_observe_env`'s loop without noise, ``out[O_REFERENCE]`` given; flags constant."""
+    cfg = _settings(config)
+    umax = plant_rows[0, I_UMAX]
+    # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
+    # from the compiler that the loop walks each array with unit stride
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
+        measured, position, velocity = _reading(x, v, rows[i, T_GAIN], rows[i, T_OFFSET], 0.0, cfg)
+        applied = state[plant_kernel.S_COMMAND, i]
+        if not one_row:
+            umax = plant_rows[i, I_UMAX]
+        steps = state[E_STEPS, i]
+        t = steps * dt
+        reference = out[O_REFERENCE, i]  # the caller's loop has evaluated it
+        previous_velocity, previous_estimate = state[E_VELOCITY, i], state[E_ESTIMATE, i]
+        scored = _scored(
+            measured,
+            position,
+            velocity,
+            applied,
+            umax,
+            steps,
+            previous_velocity,
+            previous_estimate,
+            fresh[i],
+            reference,
+            dt,
+            cfg,
+            False,
+        )
+        _store(i, measured, scored, applied, reference, t, state, out)
+    # the observation (float32, an env per row) and the flags in a loop of their own: with them
+    # the loop above has too many arrays for the compiler to prove apart
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        _publish(i, encoder, state, obs, flags)
+        flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def observe_block(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    dt: float,
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    rng: npt.NDArray[np.uint64],
+    config: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Observe envs ``lo`` to ``hi - 1``: in SIMD code, unless sensor noise needs calls.
+
+    The references are evaluated first, in a loop of their own (a sine needs a call, a step
+    sequence an indirect read); then the rest in SIMD code. Compiled on its own (the parallel
+    pipeline starts no threads here; it drops reference counting) with NumPy's error model, so
+    that no exception branch stays in the loop. Both ways compute the same values with the
+    same operations.
+    """
+    one_row = plant_rows.shape[0] == 1
+    if config[C_NOISE] > 0.0:
+        for i in range(lo, hi):
+            _observe_env(
+                i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
+            )
+        return
+    for i in range(lo, hi):
+        out[O_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        if one_row:
+            _observe_lanes(
+                lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, True, True
+            )
+        else:
+            _observe_lanes(
+                lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, True, False
+            )
+    elif one_row:
+        _observe_lanes(
+            lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, False, True
+        )
+    else:
+        _observe_lanes(
+            lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, False, False
+        )
 
 
 @njit(cache=True)
@@ -285,27 +472,32 @@ def observe_device(
 ) -> None:
     """Observe a device's sample as env 0 (a step, or the first sample if ``fresh[0]``).
 
-    The same :func:`_observe` as the simulator's: identical readings give identical observations.
+    The same :func:`_scored` as the simulator's: identical readings give identical observations.
     """
     if not fresh[0]:
         state[E_STEPS, 0] += 1.0
-    _observe(
-        0,
+    cfg = _settings(config)
+    steps = state[E_STEPS, 0]
+    t = steps * dt
+    reference = reference_at(t, rows, 0, T_REF)
+    previous_velocity, previous_estimate = state[E_VELOCITY, 0], state[E_ESTIMATE, 0]
+    scored = _scored(
         measured,
         measured,
         0.0,
         applied,
         umax,
+        steps,
+        previous_velocity,
+        previous_estimate,
+        fresh[0],
+        reference,
         dt,
-        state,
-        rows,
-        config,
-        fresh,
-        obs,
-        out,
-        flags,
+        cfg,
         True,
     )
+    encoder = cfg[C_SENSOR] == SENSOR_ENCODER
+    _write(0, measured, scored, applied, reference, t, encoder, state, obs, out, flags)
     flags[F_STUCK, 0] = False
 
 
@@ -384,7 +576,6 @@ def _step_block(
     to code half as fast as the two apart (docs/benchmarks.md, "Kernel near the machine's
     limit"); a block's state stays in cache from the first loop to the second.
     """
-    one_row = plant_rows.shape[0] == 1
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
     plant_batch.step_plants(
         start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
@@ -392,8 +583,7 @@ def _step_block(
     for i in range(start, stop):
         if not fresh[i]:
             state[E_STEPS, i] += 1.0
-    for i in range(start, stop):
-        _observe_env(i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row)
+    observe_block(start, stop, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags)
 
 
 @plant_kernel.serial_njit

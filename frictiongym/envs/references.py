@@ -40,21 +40,46 @@ _EPS_TIME = 1e-9
 
 
 @njit(cache=True, inline="always")
-def reference_at(t: float, rows: npt.NDArray[np.float64], i: int, offset: int) -> float:
-    """Value at time ``t`` of the reference packed in ``rows[i, offset:offset + REF_SIZE]``."""
+def sequence_slot(t: float, period: float, count: float) -> int:
+    """Index of the level a step sequence of ``count`` levels holds at time ``t``."""
+    return min(math.floor(t / period + _EPS_TIME), int(count) - 1)
+
+
+@njit(cache=True, inline="always")
+def piecewise_value(t: float, kind: float, p0: float, p1: float, p2: float, level: float) -> float:
+    """Value of a step, ramp or step-sequence reference (``level``: the sequence's level now).
+
+    Conditional expressions only, so that a loop over envs compiles to SIMD code.
+    """
+    step = p2 if t + _EPS_TIME >= p0 else p1  # p0 time, p1 initial, p2 value
+    ramp = p1 + p2 * max(t - p0, 0.0)  # p0 start, p1 initial, p2 slope
+    return step if kind == KIND_STEP else (level if kind == KIND_SEQUENCE else ramp)
+
+
+@njit(cache=True, inline="always")
+def is_sine(rows: npt.NDArray[np.float64], i: int, offset: int) -> bool:
+    """Whether the reference packed in ``rows[i, offset:]`` is a sine."""
+    return rows[i, offset + _KIND] == KIND_SINE
+
+
+@njit(cache=True, inline="always")
+def piecewise_at(t: float, rows: npt.NDArray[np.float64], i: int, offset: int) -> float:
+    """:func:`reference_at` of a reference that is not a sine (no branch: SIMD code)."""
     kind = rows[i, offset + _KIND]
     p0 = rows[i, offset + _P0]
-    p1 = rows[i, offset + _P0 + 1]
-    p2 = rows[i, offset + _P0 + 2]
-    if kind == KIND_STEP:  # p0 time, p1 initial, p2 value
-        return p2 if t + _EPS_TIME >= p0 else p1
-    if kind == KIND_SEQUENCE:  # p0 period
-        k = min(math.floor(t / p0 + _EPS_TIME), int(rows[i, offset + _COUNT]) - 1)
-        return rows[i, offset + _LEVELS + k]
-    if kind == KIND_RAMP:  # p0 start, p1 initial, p2 slope
-        return p1 + p2 * max(t - p0, 0.0)
-    # KIND_SINE: p0 period, p1 amplitude, p2 offset, p3 phase
-    return p2 + p1 * math.sin(2.0 * math.pi * t / p0 + rows[i, offset + _P0 + 3])
+    # p0 is the period of a sequence
+    slot = sequence_slot(t, p0, rows[i, offset + _COUNT]) if kind == KIND_SEQUENCE else 0
+    level = rows[i, offset + _LEVELS + slot]
+    return piecewise_value(t, kind, p0, rows[i, offset + _P0 + 1], rows[i, offset + _P0 + 2], level)
+
+
+@njit(cache=True, inline="always")
+def reference_at(t: float, rows: npt.NDArray[np.float64], i: int, offset: int) -> float:
+    """Value at time ``t`` of the reference packed in ``rows[i, offset:offset + REF_SIZE]``."""
+    if is_sine(rows, i, offset):  # p0 period, p1 amplitude, p2 offset, p3 phase
+        p0, p1, p2 = rows[i, offset + _P0], rows[i, offset + _P0 + 1], rows[i, offset + _P0 + 2]
+        return p2 + p1 * math.sin(2.0 * math.pi * t / p0 + rows[i, offset + _P0 + 3])
+    return piecewise_at(t, rows, i, offset)
 
 
 @njit(cache=True)

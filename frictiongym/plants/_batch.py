@@ -266,7 +266,7 @@ def _lanes(
     delayed: bool,
     check: bool,
 ) -> None:
-    """The loop of pass 1; the flags are constants where it is inlined, so it has no branches."""
+    """Run the loop of pass 1 (the flags are constants where it is inlined: no branches)."""
     row = _row(params, 0)
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
     # from the compiler that the loop walks each column with unit stride
