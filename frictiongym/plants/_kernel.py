@@ -553,7 +553,7 @@ def lugre_substep(
 
 
 @njit(cache=True, inline="always")
-def has_exact_step(friction: Row) -> bool:
+def has_exact_step(friction: Row | npt.NDArray[np.float64]) -> bool:
     """Whether the law has the event-exact step: static, with a ``step`` or ``linear`` decay."""
     return friction[friction_core.I_LAW] == friction_core.LAW_STATIC and (
         friction[friction_core.I_SHAPE] == friction_core.SHAPE_STEP
