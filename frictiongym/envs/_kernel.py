@@ -577,6 +577,27 @@ def _step_block(
     limit"); a block's state stays in cache from the first loop to the second.
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
+    if stop - start == 1:  # a single env: the element steps, without the loops' calls
+        if not fresh[start]:
+            plant_batch.step_plant(
+                start,
+                state,
+                delay_buffer,
+                head,
+                command,
+                dt,
+                n_sub,
+                plant_rows,
+                plant_rows.shape[0] == 1,
+                False,
+                delay_buffer.shape[0] > 0,
+            )
+            state[E_STEPS, start] += 1.0
+        one_row = plant_rows.shape[0] == 1
+        _observe_env(
+            start, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
+        )
+        return
     plant_batch.step_plants(
         start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )
