@@ -255,7 +255,9 @@ def _write(
 ) -> None:
     """Store env ``i``'s estimates, observation and outputs."""
     _store(i, measured, scored, applied, reference, t, state, out)
-    _publish(i, encoder, state, obs, flags)
+    _publish(i, encoder, state, obs)
+    for flag, row in _FLAG_ROWS:
+        _flag(i, flag, row, state, flags)
 
 
 @njit(cache=True, inline="always")
@@ -291,9 +293,8 @@ def _publish(
     encoder: bool,
     state: npt.NDArray[np.float64],
     obs: npt.NDArray[np.float32],
-    flags: npt.NDArray[np.bool_],
 ) -> None:
-    """Write env ``i``'s observation and flags from what :func:`_store` stored."""
+    """Write env ``i``'s observation from what :func:`_store` stored."""
     obs[i, 0] = _float32_normal(state[E_MEASURED, i])
     if encoder:
         obs[i, 1] = state[E_VELOCITY, i]
@@ -302,8 +303,22 @@ def _publish(
         obs[i, 1] = state[E_ESTIMATE, i]
         obs[i, 2] = state[E_VELOCITY, i]
         obs[i, 3] = _float32_normal(state[E_REFERENCE, i])
-    flags[F_TERMINATED, i] = state[E_TERMINATED, i] != 0.0
-    flags[F_TRUNCATED, i] = state[E_TRUNCATED, i] != 0.0
+
+
+#: The flags and the state rows they are read from, in :func:`_flag` and its loops.
+_FLAG_ROWS = (
+    (F_TERMINATED, E_TERMINATED),
+    (F_TRUNCATED, E_TRUNCATED),
+    (F_STUCK, plant_kernel.S_STUCK),
+)
+
+
+@njit(cache=True, inline="always")
+def _flag(
+    i: int, flag: int, row: int, state: npt.NDArray[np.float64], flags: npt.NDArray[np.bool_]
+) -> None:
+    """Set flag ``flag`` of env ``i`` from state row ``row`` (1.0: set)."""
+    flags[flag, i] = state[row, i] != 0.0
 
 
 @njit(cache=True, inline="always")
@@ -348,7 +363,6 @@ def _observe_env(
     )
     encoder = cfg[C_SENSOR] == SENSOR_ENCODER
     _write(i, measured, scored, applied, reference, t, encoder, state, obs, out, flags)
-    flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
 
 
 @njit(cache=True, inline="always")
@@ -367,7 +381,12 @@ def _observe_lanes(
     encoder: bool,
     one_row: bool,
 ) -> None:
-    """:func:`_observe_env`'s loop without noise, ``out[O_REFERENCE]`` given; flags constant."""
+    """:func:`_observe_env` for envs that are not fresh, without noise, the references given.
+
+    The references are in ``state[E_REFERENCE]``; the flags are constants where this is
+    inlined. Loops free of branches, each over few arrays: the compiler must prove the arrays
+    of a loop apart before it runs the loop in SIMD lanes, and gives up beyond a few.
+    """
     cfg = _settings(config)
     umax = plant_rows[0, I_UMAX]
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
@@ -379,8 +398,7 @@ def _observe_lanes(
         if not one_row:
             umax = plant_rows[i, I_UMAX]
         steps = state[E_STEPS, i]
-        t = steps * dt
-        reference = out[O_REFERENCE, i]  # the caller's loop has evaluated it
+        reference = state[E_REFERENCE, i]
         previous_velocity, previous_estimate = state[E_VELOCITY, i], state[E_ESTIMATE, i]
         scored = _scored(
             measured,
@@ -391,18 +409,18 @@ def _observe_lanes(
             steps,
             previous_velocity,
             previous_estimate,
-            fresh[i],
+            False,
             reference,
             dt,
             cfg,
             False,
         )
-        _store(i, measured, scored, applied, reference, t, state, out)
-    # the observation (float32, an env per row) and the flags in a loop of their own: with them
-    # the loop above has too many arrays for the compiler to prove apart
+        _store(i, measured, scored, applied, reference, steps * dt, state, out)
     for i in range(np.uint64(lo), np.uint64(hi)):
-        _publish(i, encoder, state, obs, flags)
-        flags[F_STUCK, i] = state[plant_kernel.S_STUCK, i] != 0.0
+        _publish(i, encoder, state, obs)
+    for flag, row in _FLAG_ROWS:
+        for i in range(np.uint64(lo), np.uint64(hi)):
+            _flag(i, flag, row, state, flags)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -423,7 +441,8 @@ def observe_block(
     """Observe envs ``lo`` to ``hi - 1``: in SIMD code, unless sensor noise needs calls.
 
     The references are evaluated first, in a loop of their own (a sine needs a call, a step
-    sequence an indirect read); then the rest in SIMD code. Compiled on its own (the parallel
+    sequence an indirect read); then the rest in SIMD code, as if every env had been stepped;
+    then the fresh envs (just reset, rare) once more on their own. Compiled on its own (the parallel
     pipeline starts no threads here; it drops reference counting) with NumPy's error model, so
     that no exception branch stays in the loop. Both ways compute the same values with the
     same operations.
@@ -436,7 +455,7 @@ def observe_block(
             )
         return
     for i in range(lo, hi):
-        out[O_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
+        state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
     if config[C_SENSOR] == SENSOR_ENCODER:
         if one_row:
             _observe_lanes(
@@ -454,6 +473,11 @@ def observe_block(
         _observe_lanes(
             lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, False, False
         )
+    for i in range(lo, hi):  # the loops took every env as stepped: observe the fresh ones again
+        if fresh[i]:
+            _observe_env(
+                i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
+            )
 
 
 @njit(cache=True)
