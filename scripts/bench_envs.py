@@ -69,6 +69,7 @@ from dataclasses import dataclass, field
 from itertools import cycle, islice
 from typing import Any
 
+import _bench_kernel
 import _load
 import gymnasium as gym
 import numba
@@ -440,10 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--part",
-        choices=("all", "cartpole", "threads"),
+        choices=("all", "cartpole", "threads", "loads", "split"),
         default="all",
         help="cartpole: the comparisons with CartPole; threads: the servo's vector env on the "
-        "serial, default and threaded kernel under each --loads case; all: both (default)",
+        "serial, default and threaded kernel under each --loads case; loads: the vector envs "
+        "against CartPoleVectorEnv under each --loads case (quiet, busy, learner); split: "
+        "where the time of a vector env-step goes, on one thread; all: every part (default)",
     )
     _load.add_arguments(parser, "envs")
     return parser
@@ -483,7 +486,14 @@ def main(argv: list[str] | None = None) -> int:
 
     if _load.needs_torch(args) and not _load.import_torch_first():
         parser.error("the learner and torch loads need torch; use --loads quiet busy")
-    parts = {"cartpole": lambda: cartpole_part(args, header), "threads": lambda: threads_part(args)}
+    parts = {
+        "cartpole": lambda: cartpole_part(args, header),
+        "threads": lambda: threads_part(args),
+        "loads": lambda: _bench_kernel.loads_part(
+            args, OURS, lambda env_id, n: vector_variant(env_id, DEFAULT, {}, n, args.seed).run
+        ),
+        "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
+    }
     return run_parts(
         [run for name, run in parts.items() if args.part in ("all", name)], args.markdown
     )

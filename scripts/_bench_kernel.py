@@ -1,0 +1,210 @@
+"""Two parts of ``bench_envs.py`` for the kernel near the machine's limit (issue J).
+
+**loads** (``--part loads``): gymnasium's ``CartPoleVectorEnv`` and frictiongym's vector envs
+(default kwargs and kernel) at ``--num-envs`` envs, timed interleaved while each competing load
+of ``_load.py`` runs (``--loads``: quiet, busy, learner); the ratio ours / CartPole is taken per
+round, so both sides meet the same load. Targets (reported, never enforced): at least 3x
+CartPoleVectorEnv quiet, at least 1.5x beside the learner (a torch process on 2 threads).
+
+**split** (``--part split``): where the time of one vector env-step goes, ns per env-step at
+``--num-envs`` envs, each piece timed on its own on one thread (numba's serial kernels):
+
+* ``plant``: a :class:`~frictiongym.plants.Plant` of the env's plant and friction stepped with
+  the env's commands (the bare plant kernel);
+* ``env kernel``: the env's whole compiled step (plant, sensor, reference, reward, outputs),
+  called the way the env calls it (``sim.plants.run``);
+* ``observation``: the env kernel minus the plant (sensor, reference, reward and outputs run
+  as one pass, so they are not timed apart);
+* ``bookkeeping``: the vector env's ``step`` minus the env kernel (Python: checks, output
+  arrays, ``info``, autoreset);
+* ``memory floor``: a compiled loop that only reads and writes, once, every array element
+  one step reads or writes (state, commands, outputs, observation, flags): the cost of
+  moving the data, with no arithmetic.
+
+The split uses only what both the current kernel and the one before issue J expose (the
+public ``Plant``, ``sim.plants.run``), so it also runs against an older checkout
+(``PYTHONPATH=<old checkout> python scripts/bench_envs.py --part split``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from itertools import cycle, islice
+from typing import Any
+
+import _load
+import gymnasium as gym
+import numba
+import numpy as np
+import numpy.typing as npt
+from _bench import Runner, measure, paired_ratios, ratio_stats, single_threaded, stats
+
+from frictiongym.envs import _kernel as env_kernel
+from frictiongym.plants import Plant
+
+#: Targets of issue J (vector env at N = 4 096 against CartPoleVectorEnv, env-steps/s).
+QUIET_TARGET = 3.0
+LEARNER_TARGET = 1.5
+
+
+@dataclass
+class Timed:
+    """A runner and what it measured (as :func:`_bench.measure` fills it)."""
+
+    name: str
+    run: Runner
+    batch: int
+    rates: list[float] = field(default_factory=list)
+
+
+def loads_part(
+    args: argparse.Namespace,
+    envs: Sequence[str],
+    make_runner: Callable[[str, int], Runner],
+) -> str:
+    """Time CartPoleVectorEnv and ``envs`` under each load; print and return the markdown."""
+    n = args.num_envs
+    loads = [load for load in args.loads if load != "torch"]  # in-process torch: see threads
+    print(
+        f"\nloads: vector envs at N = {n} against CartPoleVectorEnv under each load "
+        f"(env-steps/s, {args.repeats} rounds of {args.seconds} s; ratio per round)"
+    )
+    lines = [
+        f"Vector envs beside other work (N = {n:,}; ratio = ours / CartPoleVectorEnv in "
+        "env-steps/s, per round, both under the same load):".replace(",", " "),
+        "",
+        "| load | CartPoleVectorEnv, env-steps/s | "
+        + " | ".join(f"`{e}`, env-steps/s | ratio" for e in envs)
+        + " |",
+        "|---|---|" + "---|---|" * len(envs),
+    ]
+    verdicts = []
+    for load in loads:
+        variants = [Timed(e, make_runner(e, n), n) for e in ("CartPole-v1", *envs)]
+        with _load.competing(load):
+            measure(variants, args.repeats, args.seconds, burn_in=512)
+        ref = variants[0]
+        cells = [stats(ref.rates)]
+        for v in variants[1:]:
+            ratios = paired_ratios(v, ref)
+            cells += [stats(v.rates), ratio_stats(ratios)]
+            target = LEARNER_TARGET if load == "learner" else QUIET_TARGET
+            if load in ("quiet", "learner"):
+                met = statistics.median(ratios) >= target
+                verdicts.append(
+                    f"{v.name.removeprefix('frictiongym/')} {load}: {ratio_stats(ratios)} "
+                    f"(target {target:g}x: {'meets' if met else 'misses'})"
+                )
+        print(f"  {load:8s} " + "  ".join(cells))
+        lines.append(f"| {load} | " + " | ".join(cells) + " |")
+    summary = "targets of issue J: " + "; ".join(verdicts)
+    print(f"  {summary}")
+    return "\n".join([*lines, "", summary])
+
+
+@numba.njit(cache=True)
+def _touch(
+    state: npt.NDArray[np.float64],
+    command: npt.NDArray[np.float64],
+    out: npt.NDArray[np.float64],
+    obs: npt.NDArray[np.float32],
+    flags: npt.NDArray[np.bool_],
+) -> None:
+    """Read and write every element once: the data movement of a step, no arithmetic."""
+    for k in range(state.shape[0]):
+        for i in range(state.shape[1]):
+            state[k, i] = state[k, i] + command[i]
+    for k in range(out.shape[0]):
+        for i in range(out.shape[1]):
+            out[k, i] = command[i]
+    for i in range(obs.shape[0]):
+        for k in range(obs.shape[1]):
+            obs[i, k] = command[i]
+    for k in range(flags.shape[0]):
+        for i in range(flags.shape[1]):
+            flags[k, i] = command[i] > 0.0
+
+
+def split_part(
+    args: argparse.Namespace,
+    envs: Sequence[str],
+    actions: Callable[[str, int, int], list[npt.NDArray[Any]]],
+) -> str:
+    """Time the pieces of a vector env step on one thread; print and return the markdown."""
+    n = args.num_envs
+    print(
+        f"\nsplit: ns per env-step at N = {n}, one thread (serial kernels), median of "
+        f"{args.repeats} rounds"
+    )
+    lines = [
+        f"Where a vector env-step goes (N = {n:,}, serial kernels, ns per env-step, median "
+        f"[min, max] of {args.repeats} rounds):".replace(",", " "),
+        "",
+        "| env | vector step | env kernel | plant | observation | bookkeeping | memory floor |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for env_id in envs:
+        pieces = _pieces(env_id, n, actions(env_id, n, args.seed), args.seed)
+        measure(pieces, args.repeats, args.seconds, burn_in=256)
+        ns = {p.name: [1e9 / r for r in p.rates] for p in pieces}
+        cells = {
+            "vector step": ns["vector step"],
+            "env kernel": ns["env kernel"],
+            "plant": ns["plant"],
+            "observation": [k - p for k, p in zip(ns["env kernel"], ns["plant"], strict=True)],
+            "bookkeeping": [
+                v - k for v, k in zip(ns["vector step"], ns["env kernel"], strict=True)
+            ],
+            "memory floor": ns["memory floor"],
+        }
+        text = {k: _ns(v) for k, v in cells.items()}
+        name = env_id.removeprefix("frictiongym/")
+        print(f"  {name:18s} " + "  ".join(f"{k} {v}" for k, v in text.items()))
+        lines.append(f"| {name} | " + " | ".join(text.values()) + " |")
+    return "\n".join(lines)
+
+
+def _ns(values: Sequence[float]) -> str:
+    return f"{statistics.median(values):.1f} [{min(values):.1f}, {max(values):.1f}]"
+
+
+def _pieces(env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int) -> list[Timed]:
+    """The timed pieces of one env's vector step (see the module docstring)."""
+    env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", parallel=False)
+    env.reset(seed=seed)
+    sim = env.unwrapped.sim
+    steps = cycle(table)
+    commands = cycle([a.astype(np.float64).reshape(n) for a in table])
+    fresh = np.zeros(n, dtype=bool)
+    obs = np.zeros((n, sim.observation_size), np.float32)
+    out = np.zeros((env_kernel.OUT_SIZE, n))
+    flags = np.zeros((env_kernel.FLAG_SIZE, n), dtype=bool)
+    task = (sim.rows, sim.noise_state, sim.config, fresh, obs, out, flags)
+    plant = Plant(sim.plant, sim.friction, sim.dt, n, parallel=False)
+    state = sim.plants.state.copy()
+
+    def vector_step(count: int) -> None:
+        for a in islice(steps, count):
+            env.step(a)
+
+    def kernel_call(count: int) -> None:
+        for c in islice(commands, count):
+            sim.plants.run(c, *task)
+
+    def plant_only(count: int) -> None:
+        for c in islice(commands, count):
+            plant.run(c)
+
+    def floor(count: int) -> None:
+        for c in islice(commands, count):
+            _touch(state, c, out, obs, flags)
+
+    return [
+        Timed("vector step", vector_step, n),
+        Timed("env kernel", kernel_call, n),
+        Timed("plant", plant_only, n),
+        Timed("memory floor", single_threaded(floor), n),
+    ]
