@@ -13,8 +13,8 @@ Layouts (all float64 unless noted):
 * task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
   the episode;
 * state (``ENV_STATE_SIZE``, N): the plant state, then the step count, and of the last
-  observation the estimated position, the estimated velocity, the reference, the reading and
-  the episode-end flags;
+  observation the estimated position, the estimated velocity, the reference, the reading, the
+  episode-end flags and the reward;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
   (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
@@ -53,7 +53,8 @@ E_REFERENCE = E_STEPS + 3
 E_MEASURED = E_STEPS + 4  #: the sensor reading: encoder angle (rad) or IR readout
 E_TERMINATED = E_STEPS + 5  #: 1.0 if the last observation ended the episode at a limit
 E_TRUNCATED = E_STEPS + 6  #: 1.0 if it truncated the episode
-ENV_STATE_SIZE = E_STEPS + 7
+E_REWARD = E_STEPS + 7  #: its reward
+ENV_STATE_SIZE = E_STEPS + 8
 
 # Config.
 C_SENSOR = 0
@@ -174,10 +175,14 @@ def _reading(
     """Return the sensor reading of a plant at ``x`` moving at ``v``, its position and rate."""
     encoder = cfg[C_SENSOR] == SENSOR_ENCODER
     measured = measure(x, encoder, gain, offset, noise, cfg[C_QUANTIZE] != 0.0, cfg[C_ENCODER_STEP])
+    return measured, _toward(x, encoder), _toward(v, encoder)
+
+
+@njit(cache=True, inline="always")
+def _toward(value: float, encoder: bool) -> float:
+    """Return the plant's position or rate as the env reports it (the IR's: distance, rate)."""
     # IR: the plant moves toward the wall, so the distance is -x (written 0.0 - x: not -0.0)
-    position = x if encoder else 0.0 - x
-    velocity = v if encoder else 0.0 - v
-    return measured, position, velocity
+    return value if encoder else 0.0 - value
 
 
 @njit(cache=True, inline="always")
@@ -272,19 +277,31 @@ def _store(
     out: npt.NDArray[np.float64],
 ) -> None:
     """Store env ``i``'s estimates, flags and outputs in the state and ``out``."""
-    estimate, estimated_velocity, position, velocity, reward, terminated, truncated = scored
-    state[E_ESTIMATE, i] = estimate
-    state[E_VELOCITY, i] = estimated_velocity
+    _keep(i, measured, scored, state)
     state[E_REFERENCE, i] = reference
-    state[E_MEASURED, i] = measured
-    state[E_TERMINATED, i] = 1.0 if terminated else 0.0
-    state[E_TRUNCATED, i] = 1.0 if truncated else 0.0
-    out[O_REWARD, i] = reward
-    out[O_POSITION, i] = position
-    out[O_VELOCITY, i] = velocity
+    out[O_REWARD, i] = scored[4]
+    out[O_POSITION, i] = scored[2]
+    out[O_VELOCITY, i] = scored[3]
     out[O_COMMAND, i] = applied
     out[O_REFERENCE, i] = reference
     out[O_TIME, i] = t
+
+
+@njit(cache=True, inline="always")
+def _keep(
+    i: int,
+    measured: float,
+    scored: tuple[float, float, float, float, float, bool, bool],
+    state: npt.NDArray[np.float64],
+) -> None:
+    """Store env ``i``'s estimates, reading, reward and flags in its state."""
+    estimate, estimated_velocity, _, _, reward, terminated, truncated = scored
+    state[E_ESTIMATE, i] = estimate
+    state[E_VELOCITY, i] = estimated_velocity
+    state[E_MEASURED, i] = measured
+    state[E_TERMINATED, i] = 1.0 if terminated else 0.0
+    state[E_TRUNCATED, i] = 1.0 if truncated else 0.0
+    state[E_REWARD, i] = reward
 
 
 @njit(cache=True, inline="always")
@@ -415,7 +432,21 @@ def _observe_lanes(
             cfg,
             False,
         )
-        _store(i, measured, scored, applied, reference, steps * dt, state, out)
+        _keep(i, measured, scored, state)
+    # the outputs from the state, a loop each: a loop over two arrays is one the compiler
+    # proves safe to run in SIMD lanes, one over many is not
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_REWARD, i] = state[E_REWARD, i]
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_POSITION, i] = _toward(state[plant_kernel.S_X, i], encoder)
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_VELOCITY, i] = _toward(state[plant_kernel.S_V, i], encoder)
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_COMMAND, i] = state[plant_kernel.S_COMMAND, i]
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_REFERENCE, i] = state[E_REFERENCE, i]
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        out[O_TIME, i] = state[E_STEPS, i] * dt
     for i in range(np.uint64(lo), np.uint64(hi)):
         _publish(i, encoder, state, obs)
     for flag, row in _FLAG_ROWS:
