@@ -73,8 +73,8 @@ def loads_part(
         f"(env-steps/s, {args.repeats} rounds of {args.seconds} s; ratio per round)"
     )
     lines = [
-        f"Vector envs beside other work (N = {n:,}; ratio = ours / CartPoleVectorEnv in "
-        "env-steps/s, per round, both under the same load):".replace(",", " "),
+        f"Vector envs beside other work (N = {_thousands(n)}; ratio = ours / CartPoleVectorEnv in "
+        "env-steps/s, per round, both under the same load):",
         "",
         "| load | CartPoleVectorEnv, env-steps/s | "
         + " | ".join(f"`{e}`, env-steps/s | ratio" for e in envs)
@@ -140,8 +140,8 @@ def split_part(
         f"{args.repeats} rounds"
     )
     lines = [
-        f"Where a vector env-step goes (N = {n:,}, serial kernels, ns per env-step, median "
-        f"[min, max] of {args.repeats} rounds):".replace(",", " "),
+        f"Where a vector env-step goes (N = {_thousands(n)}, serial kernels, ns per env-step, "
+        f"median [min, max] of {args.repeats} rounds):",
         "",
         "| env | vector step | env kernel | plant | observation | bookkeeping | memory floor |",
         "|---|---|---|---|---|---|---|",
@@ -165,6 +165,10 @@ def split_part(
         print(f"  {name:18s} " + "  ".join(f"{k} {v}" for k, v in text.items()))
         lines.append(f"| {name} | " + " | ".join(text.values()) + " |")
     return "\n".join(lines)
+
+
+def _thousands(n: int) -> str:
+    return f"{n:,}".replace(",", " ")
 
 
 def _ns(values: Sequence[float]) -> str:

@@ -628,7 +628,7 @@ def _step_block(
     """Step the envs of one block (those not ``fresh``), then observe them all.
 
     Two loops, not one: fused into one loop body the plant step and the observation compiled
-    to code half as fast as the two apart (docs/benchmarks.md, "Kernel near the machine's
+    to code half as fast as the two apart (docs/benchmarks.md, "A kernel near the machine's
     limit"); a block's state stays in cache from the first loop to the second.
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
