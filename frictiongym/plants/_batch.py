@@ -182,7 +182,14 @@ def step_plant(
 def _lane(
     x: float, v: float, c: float, due: float, h: float, delayed: bool, row: tuple[float, ...]
 ) -> tuple[float, float, float, float, float]:
-    """Pass 1 for one plant: returns x, v, the command recorded, friction/u, and S_STUCK."""
+    """Pass 1 for one plant at ``x``, ``v`` under the command ``c`` (``due``: after the dead time).
+
+    Returns the new ``x`` and ``v``, the saturated command to record, and the values of
+    ``S_FRICTION`` and ``S_STUCK``: a step without an event is finished; any other step keeps
+    ``x`` and ``v`` and is marked ``PENDING`` with the command due now in ``S_FRICTION``.
+    Scalars in and out, and conditional expressions only: the loop that inlines it compiles to
+    SIMD code.
+    """
     umax, j, stop = row[I_UMAX], row[I_J], row[I_STOP]
     us_pos, us_neg = row[F0 + friction_core.I_US_POS], row[F0 + friction_core.I_US_NEG]
     visc = row[F0 + friction_core.I_VISCOUS]
