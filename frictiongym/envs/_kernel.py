@@ -391,29 +391,26 @@ def _observe_lanes(
     plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     config: npt.NDArray[np.float64],
-    fresh: npt.NDArray[np.bool_],
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
     encoder: bool,
-    one_row: bool,
 ) -> None:
     """:func:`_observe_env` for envs that are not fresh, without noise, the references given.
 
-    The references are in ``state[E_REFERENCE]``; the flags are constants where this is
+    The references are in ``state[E_REFERENCE]``; ``encoder`` is a constant where this is
     inlined. Loops free of branches, each over few arrays: the compiler must prove the arrays
     of a loop apart before it runs the loop in SIMD lanes, and gives up beyond a few.
     """
     cfg = _settings(config)
-    umax = plant_rows[0, I_UMAX]
+    per_env = np.uint64(plant_rows.shape[0] > 1)  # 0: one row for all envs
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
     # from the compiler that the loop walks each array with unit stride
     for i in range(np.uint64(lo), np.uint64(hi)):
         x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
         measured, position, velocity = _reading(x, v, rows[i, T_GAIN], rows[i, T_OFFSET], 0.0, cfg)
         applied = state[plant_kernel.S_COMMAND, i]
-        if not one_row:
-            umax = plant_rows[i, I_UMAX]
+        umax = plant_rows[i * per_env, I_UMAX]
         steps = state[E_STEPS, i]
         reference = state[E_REFERENCE, i]
         previous_velocity, previous_estimate = state[E_VELOCITY, i], state[E_ESTIMATE, i]
@@ -479,33 +476,17 @@ def observe_block(
     same operations.
     """
     one_row = plant_rows.shape[0] == 1
-    if config[C_NOISE] > 0.0:
+    noisy = config[C_NOISE] > 0.0
+    if not noisy:
         for i in range(lo, hi):
-            _observe_env(
-                i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
-            )
-        return
-    for i in range(lo, hi):
-        state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
-    if config[C_SENSOR] == SENSOR_ENCODER:
-        if one_row:
-            _observe_lanes(
-                lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, True, True
-            )
+            state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
+        if config[C_SENSOR] == SENSOR_ENCODER:
+            _observe_lanes(lo, hi, state, dt, plant_rows, rows, config, obs, out, flags, True)
         else:
-            _observe_lanes(
-                lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, True, False
-            )
-    elif one_row:
-        _observe_lanes(
-            lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, False, True
-        )
-    else:
-        _observe_lanes(
-            lo, hi, state, dt, plant_rows, rows, config, fresh, obs, out, flags, False, False
-        )
-    for i in range(lo, hi):  # the loops took every env as stepped: observe the fresh ones again
-        if fresh[i]:
+            _observe_lanes(lo, hi, state, dt, plant_rows, rows, config, obs, out, flags, False)
+    # with noise every env, else the fresh ones (the loops took every env as stepped)
+    for i in range(lo, hi):
+        if noisy or fresh[i]:
             _observe_env(
                 i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
             )
@@ -632,27 +613,6 @@ def _step_block(
     limit"); a block's state stays in cache from the first loop to the second.
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
-    if stop - start == 1:  # a single env: the element steps, without the loops' calls
-        if not fresh[start]:
-            plant_batch.step_plant(
-                start,
-                state,
-                delay_buffer,
-                head,
-                command,
-                dt,
-                n_sub,
-                plant_rows,
-                plant_rows.shape[0] == 1,
-                False,
-                delay_buffer.shape[0] > 0,
-            )
-            state[E_STEPS, start] += 1.0
-        one_row = plant_rows.shape[0] == 1
-        _observe_env(
-            start, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
-        )
-        return
     plant_batch.step_plants(
         start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )

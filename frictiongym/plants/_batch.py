@@ -65,6 +65,12 @@ if ROW_SIZE != 25:  # slide_lanes unpacks the plant row by hand
 
 
 @njit(cache=True)
+def _no_plant(n: int) -> npt.NDArray[np.bool_]:
+    """Return an all-false ``fresh`` mask (in the parallel pipeline, np.zeros spawns threads)."""
+    return np.zeros(n, dtype=np.bool_)
+
+
+@njit(cache=True)
 def first_non_finite(command: npt.NDArray[np.float64]) -> int:
     """Index of the first NaN or infinite command, or -1."""
     for i in range(command.shape[0]):
@@ -159,26 +165,6 @@ def apply_command(
 
 
 @njit(cache=True, inline="always")
-def step_plant(
-    i: int,
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
-    h: float,
-    n_sub: int,
-    params: npt.NDArray[np.float64],
-    one_row: bool,
-    one_command: bool,
-    delayed: bool,
-) -> None:
-    """Saturate, delay and apply the command of plant ``i`` (the element step, scalar)."""
-    c = command[0] if one_command else command[i]
-    u = apply_command(i, state, delay_buffer, head, c, params[0 if one_row else i, I_UMAX], delayed)
-    advance_plant(i, state, u, h, n_sub, params, one_row)
-
-
-@njit(cache=True, inline="always")
 def _lane(
     x: float, v: float, c: float, due: float, h: float, delayed: bool, row: tuple[float, ...]
 ) -> tuple[float, float, float, float, float]:
@@ -218,7 +204,7 @@ def _lane(
     x_new, v_new = _affine_advance_by(x, v, a, j, h, ell, e1, e2)
     short = v_new > target if v > target else v_new < target
     event = (target == target and not short) or x_new > stop
-    pending = not held and (pressed or event or ell != key or not eligible)
+    pending = not eligible or (not held and (pressed or event or ell != key))
     dx = x_new - x
     f = (0.0 + phase_impulse(inner, s, us, uc, k, h, dx) + visc * dx) / h
     keep = held or pending
@@ -269,18 +255,14 @@ def _lanes(
     h: float,
     params: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
-    one_row: bool,
     delayed: bool,
-    check: bool,
 ) -> None:
-    """Run the loop of pass 1 (the flags are constants where it is inlined: no branches)."""
+    """Run the loop of pass 1 (``delayed`` is a constant where it is inlined: no branches)."""
     row = _row(params, 0)
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
     # from the compiler that the loop walks each column with unit stride
     for i in range(np.uint64(lo), np.uint64(hi)):
-        if not one_row:
-            row = _row(params, i)
-        skip = check and fresh[i]
+        skip = fresh[i]
         due = delay_buffer[head, i] if delayed else 0.0
         x, v, c, f, stuck = _lane(state[S_X, i], state[S_V, i], command[i], due, h, delayed, row)
         if not skip:
@@ -305,41 +287,22 @@ def slide_lanes(
     lo: int,
     hi: int,
 ) -> None:
-    """Pass 1 over plants ``lo`` to ``hi - 1`` (those not ``fresh``; ``fresh`` may be empty).
+    """Pass 1 over plants ``lo`` to ``hi - 1`` (those not ``fresh``).
 
-    One loop for each combination of shared or own rows, dead time or none, and ``fresh`` or
-    not, so that none branches inside. Compiled on its own with NumPy's error model: a division
+    For a batch that shares one plant row (:func:`step_plants` checks it has the exact law and
+    no lag); ``fresh`` has an entry per plant. One loop with a dead time and one without, so
+    that neither branches inside. Compiled on its own with NumPy's error model: a division
     by zero gives inf instead of raising, so no branch keeps the loop out of SIMD code (every
     divisor here is a positive parameter). The state is indexed as one 2-D array, never through
     row views: the compiler then sees that the columns cannot overlap.
     """
-    one_row, delayed, check = params.shape[0] == 1, delay_buffer.shape[0] > 0, fresh.shape[0] > 0
-    if one_row:
-        if delayed:
-            if check:
-                _lanes(
-                    lo, hi, state, delay_buffer, head, command, h, params, fresh, True, True, True
-                )
-            else:
-                _lanes(
-                    lo, hi, state, delay_buffer, head, command, h, params, fresh, True, True, False
-                )
-        elif check:
-            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, True, False, True)
-        else:
-            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, True, False, False)
-    elif delayed:
-        if check:
-            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, True, True)
-        else:
-            _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, True, False)
-    elif check:
-        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, False, True)
+    if delay_buffer.shape[0] > 0:
+        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, True)
     else:
-        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False, False, False)
+        _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def step_plants(
     lo: int,
     hi: int,
@@ -352,37 +315,43 @@ def step_plants(
     params: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
 ) -> None:
-    """Step plants ``lo`` to ``hi - 1`` (those not ``fresh``; ``fresh`` may be empty).
+    """Step plants ``lo`` to ``hi - 1``, those not ``fresh`` (an entry per plant).
 
-    ``command`` holds one command per plant, or one for all.
+    ``command`` holds one command per plant, or one for all. Compiled once and called per
+    block, not inlined into each batch kernel: four inlined copies of the element step took
+    minutes to compile. Pass 1 runs for a shared row of the exact law without lag and one
+    command per plant; other batches (own rows: the compiler cannot prove their loop safe for
+    SIMD code anyway) take the element step for every plant.
     """
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[0] > 0
-    check = fresh.shape[0] > 0
-    lanes = n_sub == 1 and not (one_command and state.shape[1] > 1)
-    if lanes and one_row:  # a shared row whose law has no exact step would be all pending
-        lanes = params[0, I_LAG] == 0.0 and has_exact_step(params[0, F0:K0])
+    lanes = (
+        n_sub == 1
+        and one_row
+        and not (one_command and state.shape[1] > 1)
+        and params[0, I_LAG] == 0.0
+        and has_exact_step(params[0, F0:K0])
+    )
     if lanes:
         slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
-        for i in range(lo, hi):  # pass 2 (plants skipped in pass 1 are never pending)
-            if state[S_STUCK, i] == PENDING:
-                advance_plant(i, state, state[S_FRICTION, i], h, n_sub, params, one_row)
-        return
     for i in range(lo, hi):
-        if not (check and fresh[i]):
-            step_plant(
+        if fresh[i]:
+            continue
+        if not lanes:
+            u = apply_command(
                 i,
                 state,
                 delay_buffer,
                 head,
-                command,
-                h,
-                n_sub,
-                params,
-                one_row,
-                one_command,
+                command[0 if one_command else i],
+                params[0 if one_row else i, I_UMAX],
                 delayed,
             )
+        elif state[S_STUCK, i] == PENDING:  # pass 2 (pass 1 never leaves a fresh one pending)
+            u = state[S_FRICTION, i]
+        else:
+            continue
+        advance_plant(i, state, u, h, n_sub, params, one_row)
 
 
 @serial_njit
@@ -424,7 +393,7 @@ def step_batch(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = np.zeros(0, dtype=np.bool_)
+    everyone = _no_plant(n)
     for block in range((n + BLOCK - 1) // BLOCK):
         lo = block * BLOCK
         step_plants(
@@ -448,7 +417,7 @@ def step_batch_parallel(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = np.zeros(0, dtype=np.bool_)
+    everyone = _no_plant(n)
     for block in prange((n + BLOCK - 1) // BLOCK):
         lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
         step_plants(
