@@ -147,3 +147,20 @@ def test_contact_with_the_end_stop_inside_a_step_is_located_in_a_batch() -> None
             plant.step(1.0)
     assert np.all(batch.position == 0.05)
     np.testing.assert_array_equal(batch.state, np.stack([p.state[:, 0] for p in alone], axis=1))
+
+
+def test_held_plants_of_other_laws_in_a_batch_step_as_alone() -> None:
+    # A body held at rest is finished by the SIMD pass only for the exact law without lag: a
+    # lagged actuator's state moves, a LuGre body creeps (found by an independent review).
+    from dataclasses import replace
+
+    params = [SERVO, replace(SERVO, lag=0.05), SERVO]  # lag >= 4 dt: still one substep
+    laws = [ROTARY_PAPER, ROTARY_PAPER, ROTARY_LUGRE]
+    batch = Plant(params, laws, DT, 3, substeps=1, parallel=False)
+    alone = [Plant(p, law, DT, substeps=1) for p, law in zip(params, laws, strict=True)]
+    for k in range(300):
+        u = 0.1 if k < 100 else 0.3  # 0.1 lies inside the break-away band
+        batch.step(np.full(3, u))
+        for plant in alone:
+            plant.step(u)
+    np.testing.assert_array_equal(batch.state, np.stack([p.state[:, 0] for p in alone], axis=1))
