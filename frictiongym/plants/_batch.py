@@ -58,16 +58,12 @@ from frictiongym.plants._kernel import (
 #: Plants per block: pass 2 of a block follows pass 1 while its state is in cache, and the
 #: threaded kernels spread whole blocks over their threads.
 BLOCK = 256
+#: Blocks of fewer plants take the element step only (a single env, a tuner's small batch).
+LANES_MIN = 16
 #: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
 PENDING = 2.0
 if ROW_SIZE != 25:  # slide_lanes unpacks the plant row by hand
     raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
-
-
-@njit(cache=True)
-def _no_plant(n: int) -> npt.NDArray[np.bool_]:
-    """Return an all-false ``fresh`` mask (in the parallel pipeline, np.zeros spawns threads)."""
-    return np.zeros(n, dtype=np.bool_)
 
 
 @njit(cache=True)
@@ -315,7 +311,7 @@ def step_plants(
     params: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
 ) -> None:
-    """Step plants ``lo`` to ``hi - 1``, those not ``fresh`` (an entry per plant).
+    """Step plants ``lo`` to ``hi - 1``, those not ``fresh`` (an entry per plant, or empty).
 
     ``command`` holds one command per plant, or one for all. Compiled once and called per
     block, not inlined into each batch kernel: four inlined copies of the element step took
@@ -325,17 +321,21 @@ def step_plants(
     """
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[0] > 0
+    check = fresh.shape[0] > 0
     lanes = (
-        n_sub == 1
+        hi - lo >= LANES_MIN  # a few plants gain nothing from the pass, and pay its calls
+        and n_sub == 1
         and one_row
         and not (one_command and state.shape[1] > 1)
         and params[0, I_LAG] == 0.0
         and has_exact_step(params[0, F0:K0])
     )
     if lanes:
+        if not check:
+            fresh = np.zeros(state.shape[1], dtype=np.bool_)
         slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
     for i in range(lo, hi):
-        if fresh[i]:
+        if check and fresh[i]:
             continue
         if not lanes:
             u = apply_command(
@@ -393,7 +393,7 @@ def step_batch(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = _no_plant(n)
+    everyone = np.empty(0, dtype=np.bool_)  # no plant is fresh
     for block in range((n + BLOCK - 1) // BLOCK):
         lo = block * BLOCK
         step_plants(
@@ -417,7 +417,7 @@ def step_batch_parallel(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = _no_plant(n)
+    everyone = np.empty(0, dtype=np.bool_)  # no plant is fresh
     for block in prange((n + BLOCK - 1) // BLOCK):
         lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
         step_plants(
