@@ -470,10 +470,10 @@ def observe_block(
 
     The references are evaluated first, in a loop of their own (a sine needs a call, a step
     sequence an indirect read); then the rest in SIMD code, as if every env had been stepped;
-    then the fresh envs (just reset, rare) once more on their own. Compiled on its own (the parallel
-    pipeline starts no threads here; it drops reference counting) with NumPy's error model, so
-    that no exception branch stays in the loop. Both ways compute the same values with the
-    same operations.
+    then the fresh envs (just reset, rare) once more on their own. With sensor noise every env
+    takes the scalar path. Compiled on its own (the parallel pipeline starts no threads here; it
+    drops reference counting) with NumPy's error model, so that no exception branch stays in the
+    loops. Both ways compute the same values with the same operations.
     """
     one_row = plant_rows.shape[0] == 1
     noisy = config[C_NOISE] > 0.0

@@ -15,7 +15,9 @@ passes over its plants:
 Both passes compute with the same operations in the same order as the element step alone
 (:func:`~frictiongym.plants._kernel.sliding_setup` is the one copy of the sliding arithmetic),
 so a plant's trajectory is bit-identical whichever pass steps it, alone or in a batch, serially
-or on threads. Batches whose law has no exact step, or that take substeps, skip pass 1.
+or on threads. Pass 1 runs for blocks of at least ``LANES_MIN`` plants that share one plant
+row of the exact law without actuator lag, stepped once per period (no substeps); every other
+batch takes the element step for each plant.
 """
 
 from __future__ import annotations
@@ -315,9 +317,10 @@ def step_plants(
 
     ``command`` holds one command per plant, or one for all. Compiled once and called per
     block, not inlined into each batch kernel: four inlined copies of the element step took
-    minutes to compile. Pass 1 runs for a shared row of the exact law without lag and one
-    command per plant; other batches (own rows: the compiler cannot prove their loop safe for
-    SIMD code anyway) take the element step for every plant.
+    minutes to compile. Pass 1 runs for a block of ``LANES_MIN`` plants or more that share a
+    row of the exact law without lag, with one command per plant; other batches (own rows: the
+    compiler cannot prove their loop safe for SIMD code anyway) take the element step for every
+    plant.
     """
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[0] > 0
