@@ -10,8 +10,8 @@ Layouts (all float64 unless noted):
 
 * plant rows (N or 1, ``plant_kernel.ROW_SIZE``): the plant kernel's rows, one shared by all
   envs unless they are randomised (a shared row keeps the working set of 4 096 envs in cache);
-* task rows (N, ``TASK_ROW_SIZE``): the sensor gain and offset, then the packed reference of
-  the episode;
+* task rows (``TASK_ROW_SIZE``, N): the sensor gain and offset, then the packed reference of
+  the episode, each entry a row of the envs (a loop over envs reads each contiguously);
 * state (``ENV_STATE_SIZE``, N): the plant state, then the step count, and of the last
   observation the estimated position, the estimated velocity, the reference, the reading, the
   episode-end flags and the reward;
@@ -39,10 +39,13 @@ from frictiongym.plants.sensors import (
 )
 from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read it here
 
-# Task row.
+# Task rows.
 T_GAIN = 0
 T_OFFSET = 1
-T_REF = 2
+#: the command limit of the env's plant row, copied at reset: a loop over envs reads it
+#: contiguously (an indirect read of the plant rows kept the observation loop out of SIMD code)
+T_UMAX = 2
+T_REF = 3
 TASK_ROW_SIZE = T_REF + REF_SIZE
 
 # State columns after the plant's.
@@ -106,9 +109,9 @@ def task_state(state: npt.NDArray[np.float64], name: str) -> npt.NDArray[np.floa
 def set_episode(
     rows: npt.NDArray[np.float64], i: int, gain: float, reference: npt.NDArray[np.float64]
 ) -> None:
-    """Write env ``i``'s drawn sensor gain and packed reference into its task row."""
-    rows[i, T_GAIN] = gain
-    rows[i, T_REF:] = reference
+    """Write env ``i``'s drawn sensor gain and packed reference into its task column."""
+    rows[T_GAIN, i] = gain
+    rows[T_REF:, i] = reference
 
 
 # Outputs.
@@ -343,7 +346,6 @@ def _observe_env(
     i: int,
     state: npt.NDArray[np.float64],
     dt: float,
-    plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
@@ -351,14 +353,13 @@ def _observe_env(
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
-    one_row: bool,
 ) -> None:
     """Read env ``i``'s sensor and write its observation, reward and episode end (scalar)."""
     cfg = _settings(config)
     noise = cfg[C_NOISE] * normal_draw(rng, i) if cfg[C_NOISE] > 0.0 else 0.0
     x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
-    measured, position, velocity = _reading(x, v, rows[i, T_GAIN], rows[i, T_OFFSET], noise, cfg)
-    applied, umax = state[plant_kernel.S_COMMAND, i], plant_rows[0 if one_row else i, I_UMAX]
+    measured, position, velocity = _reading(x, v, rows[T_GAIN, i], rows[T_OFFSET, i], noise, cfg)
+    applied, umax = state[plant_kernel.S_COMMAND, i], rows[T_UMAX, i]
     steps = state[E_STEPS, i]
     t = steps * dt
     reference = reference_at(t, rows, i, T_REF)
@@ -388,7 +389,6 @@ def _observe_lanes(
     hi: int,
     state: npt.NDArray[np.float64],
     dt: float,
-    plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     config: npt.NDArray[np.float64],
     obs: npt.NDArray[np.float32],
@@ -403,14 +403,13 @@ def _observe_lanes(
     of a loop apart before it runs the loop in SIMD lanes, and gives up beyond a few.
     """
     cfg = _settings(config)
-    per_env = np.uint64(plant_rows.shape[0] > 1)  # 0: one row for all envs
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
     # from the compiler that the loop walks each array with unit stride
     for i in range(np.uint64(lo), np.uint64(hi)):
         x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
-        measured, position, velocity = _reading(x, v, rows[i, T_GAIN], rows[i, T_OFFSET], 0.0, cfg)
+        measured, position, velocity = _reading(x, v, rows[T_GAIN, i], rows[T_OFFSET, i], 0.0, cfg)
         applied = state[plant_kernel.S_COMMAND, i]
-        umax = plant_rows[i * per_env, I_UMAX]
+        umax = rows[T_UMAX, i]
         steps = state[E_STEPS, i]
         reference = state[E_REFERENCE, i]
         previous_velocity, previous_estimate = state[E_VELOCITY, i], state[E_ESTIMATE, i]
@@ -457,7 +456,6 @@ def observe_block(
     hi: int,
     state: npt.NDArray[np.float64],
     dt: float,
-    plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
@@ -475,21 +473,18 @@ def observe_block(
     drops reference counting) with NumPy's error model, so that no exception branch stays in the
     loops. Both ways compute the same values with the same operations.
     """
-    one_row = plant_rows.shape[0] == 1
     noisy = config[C_NOISE] > 0.0
     if not noisy:
         for i in range(lo, hi):
             state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
         if config[C_SENSOR] == SENSOR_ENCODER:
-            _observe_lanes(lo, hi, state, dt, plant_rows, rows, config, obs, out, flags, True)
+            _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, True)
         else:
-            _observe_lanes(lo, hi, state, dt, plant_rows, rows, config, obs, out, flags, False)
+            _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, False)
     # with noise every env, else the fresh ones (the loops took every env as stepped)
     for i in range(lo, hi):
         if noisy or fresh[i]:
-            _observe_env(
-                i, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags, one_row
-            )
+            _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 
 @njit(cache=True)
@@ -542,6 +537,7 @@ def reset_envs(
     mask: npt.NDArray[np.bool_],
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
+    plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     position: npt.NDArray[np.float64],
     velocity: npt.NDArray[np.float64],
@@ -550,23 +546,25 @@ def reset_envs(
 ) -> None:
     """Put the envs of ``mask`` at rest-or-moving starts (k-th masked env: ``position[k]``).
 
-    With ``set_rows`` their task rows also get unit sensor gain and the ``reference`` row;
-    otherwise the caller has set the rows. The sensor offset is always zeroed.
+    With ``set_rows`` their task columns also get unit sensor gain and the ``reference`` row;
+    otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
+    limit copied from the env's plant row (set before this call).
     """
     plant_kernel.reset_plants(mask, state, delay_buffer, position, velocity)
+    one_row = plant_rows.shape[0] == 1
     for i in range(mask.shape[0]):
         if mask[i]:
             if set_rows:
-                rows[i, T_GAIN] = 1.0
-                rows[i, T_REF:] = reference
-            rows[i, T_OFFSET] = 0.0
+                rows[T_GAIN, i] = 1.0
+                rows[T_REF:, i] = reference
+            rows[T_OFFSET, i] = 0.0
+            rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
 
 
 @njit(cache=True)
 def observe_envs(
     mask: npt.NDArray[np.bool_],
     state: npt.NDArray[np.float64],
-    plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
@@ -580,12 +578,9 @@ def observe_envs(
     What a same-step autoreset needs: the ended envs are reset and observed after the step that
     ended them, without stepping the rest a second time.
     """
-    one_row = plant_rows.shape[0] == 1
     for i in range(mask.shape[0]):
         if mask[i]:
-            _observe_env(
-                i, state, dt, plant_rows, rows, rng, config, mask, obs, out, flags, one_row
-            )
+            _observe_env(i, state, dt, rows, rng, config, mask, obs, out, flags)
 
 
 @njit(cache=True, inline="always")
@@ -619,7 +614,7 @@ def _step_block(
     for i in range(start, stop):
         if not fresh[i]:
             state[E_STEPS, i] += 1.0
-    observe_block(start, stop, state, dt, plant_rows, rows, rng, config, fresh, obs, out, flags)
+    observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 
 @plant_kernel.serial_njit

@@ -194,7 +194,7 @@ class Simulation:
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
         )
-        self.rows: FloatArray = np.zeros((self.num_envs, env_kernel.TASK_ROW_SIZE))
+        self.rows: FloatArray = np.zeros((env_kernel.TASK_ROW_SIZE, self.num_envs))
         self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
 
     def _task_config(
@@ -359,7 +359,15 @@ class Simulation:
                 self.plants.prime_rows(mask)
         plants = self.plants
         env_kernel.reset_envs(
-            mask, plants.state, plants.delay_buffer, self.rows, x0, v0, ref_row, not draws
+            mask,
+            plants.state,
+            plants.delay_buffer,
+            plants.rows,
+            self.rows,
+            x0,
+            v0,
+            ref_row,
+            not draws,
         )
 
     def run(
@@ -408,7 +416,6 @@ class Simulation:
         env_kernel.observe_envs(
             mask,
             plants.state,
-            plants.rows,
             self.rows,
             self.noise_state,
             self.config,

@@ -58,27 +58,27 @@ def piecewise_value(t: float, kind: float, p0: float, p1: float, p2: float, leve
 
 @njit(cache=True, inline="always")
 def is_sine(rows: npt.NDArray[np.float64], i: int, offset: int) -> bool:
-    """Whether the reference packed in ``rows[i, offset:]`` is a sine."""
-    return rows[i, offset + _KIND] == KIND_SINE
+    """Whether the reference packed in ``rows[offset:, i]`` is a sine."""
+    return rows[offset + _KIND, i] == KIND_SINE
 
 
 @njit(cache=True, inline="always")
 def piecewise_at(t: float, rows: npt.NDArray[np.float64], i: int, offset: int) -> float:
     """:func:`reference_at` of a reference that is not a sine (no branch: SIMD code)."""
-    kind = rows[i, offset + _KIND]
-    p0 = rows[i, offset + _P0]
+    kind = rows[offset + _KIND, i]
+    p0 = rows[offset + _P0, i]
     # p0 is the period of a sequence
-    slot = sequence_slot(t, p0, rows[i, offset + _COUNT]) if kind == KIND_SEQUENCE else 0
-    level = rows[i, offset + _LEVELS + slot]
-    return piecewise_value(t, kind, p0, rows[i, offset + _P0 + 1], rows[i, offset + _P0 + 2], level)
+    slot = sequence_slot(t, p0, rows[offset + _COUNT, i]) if kind == KIND_SEQUENCE else 0
+    level = rows[offset + _LEVELS + slot, i]
+    return piecewise_value(t, kind, p0, rows[offset + _P0 + 1, i], rows[offset + _P0 + 2, i], level)
 
 
 @njit(cache=True, inline="always")
 def reference_at(t: float, rows: npt.NDArray[np.float64], i: int, offset: int) -> float:
-    """Value at time ``t`` of the reference packed in ``rows[i, offset:offset + REF_SIZE]``."""
+    """Value at time ``t`` of the reference packed in ``rows[offset:offset + REF_SIZE, i]``."""
     if is_sine(rows, i, offset):  # p0 period, p1 amplitude, p2 offset, p3 phase
-        p0, p1, p2 = rows[i, offset + _P0], rows[i, offset + _P0 + 1], rows[i, offset + _P0 + 2]
-        return p2 + p1 * math.sin(2.0 * math.pi * t / p0 + rows[i, offset + _P0 + 3])
+        p0, p1, p2 = rows[offset + _P0, i], rows[offset + _P0 + 1, i], rows[offset + _P0 + 2, i]
+        return p2 + p1 * math.sin(2.0 * math.pi * t / p0 + rows[offset + _P0 + 3, i])
     return piecewise_at(t, rows, i, offset)
 
 
@@ -92,7 +92,7 @@ def _evaluate(row: npt.NDArray[np.float64], t: npt.NDArray[np.float64]) -> Float
 
 def evaluate(row: npt.ArrayLike, t: npt.ArrayLike) -> FloatArray:
     """Values of a packed reference row at the times ``t`` (s), with the env kernel's code."""
-    r = np.ascontiguousarray(row, dtype=np.float64).reshape(1, REF_SIZE)
+    r = np.ascontiguousarray(row, dtype=np.float64).reshape(REF_SIZE, 1)  # one column
     times = np.asarray(t, dtype=np.float64)
     return np.asarray(_evaluate(r, times.reshape(-1))).reshape(times.shape)
 

@@ -43,7 +43,7 @@ def encoder_angle(angle: float, step: float) -> float:
 
     Ties round up (``floor(x + 0.5)``), so the reading errs by at most ``step / 2``.
     """
-    return math.floor(angle / step + 0.5) * step
+    return np.floor(angle / step + 0.5) * step
 
 
 @njit(cache=True, inline="always")
