@@ -147,6 +147,21 @@ def test_a_masked_reset_keeps_the_other_envs_and_the_callers_options():
     assert "reset_mask" in options  # the caller's dict is left whole
 
 
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_masked_reset_returns_the_last_observation_of_the_others_even_if_the_caller_changed_it(
+    env_id,
+):
+    # the others' observations are rebuilt from their state (noise included), not kept aside
+    env = native(env_id, AutoresetMode.NEXT_STEP, sensor_noise=True)
+    env.reset(seed=1)
+    for action in commands(env_id, 7, (NUM_ENVS,)):
+        obs = env.step(action)[0]
+    last = obs.copy()
+    obs[:] = 99.0  # a caller that normalises in place
+    again, _ = env.reset(options={"reset_mask": np.array([True, False, False])})
+    np.testing.assert_array_equal(again[1:], last[1:])
+
+
 def test_a_masked_reset_before_any_reset_is_refused():
     env = native(SERVO, AutoresetMode.NEXT_STEP)
     with pytest.raises(gym.error.ResetNeeded, match="reset every env once"):

@@ -583,6 +583,20 @@ def observe_envs(
             _observe_env(i, state, dt, rows, rng, config, mask, obs, out, flags)
 
 
+@njit(cache=True)
+def publish_envs(
+    state: npt.NDArray[np.float64], config: npt.NDArray[np.float64], obs: npt.NDArray[np.float32]
+) -> None:
+    """Write every env's observation again from its state: the one it last returned.
+
+    Every observation is written by :func:`_publish` from the state rows it reads, and nothing
+    else changes them between steps.
+    """
+    encoder = config[C_SENSOR] == SENSOR_ENCODER
+    for i in range(state.shape[1]):
+        _publish(i, encoder, state, obs)
+
+
 @njit(cache=True, inline="always")
 def _step_block(
     block: int,

@@ -45,7 +45,9 @@ _OUT_ROWS = (
 _O_POSITION, _O_VELOCITY, _O_COMMAND, _O_REFERENCE, _O_TIME = _OUT_ROWS
 _F_STUCK = env_kernel.F_STUCK
 if INFO_KEYS != ("position", "velocity", "command", "reference", "time"):  # _info spells them out
-    raise ImportError("FrictionEnv._info must list every key of INFO_KEYS, in order")
+    raise ImportError(
+        "FrictionEnv._info and FrictionVectorEnv._info must list every key of INFO_KEYS"
+    )
 _RENDER_FPS = 50
 
 

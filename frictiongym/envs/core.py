@@ -408,6 +408,12 @@ class Simulation:
 
         return step
 
+    def observations(self) -> npt.NDArray[np.float32]:
+        """Return every env's last observation again, rebuilt from what its state keeps."""
+        obs = np.empty((self.num_envs, self.observation_size), np.float32)
+        env_kernel.publish_envs(self.plants.state, self.config, obs)
+        return obs
+
     def observe(
         self, mask: BoolArray, obs: npt.NDArray[np.float32], out: FloatArray, flags: BoolArray
     ) -> None:

@@ -31,6 +31,11 @@ from gymnasium.vector.utils import batch_space
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.base import (
+    _O_COMMAND,
+    _O_POSITION,
+    _O_REFERENCE,
+    _O_TIME,
+    _O_VELOCITY,
     _OUT_ROWS,
     _RENDER_FPS,
     _VECTOR_ARGUMENTS,
@@ -104,8 +109,11 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._seeds: list[int | None] = [None] * self.num_envs
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
+        # Which envs ended on the last step, and whether any did; fresh for a step with none
+        # (the kernel only reads it). A step computes the next `_done` into this buffer.
         self._done = np.zeros(self.num_envs, dtype=bool)
-        self._last_obs = np.zeros((self.num_envs, self.sim.observation_size), np.float32)
+        self._ended = False
+        self._none_fresh = np.zeros(self.num_envs, dtype=bool)
         self._needs_reset = True
         self._set_by_user: set[str] = set()
 
@@ -134,16 +142,30 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         self, out: FloatArray, flags: BoolArray, mask: BoolArray | None = None
     ) -> dict[str, Any]:
         """Return the envs' info with Gymnasium's ``_key`` masks (only the envs of ``mask``)."""
-        values = [out[row] for row in _OUT_ROWS] + [flags[env_kernel.F_STUCK]]
-        info: dict[str, Any] = {}
-        if mask is None:  # every env reports every key: new masks each call, allocated at once
-            masks = np.ones((len(values), self.num_envs), dtype=bool)
-        for n, (key, value) in enumerate(zip((*INFO_KEYS, "stuck"), values, strict=True)):
-            if mask is None:
-                info[key], info["_" + key] = value, masks[n]
-            else:  # as SyncVectorEnv gathers a subset: zeros elsewhere
+        if mask is not None:  # as SyncVectorEnv gathers a subset: zeros elsewhere
+            values = [out[row] for row in _OUT_ROWS] + [flags[env_kernel.F_STUCK]]
+            info: dict[str, Any] = {}
+            for key, value in zip((*INFO_KEYS, "stuck"), values, strict=True):
                 info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
-        return info
+            return info
+        # Every env reports every key: new masks each call, allocated at once (written out:
+        # this runs every step).
+        masks = np.empty((len(INFO_KEYS) + 1, self.num_envs), dtype=bool)
+        masks.fill(True)
+        return {
+            "position": out[_O_POSITION],
+            "_position": masks[0],
+            "velocity": out[_O_VELOCITY],
+            "_velocity": masks[1],
+            "command": out[_O_COMMAND],
+            "_command": masks[2],
+            "reference": out[_O_REFERENCE],
+            "_reference": masks[3],
+            "time": out[_O_TIME],
+            "_time": masks[4],
+            "stuck": flags[env_kernel.F_STUCK],
+            "_stuck": masks[5],
+        }
 
     def reset(
         self,
@@ -186,14 +208,14 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             self.sim.run(np.zeros(self.num_envs), targets, obs, out, flags)
             info = self._info(out, flags)
         else:
-            obs = self._last_obs.copy()
+            obs = self.sim.observations()  # the others' last observation, from their state
             out = np.zeros((env_kernel.OUT_SIZE, self.num_envs))
             flags = np.zeros((env_kernel.FLAG_SIZE, self.num_envs), dtype=bool)
             self.sim.observe(mask, obs, out, flags)
             info = self._info(out, flags, mask)
         self._done[targets] = False
+        self._ended = bool(self._done.any())
         self._needs_reset = False
-        self._last_obs = obs.copy()
         return obs, info
 
     def _reset_mask(self, mask: Any) -> BoolArray:
@@ -221,15 +243,17 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
         command = self._commands(actions)
         mode = self.autoreset_mode
-        if mode is AutoresetMode.DISABLED and self._done.any():
-            raise gym.error.ResetNeeded(
-                f"envs {np.flatnonzero(self._done).tolist()} ended on the last step and "
-                "autoreset_mode is DISABLED: reset them first with "
-                "reset(options={'reset_mask': ...})"
-            )
-        fresh = self._done if mode is AutoresetMode.NEXT_STEP else np.zeros_like(self._done)
-        if fresh.any():
-            self.sim.prepare_reset(fresh, self._rng)
+        fresh = self._none_fresh
+        if self._ended:
+            if mode is AutoresetMode.DISABLED:
+                raise gym.error.ResetNeeded(
+                    f"envs {np.flatnonzero(self._done).tolist()} ended on the last step and "
+                    "autoreset_mode is DISABLED: reset them first with "
+                    "reset(options={'reset_mask': ...})"
+                )
+            if mode is AutoresetMode.NEXT_STEP:
+                fresh = self._done
+                self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
         self.sim.run(command, fresh, obs, out, flags)
         # Rows of this step's own output arrays, fresh every step (copied below only where a
@@ -237,8 +261,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         reward = out[env_kernel.O_REWARD]
         terminated = flags[env_kernel.F_TERMINATED]
         truncated = flags[env_kernel.F_TRUNCATED]
-        done = terminated | truncated
-        if mode is AutoresetMode.SAME_STEP and done.any():
+        done = np.logical_or(terminated, truncated, out=self._done)  # the kernel has read it
+        self._ended = bool(done.any())
+        if mode is AutoresetMode.SAME_STEP and self._ended:
             reward, terminated, truncated = reward.copy(), terminated.copy(), truncated.copy()
             final_obs = np.full(self.num_envs, None, dtype=object)
             for i in np.flatnonzero(done):
@@ -252,11 +277,10 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             self.sim.prepare_reset(done, self._rng)
             self.sim.observe(done, obs, out, flags)
             info = {**final, **self._info(out, flags)}
-            done = np.zeros_like(done)
+            done[:] = False
+            self._ended = False
         else:
             info = self._info(out, flags)
-        self._done = done
-        self._last_obs = obs.copy()
         return obs, reward, terminated, truncated, info
 
     def _commands(self, actions: ActArray) -> npt.NDArray[np.floating[Any]]:
