@@ -164,3 +164,57 @@ def test_held_plants_of_other_laws_in_a_batch_step_as_alone() -> None:
         for plant in alone:
             plant.step(u)
     np.testing.assert_array_equal(batch.state, np.stack([p.state[:, 0] for p in alone], axis=1))
+
+
+@pytest.mark.parametrize(
+    ("dt", "damping", "end_stop", "bias"),
+    # the second: slow and damped, so that many stops need expm1 (left to the element step),
+    # and pushed onto an end stop, so that many would come to rest beyond it
+    [(DT, 0.0446, np.inf, 0.0), (0.05, 0.3, 0.02, 0.1)],
+    ids=["servo-rate", "slow-damped-with-stop"],
+)
+def test_stops_finished_in_simd_lanes_equal_plants_alone(
+    dt: float, damping: float, end_stop: float, bias: float
+) -> None:
+    # Pass 1b finishes a step in which a body comes to rest and the command then holds it.
+    rng = np.random.default_rng(4)
+    n = 300
+    law = StictionCoulomb(0.21, 0.19, 0.12, 0.1, 3.0, 2.5, 0.002, "linear")  # asymmetric
+    params = PlantParams(
+        inertia=7.143e-3, damping=damping, command_limit=10.0, dead_time=dt, end_stop=end_stop
+    )
+    batch = Plant(params, law, dt, n, parallel=False)
+    alone = [Plant(params, law, dt) for _ in range(n)]
+    start = rng.uniform(-0.1, 0.0, n)
+    batch.reset(position=start)
+    for plant, x0 in zip(alone, start, strict=True):
+        plant.reset(position=x0)
+    stops = 0
+    for u in ar_commands(rng, 300, n, 0.25) + bias:
+        moving = batch.velocity != 0.0
+        batch.step(u)
+        for i, plant in enumerate(alone):
+            plant.step(u[i])
+        stops += int(np.count_nonzero(moving & (batch.velocity == 0.0)))
+    assert stops > 1000, "too few stops to test the pass"
+    together = np.stack([p.state[:, 0] for p in alone], axis=1)
+    np.testing.assert_array_equal(batch.state, together)
+
+
+def test_a_stop_beyond_the_end_stop_is_left_to_the_element_step() -> None:
+    # Bodies sliding onto the stop, slowing under a command the friction holds: some would come
+    # to rest beyond it, so the contact comes first (located by the element step).
+    n = 64
+    params = PlantParams(inertia=7.143e-3, damping=0.0446, command_limit=10.0, end_stop=0.0)
+    batch = Plant(params, ROTARY_PAPER, DT, n, parallel=False)
+    alone = [Plant(params, ROTARY_PAPER, DT) for _ in range(n)]
+    start = -np.linspace(1e-6, 1e-4, n)
+    batch.reset(position=start, velocity=0.05)
+    for plant, x0 in zip(alone, start, strict=True):
+        plant.reset(position=x0, velocity=0.05)
+    batch.step(np.zeros(n))
+    for plant in alone:
+        plant.step(0.0)
+    assert 0 < np.count_nonzero(batch.position == 0.0) < n  # contacts and stops short of it
+    assert np.all(batch.velocity == 0.0)
+    np.testing.assert_array_equal(batch.state, np.stack([p.state[:, 0] for p in alone], axis=1))

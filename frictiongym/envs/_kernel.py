@@ -550,15 +550,25 @@ def reset_envs(
     otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
     limit copied from the env's plant row (set before this call).
     """
-    plant_kernel.reset_plants(mask, state, delay_buffer, position, velocity)
     one_row = plant_rows.shape[0] == 1
-    for i in range(mask.shape[0]):
-        if mask[i]:
-            if set_rows:
-                rows[T_GAIN, i] = 1.0
-                rows[T_REF:, i] = reference
-            rows[T_OFFSET, i] = 0.0
-            rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
+    n = mask.shape[0]
+    words = n // 8
+    # 8 envs per word, read at once: an autoreset resets few of many envs
+    chunks = mask[: words * 8].view(np.uint64)
+    k = 0  # the k-th masked env
+    for word in range(words + 1):  # the last one: the envs after the whole words
+        if word < words and chunks[word] == 0:
+            continue
+        for i in range(8 * word, min(8 * word + 8, n)):
+            if mask[i]:
+                plant_kernel.reset_plant(i, position[k], velocity[k], state, delay_buffer)
+                k += 1
+                if set_rows:
+                    rows[T_GAIN, i] = 1.0
+                    for entry in range(REF_SIZE):
+                        rows[T_REF + entry, i] = reference[entry]
+                rows[T_OFFSET, i] = 0.0
+                rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
 
 
 @njit(cache=True)

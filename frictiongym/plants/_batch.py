@@ -23,6 +23,7 @@ batch takes the element step for each plant.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -38,6 +39,7 @@ from frictiongym.plants._kernel import (
     I_STOP,
     I_UMAX,
     K0,
+    LOG_SERIES_LIMIT,
     ROW_SIZE,
     S_COMMAND,
     S_FRICTION,
@@ -46,6 +48,7 @@ from frictiongym.plants._kernel import (
     S_V,
     S_X,
     S_Z,
+    SERIES_LIMIT,
     _affine_advance_by,
     advance,
     breakaway_direction,
@@ -53,8 +56,10 @@ from frictiongym.plants._kernel import (
     exact_static,
     has_exact_step,
     phase_impulse,
+    phi12_series,
     serial_njit,
     sliding_setup,
+    time_to_terms,
 )
 
 #: Plants per block: pass 2 of a block follows pass 1 while its state is in cache, and the
@@ -123,7 +128,10 @@ def advance_plant(
         j, stop = plant[I_J], plant[I_STOP]
         b_total = plant[I_B] + friction[friction_core.I_VISCOUS]
         x, v, dt, impulse = exact_phase(x0, v0, u, h, j, b_total, friction, stop, cache)
-        if dt != h:
+        if dt != h and v == 0.0 and breakaway_direction(u, friction) == 0.0:
+            # stopped, then held for the rest: exact_static's next phase, written out
+            impulse = (0.0 + impulse) + u * (h - dt)
+        elif dt != h:
             x, v, impulse = exact_static(
                 x, v, u, h - dt, j, b_total, friction, stop, cache, 0.0 + impulse, _MAX_SEGMENTS - 1
             )
@@ -300,6 +308,121 @@ def slide_lanes(
         _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False)
 
 
+#: Rows of pass 1b's work array: per pending plant of a block, its position, velocity, command
+#: due, then ``log1p(q) / q`` of its stop time (NaN where none is needed), its end position and
+#: friction, and 1.0 if pass 1b finished its step.
+W_X, W_V, W_U, W_LOG, W_X_END, W_FRICTION, W_DONE = range(7)
+WORK_ROWS = 7
+
+
+@njit(cache=True, inline="always")
+def _stopping(x: float, v: float, u: float, h: float, row: tuple[float, ...]) -> tuple[Any, ...]:
+    """Read a pending plant's step as pass 1b would: a stop, then held for the rest of the step.
+
+    Returns ``maybe``: whether the step's first phase (as
+    :func:`~frictiongym.plants._kernel.exact_phase` finds it, with the row's cached coefficients
+    for the full step) ends with the body at rest, and the step's command then holds it (inside
+    the break-away band); ``logged``: whether its stop time needs ``log1p(q) / q``; then the
+    phase: ``never`` (no stop within reach), ``q``, ``num``, ``den`` (:func:`time_to_terms`),
+    ``a``, ``bb``, ``s``, ``inner``, ``us``, ``uc``, ``k`` and the position after the full
+    step. The element step's operations, as conditional expressions (SIMD code).
+    """
+    j = row[I_J]
+    us_pos, us_neg = row[F0 + friction_core.I_US_POS], row[F0 + friction_core.I_US_NEG]
+    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    b_total = row[I_B] + row[F0 + friction_core.I_VISCOUS]
+    s = 1.0 if v > 0.0 else -1.0
+    forward = s > 0.0
+    us = us_pos if forward else us_neg
+    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
+    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
+    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
+    key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
+    e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
+    e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
+    ell = bb / j * h
+    x_full, v_full = _affine_advance_by(x, v, a, j, h, ell, e1, e2)
+    short = v_full > target if v > target else v_full < target
+    held = not u > us_pos and not u < -us_neg  # breakaway_direction(u) == 0.0
+    maybe = v != 0.0 and ell == key and target == 0.0 and not short and held
+    never, q, num, den = time_to_terms(v, target, a, bb)
+    logged = maybe and not never and not abs(q) < LOG_SERIES_LIMIT
+    return maybe, logged, never, q, num, den, a, bb, s, inner, us, uc, k, x_full
+
+
+@njit(cache=True, inline="always")
+def _stop_lane(
+    x: float, v: float, u: float, log_ratio: float, h: float, row: tuple[float, ...]
+) -> tuple[bool, float, float]:
+    """Finish pass 1b for one plant: whether it could, and its end position and friction.
+
+    What :func:`advance_plant` computes for a stop followed by a hold, without branches
+    (``log_ratio``: ``log1p(q) / q`` from the scalar loop, where ``logged``). A stop whose
+    coefficients need ``expm1``, or a contact with the end stop, is left to the element step.
+    """
+    maybe, _, never, q, num, den, a, bb, s, inner, us, uc, k, x_full = _stopping(x, v, u, h, row)
+    j = row[I_J]
+    ratio = 1.0 - q / 2.0 if abs(q) < LOG_SERIES_LIMIT else log_ratio
+    t_event = math.inf if never else j * num / den * ratio
+    early = t_event < h  # else the body comes to rest at the end of the step
+    dt = t_event if early else h
+    ell = bb / j * dt
+    e1, e2 = phi12_series(ell)
+    x_event, _ = _affine_advance_by(x, v, a, j, dt, ell, e1, e2)
+    x_end = x_event if early else x_full
+    done = maybe and (not early or abs(ell) < SERIES_LIMIT) and not x_end > row[I_STOP]
+    impulse = phase_impulse(inner, s, us, uc, k, dt, x_end - x)
+    impulse = (0.0 + impulse) + u * (h - dt) if early else impulse  # and held for the rest
+    f = ((0.0 + impulse) + row[F0 + friction_core.I_VISCOUS] * (x_end - x)) / h
+    return done, x_end, f
+
+
+@njit(cache=True, parallel=True, error_model="numpy")
+def stop_lanes(
+    state: npt.NDArray[np.float64],
+    h: float,
+    params: npt.NDArray[np.float64],
+    index: npt.NDArray[np.int64],
+    pending: int,
+    work: npt.NDArray[np.float64],
+) -> None:
+    """Pass 1b: finish each pending step that is a stop and a hold (plants ``index[:pending]``).
+
+    Of the steps pass 1 leaves pending, most are a body coming to rest within the step under a
+    command that then holds it. Their arithmetic runs here in SIMD lanes over the pending
+    plants, gathered into ``work`` (a column each), but for ``log1p``, a call, in a scalar loop
+    of its own; the others stay pending for the element step. Compiled as :func:`slide_lanes`.
+    """
+    row = _row(params, 0)
+    for m in range(pending):
+        i = index[m]
+        work[W_X, m] = state[S_X, i]
+        work[W_V, m] = state[S_V, i]
+        work[W_U, m] = state[S_FRICTION, i]  # the command due, as pass 1 leaves it
+    n = np.uint64(pending)  # unsigned: no wrap-around of negative indices (SIMD code)
+    for m in range(n):
+        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
+        logged, q = _stopping(x, v, u, h, row)[1:4:2]
+        work[W_LOG, m] = q if logged else math.nan
+    for m in range(pending):
+        q = work[W_LOG, m]
+        if q == q:
+            work[W_LOG, m] = math.log1p(q) / q
+    for m in range(n):
+        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
+        done, x_end, f = _stop_lane(x, v, u, work[W_LOG, m], h, row)
+        work[W_X_END, m] = x_end
+        work[W_FRICTION, m] = f
+        work[W_DONE, m] = 1.0 if done else 0.0
+    for m in range(pending):
+        if work[W_DONE, m] != 0.0:
+            i = index[m]
+            state[S_X, i] = work[W_X_END, m]
+            state[S_V, i] = 0.0
+            state[S_FRICTION, i] = work[W_FRICTION, m]
+            state[S_STUCK, i] = 1.0
+
+
 @njit(cache=True)
 def step_plants(
     lo: int,
@@ -333,27 +456,30 @@ def step_plants(
         and params[0, I_LAG] == 0.0
         and has_exact_step(params[0, F0:K0])
     )
+    index = np.empty(hi - lo if lanes else 0, dtype=np.int64)
+    pending = 0
     if lanes:
         if not check:
             fresh = np.zeros(state.shape[1], dtype=np.bool_)
         slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
-    for i in range(lo, hi):
-        if check and fresh[i]:
-            continue
-        if not lanes:
-            u = apply_command(
-                i,
-                state,
-                delay_buffer,
-                head,
-                command[0 if one_command else i],
-                params[0 if one_row else i, I_UMAX],
-                delayed,
-            )
-        elif state[S_STUCK, i] == PENDING:  # pass 2 (pass 1 never leaves a fresh one pending)
+        for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
+            if state[S_STUCK, i] == PENDING:
+                index[pending] = i
+                pending += 1
+        stop_lanes(state, h, params, index, pending, np.empty((WORK_ROWS, pending)))
+    # the element step: pass 2 after the passes above, else for every plant
+    for m in range(pending if lanes else hi - lo):
+        i = index[m] if lanes else lo + m
+        if lanes:
+            if state[S_STUCK, i] != PENDING:  # pass 1b finished it
+                continue
             u = state[S_FRICTION, i]
-        else:
+        elif check and fresh[i]:
             continue
+        else:
+            c = command[0 if one_command else i]
+            umax = params[0 if one_row else i, I_UMAX]
+            u = apply_command(i, state, delay_buffer, head, c, umax, delayed)
         advance_plant(i, state, u, h, n_sub, params, one_row)
 
 

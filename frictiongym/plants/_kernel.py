@@ -142,12 +142,26 @@ def reset_plants(
     k = 0
     for i in range(mask.shape[0]):
         if mask[i]:
-            state[:, i] = 0.0
-            state[S_X, i] = position[k]
-            state[S_V, i] = velocity[k]
-            state[S_STUCK, i] = 1.0 if velocity[k] == 0.0 else 0.0
-            delay_buffer[:, i] = 0.0
+            reset_plant(i, position[k], velocity[k], state, delay_buffer)
             k += 1
+
+
+@njit(cache=True, inline="always")
+def reset_plant(
+    i: int,
+    position: float,
+    velocity: float,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+) -> None:
+    """Put plant ``i`` at ``position`` moving at ``velocity`` (see :func:`reset_plants`)."""
+    for column in range(state.shape[0]):
+        state[column, i] = 0.0
+    state[S_X, i] = position
+    state[S_V, i] = velocity
+    state[S_STUCK, i] = 1.0 if velocity == 0.0 else 0.0
+    for slot in range(delay_buffer.shape[0]):
+        delay_buffer[slot, i] = 0.0
 
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.
@@ -155,9 +169,10 @@ def reset_plants(
 Row = tuple[float, ...]
 
 _MAX_SEGMENTS = 8  # at most 4 events + the final phase + a stuck phase; 8 leaves margin
-_SERIES_LIMIT = 0.1
+#: Below this ``|l|``, :func:`_phi12` takes its Taylor series.
+SERIES_LIMIT = 0.1
 _SERIES_TERMS = 11
-_INV_FACTORIAL = tuple(1.0 / math.factorial(n) for n in range(_SERIES_TERMS + 2))
+_INV_FACTORIALS = np.array([1.0 / math.factorial(n) for n in range(_SERIES_TERMS + 2)])
 
 
 @njit(cache=True)
@@ -167,15 +182,22 @@ def _phi12(ell: float) -> tuple[float, float]:
     For |l| < 0.1, which covers every control-rate step of a motion-control plant, a Taylor
     series (relative error below 1e-17) replaces the transcendental call.
     """
-    if abs(ell) < _SERIES_LIMIT:
-        e1 = 0.0
-        e2 = 0.0
-        for n in range(_SERIES_TERMS - 1, -1, -1):  # Horner: sum (-l)^n / (n+1)!, / (n+2)!
-            e1 = _INV_FACTORIAL[n + 1] - ell * e1
-            e2 = _INV_FACTORIAL[n + 2] - ell * e2
-        return e1, e2
+    if abs(ell) < SERIES_LIMIT:
+        return phi12_series(ell)
     em1 = math.expm1(-ell)
     return -em1 / ell, (ell + em1) / (ell * ell)
+
+
+@njit(cache=True, inline="always")
+def phi12_series(ell: float) -> tuple[float, float]:
+    """:func:`_phi12` for ``|l| < SERIES_LIMIT``: its Taylor series (no branch: SIMD code)."""
+    e1 = 0.0
+    e2 = 0.0
+    for n in range(_SERIES_TERMS - 1, -1, -1):  # Horner: sum (-l)^n / (n+1)!, / (n+2)!
+        # an array, not a tuple: a tuple indexed by n compiles to a switch, kept from SIMD code
+        e1 = _INV_FACTORIALS[n + 1] - ell * e1
+        e2 = _INV_FACTORIALS[n + 2] - ell * e2
+    return e1, e2
 
 
 @njit(cache=True, inline="always")
@@ -250,16 +272,30 @@ def prime_rows(rows: npt.NDArray[np.float64], h: float) -> None:
 @njit(cache=True)
 def affine_time_to(v: float, target: float, a: float, b: float, j: float) -> float:
     """Time for ``j v' = a - b v`` to bring ``v`` to ``target``, or ``inf`` if it never does."""
+    never, q, num, den = time_to_terms(v, target, a, b)
+    if never:
+        return math.inf
+    ratio = 1.0 - q / 2.0 if abs(q) < LOG_SERIES_LIMIT else math.log1p(q) / q
+    return j * num / den * ratio
+
+
+#: Below this ``|q|``, :func:`affine_time_to` takes ``log1p(q) / q`` as ``1 - q / 2``.
+LOG_SERIES_LIMIT = 1e-8
+
+
+@njit(cache=True, inline="always")
+def time_to_terms(v: float, target: float, a: float, b: float) -> tuple[bool, float, float, float]:
+    """Return the terms of :func:`affine_time_to`: ``never`` (it is inf), ``q``, ``num``, ``den``.
+
+    The time is ``j num / den log1p(q) / q``. No branch: SIMD code.
+    """
     num = target - v
     den = a - b * v
+    q = -b * num / den if den != 0.0 else math.inf
     # Compare signs, not the product: num * den underflows to 0 for tiny (denormal) speeds.
-    if num == 0.0 or den == 0.0 or (num > 0.0) != (den > 0.0):
-        return math.inf
-    q = -b * num / den
-    if q <= -1.0:  # the target lies beyond the asymptote v = a/b
-        return math.inf
-    ratio = 1.0 - q / 2.0 if abs(q) < 1e-8 else math.log1p(q) / q
-    return j * num / den * ratio
+    # q <= -1: the target lies beyond the asymptote v = a/b.
+    never = num == 0.0 or den == 0.0 or (num > 0.0) != (den > 0.0) or q <= -1.0
+    return never, q, num, den
 
 
 @njit(cache=True)
