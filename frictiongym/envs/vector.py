@@ -262,7 +262,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         terminated = flags[env_kernel.F_TERMINATED]
         truncated = flags[env_kernel.F_TRUNCATED]
         done = np.logical_or(terminated, truncated, out=self._done)  # the kernel has read it
-        self._ended = bool(done.any())
+        self._ended = bool(np.count_nonzero(done))
         if mode is AutoresetMode.SAME_STEP and self._ended:
             reward, terminated, truncated = reward.copy(), terminated.copy(), truncated.copy()
             final_obs = np.full(self.num_envs, None, dtype=object)
