@@ -167,19 +167,27 @@ def test_held_plants_of_other_laws_in_a_batch_step_as_alone() -> None:
 
 
 @pytest.mark.parametrize(
-    ("dt", "damping", "end_stop", "bias"),
+    ("dt", "damping", "end_stop", "bias", "decay_speed"),
     # the second: slow and damped, so that many stops need expm1 (left to the element step),
-    # and pushed onto an end stop, so that many would come to rest beyond it
-    [(DT, 0.0446, np.inf, 0.0), (0.05, 0.3, 0.02, 0.1)],
-    ids=["servo-rate", "slow-damped-with-stop"],
+    # and pushed onto an end stop, so that many would come to rest beyond it; the third: a
+    # narrow decay range, crossed in many steps
+    [
+        (DT, 0.0446, np.inf, 0.0, 3.0),
+        (0.05, 0.3, 0.02, 0.1, 3.0),
+        (DT, 0.0446, np.inf, 0.0, 0.05),
+    ],
+    ids=["servo-rate", "slow-damped-with-stop", "narrow-decay"],
 )
-def test_stops_finished_in_simd_lanes_equal_plants_alone(
-    dt: float, damping: float, end_stop: float, bias: float
+def test_two_phase_steps_finished_in_simd_lanes_equal_plants_alone(
+    dt: float, damping: float, end_stop: float, bias: float, decay_speed: float
 ) -> None:
-    # Pass 1b finishes a step in which a body comes to rest and the command then holds it.
+    # Pass 1b finishes a step in which a body comes to rest and the command then holds it, or
+    # crosses the edge of the decay range and slides on to the end of the step.
     rng = np.random.default_rng(4)
     n = 300
-    law = StictionCoulomb(0.21, 0.19, 0.12, 0.1, 3.0, 2.5, 0.002, "linear")  # asymmetric
+    law = StictionCoulomb(
+        0.21, 0.19, 0.12, 0.1, decay_speed, 0.8 * decay_speed, 0.002, "linear"
+    )  # asymmetric
     params = PlantParams(
         inertia=7.143e-3, damping=damping, command_limit=10.0, dead_time=dt, end_stop=end_stop
     )
@@ -189,14 +197,18 @@ def test_stops_finished_in_simd_lanes_equal_plants_alone(
     batch.reset(position=start)
     for plant, x0 in zip(alone, start, strict=True):
         plant.reset(position=x0)
-    stops = 0
+    stops = edges = 0
     for u in ar_commands(rng, 300, n, 0.25) + bias:
-        moving = batch.velocity != 0.0
+        moving, speed = batch.velocity != 0.0, np.abs(batch.velocity)
         batch.step(u)
         for i, plant in enumerate(alone):
             plant.step(u[i])
         stops += int(np.count_nonzero(moving & (batch.velocity == 0.0)))
+        edges += int(
+            np.count_nonzero((speed < decay_speed) != (np.abs(batch.velocity) < decay_speed))
+        )
     assert stops > 1000, "too few stops to test the pass"
+    assert decay_speed > 1.0 or edges > 1000, "too few crossings of the decay range's edge"
     together = np.stack([p.state[:, 0] for p in alone], axis=1)
     np.testing.assert_array_equal(batch.state, together)
 

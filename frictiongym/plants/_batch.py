@@ -56,7 +56,7 @@ from frictiongym.plants._kernel import (
     exact_static,
     has_exact_step,
     phase_impulse,
-    phi12_series,
+    phi12_given,
     serial_njit,
     sliding_setup,
     time_to_terms,
@@ -171,6 +171,62 @@ def apply_command(
 
 
 @njit(cache=True, inline="always")
+def _slide(
+    x: float,
+    v: float,
+    u: float,
+    s: float,
+    t: float,
+    row: tuple[float, ...],
+    uncached: bool,
+    em1: float,
+) -> tuple[float, float, float, bool, float, float, float, bool, float, float, bool, float]:
+    """One sliding phase of the exact law from ``x``, ``v`` in direction ``s``, for time ``t``.
+
+    As :func:`~frictiongym.plants._kernel.exact_phase` computes it before it looks for an event:
+    ``E1``, ``E2`` from the row's cache when its key matches, else (``uncached``, a constant
+    where this is inlined) as :func:`~frictiongym.plants._kernel._phi12` gives them, with
+    ``em1 = expm1(-l)`` given. Conditional expressions only (SIMD code).
+
+    Returns
+    -------
+    a, bb, k : float
+        The phase's affine law and decay slope (:func:`sliding_setup`).
+    inner : bool
+    target, us, uc : float
+        The velocity that ends the phase (NaN: none) and the direction's friction levels.
+    cached : bool
+        Whether ``E1``, ``E2`` came from the cache.
+    x_new, v_new : float
+        The state after time ``t``, if no event comes first.
+    reached : bool
+        Whether the phase reaches ``target`` within ``t`` (an event).
+    ell : float
+        ``l = bb t / J``, the argument of ``E1``, ``E2``.
+    """
+    j = row[I_J]
+    forward = s > 0.0
+    us = row[F0 + friction_core.I_US_POS] if forward else row[F0 + friction_core.I_US_NEG]
+    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
+    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
+    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    b_total = row[I_B] + row[F0 + friction_core.I_VISCOUS]
+    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
+    key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
+    e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
+    e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
+    ell = bb / j * t
+    cached = ell == key
+    if uncached:
+        g1, g2 = phi12_given(ell, em1)
+        e1, e2 = (e1 if cached else g1), (e2 if cached else g2)
+    x_new, v_new = _affine_advance_by(x, v, a, j, t, ell, e1, e2)
+    short = v_new > target if v > target else v_new < target
+    reached = target == target and not short
+    return a, bb, k, inner, target, us, uc, cached, x_new, v_new, reached, ell
+
+
+@njit(cache=True, inline="always")
 def _lane(
     x: float, v: float, c: float, due: float, h: float, delayed: bool, row: tuple[float, ...]
 ) -> tuple[float, float, float, float, float]:
@@ -182,35 +238,27 @@ def _lane(
     Scalars in and out, and conditional expressions only: the loop that inlines it compiles to
     SIMD code.
     """
-    umax, j, stop = row[I_UMAX], row[I_J], row[I_STOP]
+    umax, stop = row[I_UMAX], row[I_STOP]
     us_pos, us_neg = row[F0 + friction_core.I_US_POS], row[F0 + friction_core.I_US_NEG]
     visc = row[F0 + friction_core.I_VISCOUS]
-    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
     eligible = row[I_LAG] == 0.0 and (
         row[F0 + friction_core.I_LAW] == friction_core.LAW_STATIC
-        and (linear or row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_STEP)
+        and (
+            row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+            or row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_STEP
+        )
     )
-    b_total = row[I_B] + visc
     c = min(max(c, -umax), umax)
     u = due if delayed else c
     moving = v != 0.0
     s_rest = 1.0 if u > us_pos else (-1.0 if u < -us_neg else 0.0)
     s = (1.0 if v > 0.0 else -1.0) if moving else s_rest
     held = s == 0.0
-    forward = s > 0.0
-    pressed = not moving and forward and x >= stop
-    us = us_pos if forward else us_neg
-    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
-    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
-    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
-    key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
-    e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
-    e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
-    ell = bb / j * h
-    x_new, v_new = _affine_advance_by(x, v, a, j, h, ell, e1, e2)
-    short = v_new > target if v > target else v_new < target
-    event = (target == target and not short) or x_new > stop
-    pending = not eligible or (not held and (pressed or event or ell != key))
+    pressed = not moving and s > 0.0 and x >= stop
+    phase = _slide(x, v, u, s, h, row, False, 0.0)
+    _, _, k, inner, _, us, uc, cached, x_new, v_new, reached, _ = phase
+    event = reached or x_new > stop
+    pending = not eligible or (not held and (pressed or event or not cached))
     dx = x_new - x
     f = (0.0 + phase_impulse(inner, s, us, uc, k, h, dx) + visc * dx) / h
     keep = held or pending
@@ -309,72 +357,93 @@ def slide_lanes(
 
 
 #: Rows of pass 1b's work array: per pending plant of a block, its position, velocity, command
-#: due, then ``log1p(q) / q`` of its stop time (NaN where none is needed), its end position and
-#: friction, and 1.0 if pass 1b finished its step.
-W_X, W_V, W_U, W_LOG, W_X_END, W_FRICTION, W_DONE = range(7)
-WORK_ROWS = 7
+#: due, then ``log1p(q) / q`` for the time of its event and ``expm1(-l)`` of its two phases
+#: (NaN where none is needed), its end position, speed and friction, and 1.0 if pass 1b
+#: finished its step.
+W_X, W_V, W_U, W_LOG, W_EM1_ONE, W_EM1_TWO, W_X_END, W_V_END, W_FRICTION, W_DONE = range(10)
+WORK_ROWS = 10
 
 
 @njit(cache=True, inline="always")
-def _stopping(x: float, v: float, u: float, h: float, row: tuple[float, ...]) -> tuple[Any, ...]:
-    """Read a pending plant's step as pass 1b would: a stop, then held for the rest of the step.
+def _first_phase(x: float, v: float, u: float, h: float, row: tuple[float, ...]) -> tuple[Any, ...]:
+    """Read a pending plant's step as pass 1b would: its first phase, up to an event.
 
-    Returns ``maybe``: whether the step's first phase (as
+    Returns ``maybe``: whether the first phase (as
     :func:`~frictiongym.plants._kernel.exact_phase` finds it, with the row's cached coefficients
-    for the full step) ends with the body at rest, and the step's command then holds it (inside
-    the break-away band); ``logged``: whether its stop time needs ``log1p(q) / q``; then the
-    phase: ``never`` (no stop within reach), ``q``, ``num``, ``den`` (:func:`time_to_terms`),
-    ``a``, ``bb``, ``s``, ``inner``, ``us``, ``uc``, ``k`` and the position after the full
-    step. The element step's operations, as conditional expressions (SIMD code).
+    for the full step) of a moving body reaches its target speed (rest, or the edge of the
+    decay range); ``logged``: whether the time of it needs ``log1p(q) / q``; then ``never``,
+    ``q``, ``num``, ``den`` (:func:`time_to_terms`), the phase's ``a``, ``bb``, ``s``,
+    ``inner``, ``us``, ``uc``, ``k``, ``target`` and the position after the full step.
     """
-    j = row[I_J]
-    us_pos, us_neg = row[F0 + friction_core.I_US_POS], row[F0 + friction_core.I_US_NEG]
-    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
-    b_total = row[I_B] + row[F0 + friction_core.I_VISCOUS]
     s = 1.0 if v > 0.0 else -1.0
-    forward = s > 0.0
-    us = us_pos if forward else us_neg
-    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
-    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
-    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
-    key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
-    e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
-    e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
-    ell = bb / j * h
-    x_full, v_full = _affine_advance_by(x, v, a, j, h, ell, e1, e2)
-    short = v_full > target if v > target else v_full < target
-    held = not u > us_pos and not u < -us_neg  # breakaway_direction(u) == 0.0
-    maybe = v != 0.0 and ell == key and target == 0.0 and not short and held
+    phase = _slide(x, v, u, s, h, row, False, 0.0)
+    a, bb, k, inner, target, us, uc, cached, x_full, _, reached, _ = phase
     never, q, num, den = time_to_terms(v, target, a, bb)
+    maybe = v != 0.0 and cached and reached
     logged = maybe and not never and not abs(q) < LOG_SERIES_LIMIT
-    return maybe, logged, never, q, num, den, a, bb, s, inner, us, uc, k, x_full
+    return maybe, logged, never, q, num, den, a, bb, s, inner, us, uc, k, target, x_full
 
 
 @njit(cache=True, inline="always")
-def _stop_lane(
-    x: float, v: float, u: float, log_ratio: float, h: float, row: tuple[float, ...]
-) -> tuple[bool, float, float]:
-    """Finish pass 1b for one plant: whether it could, and its end position and friction.
+def _event_lane(
+    x: float,
+    v: float,
+    u: float,
+    log_ratio: float,
+    em1_one: float,
+    em1_two: float,
+    h: float,
+    row: tuple[float, ...],
+) -> tuple[bool, float, float, float, float, float]:
+    """Finish pass 1b for one plant: whether it could, and its end position, speed and friction.
 
-    What :func:`advance_plant` computes for a stop followed by a hold, without branches
-    (``log_ratio``: ``log1p(q) / q`` from the scalar loop, where ``logged``). A stop whose
-    coefficients need ``expm1``, or a contact with the end stop, is left to the element step.
+    What :func:`advance_plant` computes for a step of two phases: up to a stop, then held at
+    rest; or up to the edge of the decay range, then sliding on the other range to the end of
+    the step. Without branches, the calls done before by scalar loops: ``log_ratio`` is
+    ``log1p(q) / q`` (where ``logged``), ``em1_one`` and ``em1_two`` are ``expm1(-l)`` of each
+    phase (where ``|l| >= SERIES_LIMIT``). A second event, a break-away after the stop or a
+    contact with the end stop is left to the element step.
+
+    Returns
+    -------
+    done : bool
+    x_end, v_end, friction : float
+    ell_one, ell_two : float
+        The phases' ``l``, of which the caller computes ``expm1`` before the final call.
     """
-    maybe, _, never, q, num, den, a, bb, s, inner, us, uc, k, x_full = _stopping(x, v, u, h, row)
-    j = row[I_J]
+    maybe, _, never, q, num, den, a, bb, s, inner, us, uc, k, target, x_full = _first_phase(
+        x, v, u, h, row
+    )
+    j, stop = row[I_J], row[I_STOP]
     ratio = 1.0 - q / 2.0 if abs(q) < LOG_SERIES_LIMIT else log_ratio
     t_event = math.inf if never else j * num / den * ratio
-    early = t_event < h  # else the body comes to rest at the end of the step
+    early = t_event < h  # else the body reaches the target speed at the end of the step
     dt = t_event if early else h
-    ell = bb / j * dt
-    e1, e2 = phi12_series(ell)
-    x_event, _ = _affine_advance_by(x, v, a, j, dt, ell, e1, e2)
-    x_end = x_event if early else x_full
-    done = maybe and (not early or abs(ell) < SERIES_LIMIT) and not x_end > row[I_STOP]
-    impulse = phase_impulse(inner, s, us, uc, k, dt, x_end - x)
-    impulse = (0.0 + impulse) + u * (h - dt) if early else impulse  # and held for the rest
+    ell_one = bb / j * dt
+    e1, e2 = phi12_given(ell_one, em1_one)
+    x_event, _ = _affine_advance_by(x, v, a, j, dt, ell_one, e1, e2)
+    x_one = x_event if early else x_full
+    impulse = phase_impulse(inner, s, us, uc, k, dt, x_one - x)
+    # The rest of the step after an early event: held at rest (u * time: static friction
+    # balances the command), or sliding from the edge of the decay range on the other range.
+    t_rest = h - dt
+    held = not u > row[F0 + friction_core.I_US_POS] and not u < -row[F0 + friction_core.I_US_NEG]
+    phase = _slide(x_one, target, u, s, t_rest, row, True, em1_two)
+    _, _, k_two, inner_two, _, _, _, _, x_two, v_two, reached_two, ell_two = phase
+    stopped = target == 0.0
+    slid = not reached_two and not x_two > stop
+    rest = (
+        u * t_rest if stopped else phase_impulse(inner_two, s, us, uc, k_two, t_rest, x_two - x_one)
+    )
+    two = early and not stopped
+    x_end, v_end = (x_two if two else x_one), (v_two if two else target)
+    impulse = (0.0 + impulse) + rest if early else impulse
     f = ((0.0 + impulse) + row[F0 + friction_core.I_VISCOUS] * (x_end - x)) / h
-    return done, x_end, f
+    done = maybe and not x_one > stop and (not early or (held if stopped else slid))
+    # the arguments of expm1 that this step needs (NaN: none)
+    ell_one = ell_one if early and not abs(ell_one) < SERIES_LIMIT else math.nan
+    ell_two = ell_two if two and not abs(ell_two) < SERIES_LIMIT else math.nan
+    return done, x_end, v_end, f, ell_one, ell_two
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -386,12 +455,14 @@ def stop_lanes(
     pending: int,
     work: npt.NDArray[np.float64],
 ) -> None:
-    """Pass 1b: finish each pending step that is a stop and a hold (plants ``index[:pending]``).
+    """Pass 1b: finish the pending steps of two phases (plants ``index[:pending]``).
 
     Of the steps pass 1 leaves pending, most are a body coming to rest within the step under a
-    command that then holds it. Their arithmetic runs here in SIMD lanes over the pending
-    plants, gathered into ``work`` (a column each), but for ``log1p``, a call, in a scalar loop
-    of its own; the others stay pending for the element step. Compiled as :func:`slide_lanes`.
+    command that then holds it, or a body crossing the edge of the decay range (see
+    :func:`_event_lane`). Their arithmetic runs here in SIMD lanes over the pending plants,
+    gathered into ``work`` (a column each), but for the calls of ``log1p`` and ``expm1``, in
+    scalar loops of their own; the others stay pending for the element step. Compiled as
+    :func:`slide_lanes`.
     """
     row = _row(params, 0)
     for m in range(pending):
@@ -402,7 +473,7 @@ def stop_lanes(
     n = np.uint64(pending)  # unsigned: no wrap-around of negative indices (SIMD code)
     for m in range(n):
         x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
-        logged, q = _stopping(x, v, u, h, row)[1:4:2]
+        logged, q = _first_phase(x, v, u, h, row)[1:4:2]
         work[W_LOG, m] = q if logged else math.nan
     for m in range(pending):
         q = work[W_LOG, m]
@@ -410,17 +481,28 @@ def stop_lanes(
             work[W_LOG, m] = math.log1p(q) / q
     for m in range(n):
         x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
-        done, x_end, f = _stop_lane(x, v, u, work[W_LOG, m], h, row)
+        ells = _event_lane(x, v, u, work[W_LOG, m], 0.0, 0.0, h, row)[4:]
+        work[W_EM1_ONE, m], work[W_EM1_TWO, m] = ells
+    for m in range(pending):
+        for w in (W_EM1_ONE, W_EM1_TWO):
+            ell = work[w, m]
+            if ell == ell:
+                work[w, m] = math.expm1(-ell)
+    for m in range(n):
+        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
+        em1_one, em1_two = work[W_EM1_ONE, m], work[W_EM1_TWO, m]
+        done, x_end, v_end, f, _, _ = _event_lane(x, v, u, work[W_LOG, m], em1_one, em1_two, h, row)
         work[W_X_END, m] = x_end
+        work[W_V_END, m] = v_end
         work[W_FRICTION, m] = f
         work[W_DONE, m] = 1.0 if done else 0.0
     for m in range(pending):
         if work[W_DONE, m] != 0.0:
             i = index[m]
             state[S_X, i] = work[W_X_END, m]
-            state[S_V, i] = 0.0
+            state[S_V, i] = work[W_V_END, m]
             state[S_FRICTION, i] = work[W_FRICTION, m]
-            state[S_STUCK, i] = 1.0
+            state[S_STUCK, i] = 1.0 if work[W_V_END, m] == 0.0 else 0.0
 
 
 @njit(cache=True)

@@ -184,8 +184,25 @@ def _phi12(ell: float) -> tuple[float, float]:
     """
     if abs(ell) < SERIES_LIMIT:
         return phi12_series(ell)
-    em1 = math.expm1(-ell)
+    return phi12_closed(ell, math.expm1(-ell))
+
+
+@njit(cache=True, inline="always")
+def phi12_closed(ell: float, em1: float) -> tuple[float, float]:
+    """:func:`_phi12` for ``|l| >= SERIES_LIMIT``, given ``em1 = expm1(-l)``."""
     return -em1 / ell, (ell + em1) / (ell * ell)
+
+
+@njit(cache=True, inline="always")
+def phi12_given(ell: float, em1: float) -> tuple[float, float]:
+    """:func:`_phi12` with ``expm1(-l)`` given (used only if ``|l| >= SERIES_LIMIT``).
+
+    No branch: the series and the closed form are both computed (SIMD code).
+    """
+    s1, s2 = phi12_series(ell)
+    c1, c2 = phi12_closed(ell, em1)
+    series = abs(ell) < SERIES_LIMIT
+    return (s1 if series else c1), (s2 if series else c2)
 
 
 @njit(cache=True, inline="always")
