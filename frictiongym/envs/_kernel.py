@@ -546,6 +546,8 @@ def reset_envs(
 ) -> None:
     """Put the envs of ``mask`` at rest-or-moving starts (k-th masked env: ``position[k]``).
 
+    ``position`` and ``velocity`` hold an entry per masked env, or one for all.
+
     With ``set_rows`` their task columns also get unit sensor gain and the ``reference`` row;
     otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
     limit copied from the env's plant row (set before this call).
@@ -561,7 +563,8 @@ def reset_envs(
             continue
         for i in range(8 * word, min(8 * word + 8, n)):
             if mask[i]:
-                plant_kernel.reset_plant(i, position[k], velocity[k], state, delay_buffer)
+                at = k if position.shape[0] > 1 else 0
+                plant_kernel.reset_plant(i, position[at], velocity[at], state, delay_buffer)
                 k += 1
                 if set_rows:
                     rows[T_GAIN, i] = 1.0

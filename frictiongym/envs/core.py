@@ -143,7 +143,7 @@ class Simulation:
     plants: Plant
     on_device = False
     _nominal_row: FloatArray
-    _default_x0: float
+    _default_start: tuple[FloatArray, FloatArray]
     _default_reference_row: FloatArray
 
     def __init__(
@@ -189,7 +189,7 @@ class Simulation:
             horizon = max_episode_steps or device.episode_steps
         self._bound_reward(terminal_cost, horizon)
         self.plants = self._new_plants(parallel)
-        self._default_x0 = device.direction * device.start
+        self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
@@ -293,9 +293,13 @@ class Simulation:
         )
 
     def start_state(self, options: Mapping[str, Any], count: int) -> tuple[FloatArray, FloatArray]:
-        """Plant position and velocity at reset, from the options (in env units) or defaults."""
+        """Plant position and velocity at reset, from the options (in env units) or defaults.
+
+        Arrays of ``count`` entries, or of one for all (the defaults, kept: an autoreset of a
+        few envs per step needs no new arrays).
+        """
         if "position" not in options and "velocity" not in options:
-            return np.full(count, self._default_x0), np.zeros(count)
+            return self._default_start
         pos = np.broadcast_to(
             np.asarray(options.get("position", self.device.start), np.float64), count
         )
@@ -339,7 +343,7 @@ class Simulation:
                 reference = resolve_reference(options["reference"], self.device.references)
         else:
             options = {}
-        x0, v0 = self.start_state(options, int(np.count_nonzero(mask)))
+        x0, v0 = self.start_state(options, int(np.count_nonzero(mask)) if options else 1)
         noisy = env_kernel.setting(self.config, "noise") > 0.0
         draws = self.randomize is not None or reference.random or noisy
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
