@@ -481,10 +481,15 @@ def observe_block(
             _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, True)
         else:
             _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, False)
-    # with noise every env, else the fresh ones (the loops took every env as stepped)
-    for i in range(lo, hi):
-        if noisy or fresh[i]:
-            _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
+    # with noise every env, else the fresh ones (the loops took every env as stepped); most
+    # blocks have none, found by a count without branches
+    fresh_envs = 0
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        fresh_envs += np.uint64(fresh[i])
+    if noisy or fresh_envs > 0:
+        for i in range(lo, hi):
+            if noisy or fresh[i]:
+                _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 
 @njit(cache=True)
@@ -639,8 +644,7 @@ def _step_block(
         start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )
     for i in range(start, stop):
-        if not fresh[i]:
-            state[E_STEPS, i] += 1.0
+        state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
     observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 

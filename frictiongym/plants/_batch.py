@@ -545,9 +545,8 @@ def step_plants(
             fresh = np.zeros(state.shape[1], dtype=np.bool_)
         slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
         for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
-            if state[S_STUCK, i] == PENDING:
-                index[pending] = i
-                pending += 1
+            index[pending] = i  # kept if pending: no branch to mispredict
+            pending += state[S_STUCK, i] == PENDING
         stop_lanes(state, h, params, index, pending, np.empty((WORK_ROWS, pending)))
     # the element step: pass 2 after the passes above, else for every plant
     for m in range(pending if lanes else hi - lo):
