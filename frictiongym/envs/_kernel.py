@@ -22,6 +22,8 @@ Layouts (all float64 unless noted):
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import numpy.typing as npt
 from numba import njit, prange
@@ -616,12 +618,22 @@ def publish_envs(
 
 
 @njit(cache=True, inline="always")
+def _float64_commands(command: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float64]:
+    """Return the array the blocks copy the commands into (one command for all: set here)."""
+    commands = np.empty(command.shape[0])
+    if command.shape[0] == 1:
+        commands[0] = command[0]
+    return commands
+
+
+@njit(cache=True, inline="always")
 def _step_block(
     block: int,
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
     head: int,
-    command: npt.NDArray[np.float64],
+    command: npt.NDArray[np.floating[Any]],
+    commands: npt.NDArray[np.float64],
     dt: float,
     n_sub: int,
     plant_rows: npt.NDArray[np.float64],
@@ -637,11 +649,16 @@ def _step_block(
 
     Two loops, not one: fused into one loop body the plant step and the observation compiled
     to code half as fast as the two apart (docs/benchmarks.md, "A kernel near the machine's
-    limit"); a block's state stays in cache from the first loop to the second.
+    limit"); a block's state stays in cache from the first loop to the second. The commands
+    (float32 or float64) are copied as float64 into ``commands`` first: the plant kernel is
+    then compiled once, not once per type (30 s each).
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
+    if commands.shape[0] > 1:
+        for i in range(start, stop):
+            commands[i] = command[i]
     plant_batch.step_plants(
-        start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
+        start, stop, state, delay_buffer, head, commands, dt, n_sub, plant_rows, fresh
     )
     for i in range(start, stop):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
@@ -672,6 +689,7 @@ def step_envs(
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
+    commands = _float64_commands(command)
     for block in range((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             block,
@@ -679,6 +697,7 @@ def step_envs(
             delay_buffer,
             head,
             command,
+            commands,
             dt,
             n_sub,
             plant_rows,
@@ -714,6 +733,7 @@ def step_envs_parallel(
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
+    commands = _float64_commands(command)
     for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
@@ -721,6 +741,7 @@ def step_envs_parallel(
             delay_buffer,
             head,
             command,
+            commands,
             dt,
             n_sub,
             plant_rows,

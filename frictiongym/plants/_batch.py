@@ -171,6 +171,21 @@ def apply_command(
 
 
 @njit(cache=True, inline="always")
+def _setup(
+    v: float, u: float, s: float, row: tuple[float, ...]
+) -> tuple[float, float, float, bool, int, float, float, float]:
+    """:func:`sliding_setup` of direction ``s`` from the plant row; also that direction's levels."""
+    forward = s > 0.0
+    us = row[F0 + friction_core.I_US_POS] if forward else row[F0 + friction_core.I_US_NEG]
+    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
+    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
+    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
+    b_total = row[I_B] + row[F0 + friction_core.I_VISCOUS]
+    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
+    return a, bb, k, inner, slope, target, us, uc
+
+
+@njit(cache=True, inline="always")
 def _slide(
     x: float,
     v: float,
@@ -205,13 +220,7 @@ def _slide(
         ``l = bb t / J``, the argument of ``E1``, ``E2``.
     """
     j = row[I_J]
-    forward = s > 0.0
-    us = row[F0 + friction_core.I_US_POS] if forward else row[F0 + friction_core.I_US_NEG]
-    uc = row[F0 + friction_core.I_UC_POS] if forward else row[F0 + friction_core.I_UC_NEG]
-    v0 = row[F0 + friction_core.I_V0_POS] if forward else row[F0 + friction_core.I_V0_NEG]
-    linear = row[F0 + friction_core.I_SHAPE] == friction_core.SHAPE_LINEAR
-    b_total = row[I_B] + row[F0 + friction_core.I_VISCOUS]
-    a, bb, k, inner, slope, target = sliding_setup(v, u, s, b_total, us, uc, v0, linear)
+    a, bb, k, inner, slope, target, us, uc = _setup(v, u, s, row)
     key = row[K0] if slope == 0 else (row[K0 + 3] if slope == 1 else row[K0 + 6])
     e1 = row[K0 + 1] if slope == 0 else (row[K0 + 4] if slope == 1 else row[K0 + 7])
     e2 = row[K0 + 2] if slope == 0 else (row[K0 + 5] if slope == 1 else row[K0 + 8])
@@ -356,12 +365,40 @@ def slide_lanes(
         _lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh, False)
 
 
-#: Rows of pass 1b's work array: per pending plant of a block, its position, velocity, command
-#: due, then ``log1p(q) / q`` for the time of its event and ``expm1(-l)`` of its two phases
-#: (NaN where none is needed), its end position, speed and friction, and 1.0 if pass 1b
-#: finished its step.
-W_X, W_V, W_U, W_LOG, W_EM1_ONE, W_EM1_TWO, W_X_END, W_V_END, W_FRICTION, W_DONE = range(10)
-WORK_ROWS = 10
+#: Rows of pass 1b's work array, an entry per pending plant of a block: its position, velocity
+#: and command due; its first phase as :func:`_first_phase` returns it (booleans as 1.0 / 0.0;
+#: ``W_LOG`` holds ``q`` where it is ``logged``, then ``log1p(q) / q``, else NaN); the
+#: arguments of ``expm1`` that its two phases need, then their ``expm1(-l)`` (else NaN); its end
+#: position, speed and friction, and 1.0 if pass 1b finished its step. One flat array of
+#: ``WORK_ROWS`` rows of ``BLOCK`` entries: with a row offset the compiler knows, it proves the
+#: rows apart, which it must before it runs a loop that writes many of them in SIMD lanes.
+(
+    W_X,
+    W_V,
+    W_U,
+    W_MAYBE,
+    W_LOG,
+    W_NEVER,
+    W_Q,
+    W_NUM,
+    W_DEN,
+    W_A,
+    W_BB,
+    W_S,
+    W_INNER,
+    W_US,
+    W_UC,
+    W_K,
+    W_TARGET,
+    W_X_FULL,
+    W_EM1_ONE,
+    W_EM1_TWO,
+    W_X_END,
+    W_V_END,
+    W_FRICTION,
+    W_DONE,
+) = range(24)
+WORK_ROWS = 24
 
 
 @njit(cache=True, inline="always")
@@ -385,40 +422,71 @@ def _first_phase(x: float, v: float, u: float, h: float, row: tuple[float, ...])
 
 
 @njit(cache=True, inline="always")
+def _event_time(
+    never: float, q: float, num: float, den: float, log_ratio: float, h: float, j: float
+) -> tuple[bool, float]:
+    """Whether the first phase's event comes ``early`` (before the step's end), and its length.
+
+    From :func:`_first_phase`'s terms (``never`` as 1.0 / 0.0) and ``log1p(q) / q`` where it
+    is ``logged``.
+    """
+    ratio = 1.0 - q / 2.0 if abs(q) < LOG_SERIES_LIMIT else log_ratio
+    t_event = math.inf if never != 0.0 else j * num / den * ratio
+    early = t_event < h  # else the body reaches the target speed at the end of the step
+    return early, (t_event if early else h)
+
+
+@njit(cache=True, inline="always")
+def _expm1_arguments(
+    u: float,
+    bb: float,
+    s: float,
+    target: float,
+    early: bool,
+    dt: float,
+    h: float,
+    row: tuple[float, ...],
+) -> tuple[float, float]:
+    """Return the ``l`` of each phase of :func:`_event_lane` whose ``E1``, ``E2`` need ``expm1``.
+
+    NaN where none is needed: a phase that does not happen, or whose ``|l| < SERIES_LIMIT``.
+    """
+    j = row[I_J]
+    ell_one = bb / j * dt
+    _, bb_two, _, _, _, _, _, _ = _setup(target, u, s, row)
+    ell_two = bb_two / j * (h - dt)
+    two = early and target != 0.0
+    ell_one = ell_one if early and not abs(ell_one) < SERIES_LIMIT else math.nan
+    ell_two = ell_two if two and not abs(ell_two) < SERIES_LIMIT else math.nan
+    return ell_one, ell_two
+
+
+@njit(cache=True, inline="always")
 def _event_lane(
     x: float,
     v: float,
     u: float,
-    log_ratio: float,
+    first: tuple[float, float, float, float, float, float, float, float, float],
+    early: bool,
+    dt: float,
     em1_one: float,
     em1_two: float,
     h: float,
     row: tuple[float, ...],
-) -> tuple[bool, float, float, float, float, float]:
+) -> tuple[bool, float, float, float]:
     """Finish pass 1b for one plant: whether it could, and its end position, speed and friction.
 
     What :func:`advance_plant` computes for a step of two phases: up to a stop, then held at
     rest; or up to the edge of the decay range, then sliding on the other range to the end of
-    the step. Without branches, the calls done before by scalar loops: ``log_ratio`` is
-    ``log1p(q) / q`` (where ``logged``), ``em1_one`` and ``em1_two`` are ``expm1(-l)`` of each
-    phase (where ``|l| >= SERIES_LIMIT``). A second event, a break-away after the stop or a
-    contact with the end stop is left to the element step.
-
-    Returns
-    -------
-    done : bool
-    x_end, v_end, friction : float
-    ell_one, ell_two : float
-        The phases' ``l``, of which the caller computes ``expm1`` before the final call.
+    the step. Without branches; ``first`` is the first phase (``a``, ``bb``, ``s``, ``inner``,
+    ``us``, ``uc``, ``k``, ``target``, the position after the full step), ``early`` and ``dt``
+    its event (:func:`_event_time`), ``em1_one`` and ``em1_two`` the ``expm1(-l)`` of each phase
+    where :func:`_expm1_arguments` asks for one. A second event, a break-away after the stop or
+    a contact with the end stop is left to the element step.
     """
-    maybe, _, never, q, num, den, a, bb, s, inner, us, uc, k, target, x_full = _first_phase(
-        x, v, u, h, row
-    )
+    a, bb, s, inner_flag, us, uc, k, target, x_full = first
+    inner = inner_flag != 0.0
     j, stop = row[I_J], row[I_STOP]
-    ratio = 1.0 - q / 2.0 if abs(q) < LOG_SERIES_LIMIT else log_ratio
-    t_event = math.inf if never else j * num / den * ratio
-    early = t_event < h  # else the body reaches the target speed at the end of the step
-    dt = t_event if early else h
     ell_one = bb / j * dt
     e1, e2 = phi12_given(ell_one, em1_one)
     x_event, _ = _affine_advance_by(x, v, a, j, dt, ell_one, e1, e2)
@@ -429,7 +497,7 @@ def _event_lane(
     t_rest = h - dt
     held = not u > row[F0 + friction_core.I_US_POS] and not u < -row[F0 + friction_core.I_US_NEG]
     phase = _slide(x_one, target, u, s, t_rest, row, True, em1_two)
-    _, _, k_two, inner_two, _, _, _, _, x_two, v_two, reached_two, ell_two = phase
+    _, _, k_two, inner_two, _, _, _, _, x_two, v_two, reached_two, _ = phase
     stopped = target == 0.0
     slid = not reached_two and not x_two > stop
     rest = (
@@ -439,11 +507,8 @@ def _event_lane(
     x_end, v_end = (x_two if two else x_one), (v_two if two else target)
     impulse = (0.0 + impulse) + rest if early else impulse
     f = ((0.0 + impulse) + row[F0 + friction_core.I_VISCOUS] * (x_end - x)) / h
-    done = maybe and not x_one > stop and (not early or (held if stopped else slid))
-    # the arguments of expm1 that this step needs (NaN: none)
-    ell_one = ell_one if early and not abs(ell_one) < SERIES_LIMIT else math.nan
-    ell_two = ell_two if two and not abs(ell_two) < SERIES_LIMIT else math.nan
-    return done, x_end, v_end, f, ell_one, ell_two
+    done = not x_one > stop and (not early or (held if stopped else slid))
+    return done, x_end, v_end, f
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -467,42 +532,81 @@ def stop_lanes(
     row = _row(params, 0)
     for m in range(pending):
         i = index[m]
-        work[W_X, m] = state[S_X, i]
-        work[W_V, m] = state[S_V, i]
-        work[W_U, m] = state[S_FRICTION, i]  # the command due, as pass 1 leaves it
+        work[W_X * BLOCK + m] = state[S_X, i]
+        work[W_V * BLOCK + m] = state[S_V, i]
+        work[W_U * BLOCK + m] = state[S_FRICTION, i]  # the command due, as pass 1 leaves it
     n = np.uint64(pending)  # unsigned: no wrap-around of negative indices (SIMD code)
     for m in range(n):
-        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
-        logged, q = _first_phase(x, v, u, h, row)[1:4:2]
-        work[W_LOG, m] = q if logged else math.nan
+        first = _first_phase(
+            work[W_X * BLOCK + m], work[W_V * BLOCK + m], work[W_U * BLOCK + m], h, row
+        )
+        maybe, logged, never, q, num, den, a, bb, s, inner, us, uc, k, target, x_full = first
+        work[W_MAYBE * BLOCK + m] = 1.0 if maybe else 0.0
+        work[W_LOG * BLOCK + m] = q if logged else math.nan
+        work[W_NEVER * BLOCK + m] = 1.0 if never else 0.0
+        work[W_Q * BLOCK + m], work[W_NUM * BLOCK + m], work[W_DEN * BLOCK + m] = q, num, den
+        work[W_A * BLOCK + m], work[W_BB * BLOCK + m], work[W_S * BLOCK + m] = a, bb, s
+        work[W_INNER * BLOCK + m] = 1.0 if inner else 0.0
+        work[W_US * BLOCK + m], work[W_UC * BLOCK + m], work[W_K * BLOCK + m] = us, uc, k
+        work[W_TARGET * BLOCK + m], work[W_X_FULL * BLOCK + m] = target, x_full
     for m in range(pending):
-        q = work[W_LOG, m]
+        q = work[W_LOG * BLOCK + m]
         if q == q:
-            work[W_LOG, m] = math.log1p(q) / q
+            work[W_LOG * BLOCK + m] = math.log1p(q) / q
     for m in range(n):
-        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
-        ells = _event_lane(x, v, u, work[W_LOG, m], 0.0, 0.0, h, row)[4:]
-        work[W_EM1_ONE, m], work[W_EM1_TWO, m] = ells
+        never, q, num, den = (
+            work[W_NEVER * BLOCK + m],
+            work[W_Q * BLOCK + m],
+            work[W_NUM * BLOCK + m],
+            work[W_DEN * BLOCK + m],
+        )
+        early, dt = _event_time(never, q, num, den, work[W_LOG * BLOCK + m], h, row[I_J])
+        u, bb, s, target = (
+            work[W_U * BLOCK + m],
+            work[W_BB * BLOCK + m],
+            work[W_S * BLOCK + m],
+            work[W_TARGET * BLOCK + m],
+        )
+        ells = _expm1_arguments(u, bb, s, target, early, dt, h, row)
+        work[W_EM1_ONE * BLOCK + m], work[W_EM1_TWO * BLOCK + m] = ells
     for m in range(pending):
         for w in (W_EM1_ONE, W_EM1_TWO):
-            ell = work[w, m]
+            ell = work[w * BLOCK + m]
             if ell == ell:
-                work[w, m] = math.expm1(-ell)
+                work[w * BLOCK + m] = math.expm1(-ell)
     for m in range(n):
-        x, v, u = work[W_X, m], work[W_V, m], work[W_U, m]
-        em1_one, em1_two = work[W_EM1_ONE, m], work[W_EM1_TWO, m]
-        done, x_end, v_end, f, _, _ = _event_lane(x, v, u, work[W_LOG, m], em1_one, em1_two, h, row)
-        work[W_X_END, m] = x_end
-        work[W_V_END, m] = v_end
-        work[W_FRICTION, m] = f
-        work[W_DONE, m] = 1.0 if done else 0.0
+        never, q, num, den = (
+            work[W_NEVER * BLOCK + m],
+            work[W_Q * BLOCK + m],
+            work[W_NUM * BLOCK + m],
+            work[W_DEN * BLOCK + m],
+        )
+        early, dt = _event_time(never, q, num, den, work[W_LOG * BLOCK + m], h, row[I_J])
+        first = (
+            work[W_A * BLOCK + m],
+            work[W_BB * BLOCK + m],
+            work[W_S * BLOCK + m],
+            work[W_INNER * BLOCK + m],
+            work[W_US * BLOCK + m],
+            work[W_UC * BLOCK + m],
+            work[W_K * BLOCK + m],
+            work[W_TARGET * BLOCK + m],
+            work[W_X_FULL * BLOCK + m],
+        )
+        em1_one, em1_two = work[W_EM1_ONE * BLOCK + m], work[W_EM1_TWO * BLOCK + m]
+        x, v, u = work[W_X * BLOCK + m], work[W_V * BLOCK + m], work[W_U * BLOCK + m]
+        done, x_end, v_end, f = _event_lane(x, v, u, first, early, dt, em1_one, em1_two, h, row)
+        work[W_X_END * BLOCK + m] = x_end
+        work[W_V_END * BLOCK + m] = v_end
+        work[W_FRICTION * BLOCK + m] = f
+        work[W_DONE * BLOCK + m] = 1.0 if done and work[W_MAYBE * BLOCK + m] != 0.0 else 0.0
     for m in range(pending):
-        if work[W_DONE, m] != 0.0:
+        if work[W_DONE * BLOCK + m] != 0.0:
             i = index[m]
-            state[S_X, i] = work[W_X_END, m]
-            state[S_V, i] = work[W_V_END, m]
-            state[S_FRICTION, i] = work[W_FRICTION, m]
-            state[S_STUCK, i] = 1.0 if work[W_V_END, m] == 0.0 else 0.0
+            state[S_X, i] = work[W_X_END * BLOCK + m]
+            state[S_V, i] = work[W_V_END * BLOCK + m]
+            state[S_FRICTION, i] = work[W_FRICTION * BLOCK + m]
+            state[S_STUCK, i] = 1.0 if work[W_V_END * BLOCK + m] == 0.0 else 0.0
 
 
 @njit(cache=True)
@@ -547,7 +651,7 @@ def step_plants(
         for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
             index[pending] = i  # kept if pending: no branch to mispredict
             pending += state[S_STUCK, i] == PENDING
-        stop_lanes(state, h, params, index, pending, np.empty((WORK_ROWS, pending)))
+        stop_lanes(state, h, params, index, pending, np.empty(WORK_ROWS * BLOCK))
     # the element step: pass 2 after the passes above, else for every plant
     for m in range(pending if lanes else hi - lo):
         i = index[m] if lanes else lo + m
