@@ -26,7 +26,8 @@ from typing import Any
 
 import numpy as np
 import numpy.typing as npt
-from numba import njit, prange
+from numba import njit, prange, types
+from numba.extending import overload
 
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _batch as plant_batch
@@ -617,13 +618,20 @@ def publish_envs(
         _publish(i, encoder, state, obs)
 
 
-@njit(cache=True, inline="always")
-def _float64_commands(command: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float64]:
-    """Return the array the blocks copy the commands into (one command for all: set here)."""
-    commands = np.empty(command.shape[0])
-    if command.shape[0] == 1:
-        commands[0] = command[0]
-    return commands
+def float64_commands(command: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float64]:
+    """Return ``command`` as a contiguous float64 array (itself if it is one already).
+
+    Compiled per type (:func:`_float64_commands`): the plant kernel then sees one command type
+    and compiles once, not once per type (30 s each).
+    """
+    return np.ascontiguousarray(command, dtype=np.float64)
+
+
+@overload(float64_commands)
+def _float64_commands(command):  # type: ignore[no-untyped-def]  # numba matches its signature
+    if command.dtype == types.float64 and command.layout == "C":
+        return lambda command: command
+    return lambda command: np.ascontiguousarray(command).astype(np.float64)
 
 
 @njit(cache=True, inline="always")
@@ -632,8 +640,7 @@ def _step_block(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
     head: int,
-    command: npt.NDArray[np.floating[Any]],
-    commands: npt.NDArray[np.float64],
+    command: npt.NDArray[np.float64],
     dt: float,
     n_sub: int,
     plant_rows: npt.NDArray[np.float64],
@@ -649,16 +656,11 @@ def _step_block(
 
     Two loops, not one: fused into one loop body the plant step and the observation compiled
     to code half as fast as the two apart (docs/benchmarks.md, "A kernel near the machine's
-    limit"); a block's state stays in cache from the first loop to the second. The commands
-    (float32 or float64) are copied as float64 into ``commands`` first: the plant kernel is
-    then compiled once, not once per type (30 s each).
+    limit"); a block's state stays in cache from the first loop to the second.
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
-    if commands.shape[0] > 1:
-        for i in range(start, stop):
-            commands[i] = command[i]
     plant_batch.step_plants(
-        start, stop, state, delay_buffer, head, commands, dt, n_sub, plant_rows, fresh
+        start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )
     for i in range(start, stop):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
@@ -689,15 +691,14 @@ def step_envs(
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
-    commands = _float64_commands(command)
+    command64 = float64_commands(command)  # one type for the plant kernel
     for block in range((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             block,
             state,
             delay_buffer,
             head,
-            command,
-            commands,
+            command64,
             dt,
             n_sub,
             plant_rows,
@@ -733,15 +734,14 @@ def step_envs_parallel(
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
-    commands = _float64_commands(command)
+    command64 = float64_commands(command)  # one type for the plant kernel
     for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
         _step_block(
             np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
             state,
             delay_buffer,
             head,
-            command,
-            commands,
+            command64,
             dt,
             n_sub,
             plant_rows,

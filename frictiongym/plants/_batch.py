@@ -642,30 +642,46 @@ def step_plants(
         and params[0, I_LAG] == 0.0
         and has_exact_step(params[0, F0:K0])
     )
-    index = np.empty(hi - lo if lanes else 0, dtype=np.int64)
-    pending = 0
     if lanes:
         if not check:
             fresh = np.zeros(state.shape[1], dtype=np.bool_)
-        slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
-        for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
-            index[pending] = i  # kept if pending: no branch to mispredict
-            pending += state[S_STUCK, i] == PENDING
-        stop_lanes(state, h, params, index, pending, np.empty(WORK_ROWS * BLOCK))
-    # the element step: pass 2 after the passes above, else for every plant
-    for m in range(pending if lanes else hi - lo):
-        i = index[m] if lanes else lo + m
-        if lanes:
-            if state[S_STUCK, i] != PENDING:  # pass 1b finished it
-                continue
-            u = state[S_FRICTION, i]
-        elif check and fresh[i]:
-            continue
-        else:
+        _step_lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh)
+        return
+    for i in range(lo, hi):  # the element step for every plant
+        if not (check and fresh[i]):
             c = command[0 if one_command else i]
             umax = params[0 if one_row else i, I_UMAX]
             u = apply_command(i, state, delay_buffer, head, c, umax, delayed)
-        advance_plant(i, state, u, h, n_sub, params, one_row)
+            advance_plant(i, state, u, h, n_sub, params, one_row)
+
+
+@njit(cache=True)
+def _step_lanes(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    params: npt.NDArray[np.float64],
+    fresh: npt.NDArray[np.bool_],
+) -> None:
+    """Run passes 1, 1b and 2 over plants ``lo`` to ``hi - 1`` (see :func:`step_plants`).
+
+    A function of its own, so that a batch without the passes (a single env) allocates nothing.
+    """
+    slide_lanes(state, delay_buffer, head, command, h, params, fresh, lo, hi)
+    index = np.empty(hi - lo, dtype=np.int64)
+    pending = 0
+    for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
+        index[pending] = i  # kept if pending: no branch to mispredict
+        pending += state[S_STUCK, i] == PENDING
+    stop_lanes(state, h, params, index, pending, np.empty(WORK_ROWS * BLOCK))
+    for m in range(pending):  # pass 2: the element step
+        i = index[m]
+        if state[S_STUCK, i] == PENDING:  # else pass 1b finished it
+            advance_plant(i, state, state[S_FRICTION, i], h, 1, params, True)
 
 
 @serial_njit
