@@ -1,21 +1,25 @@
 """Batch kernels: N plants stepped by one compiled call, the common case in SIMD lanes.
 
-A batch is stepped in blocks of ``BLOCK`` plants (:func:`step_plants`). Each block takes two
-passes over its plants:
+A batch is stepped in blocks of ``BLOCK`` plants (:func:`step_plants`). Each block takes up to
+three passes over its plants:
 
 1. :func:`slide_lanes`, a loop with no branches that the compiler turns into SIMD code over the
    state's contiguous columns: it saturates and delays each command, and finishes every step
    that needs no event of the event-exact law (a held body; a body sliding on one speed range
    all step). The rest it marks pending (``S_STUCK = PENDING``, the command due in
-   ``S_FRICTION``).
-2. A scalar loop over the pending plants (about one in twenty under commands around the
-   break-away band) through :func:`advance_plant`, the element step that handles every law
-   and every event.
+   ``S_FRICTION``): one plant in twenty to one in twelve under commands around the break-away
+   band.
+1b. :func:`stop_lanes`, over the pending plants gathered into a work array: SIMD loops finish
+   the steps of two phases (a stop, then held; a crossing of the decay range's edge, then a
+   slide to the step's end), with ``log1p`` and ``expm1`` in scalar loops of their own.
+2. A scalar loop over what is still pending (a second event, a break-away after a stop, a
+   contact with the end stop: under 1 % of the plants) through :func:`advance_plant`, the
+   element step that handles every law and every event.
 
-Both passes compute with the same operations in the same order as the element step alone
+All passes compute with the same operations in the same order as the element step alone
 (:func:`~frictiongym.plants._kernel.sliding_setup` is the one copy of the sliding arithmetic),
 so a plant's trajectory is bit-identical whichever pass steps it, alone or in a batch, serially
-or on threads. Pass 1 runs for blocks of at least ``LANES_MIN`` plants that share one plant
+or on threads. The passes run for blocks of at least ``LANES_MIN`` plants that share one plant
 row of the exact law without actuator lag, stepped once per period (no substeps); every other
 batch takes the element step for each plant.
 """
