@@ -561,25 +561,15 @@ def reset_envs(
     limit copied from the env's plant row (set before this call).
     """
     one_row = plant_rows.shape[0] == 1
-    n = mask.shape[0]
-    words = n // 8
-    # 8 envs per word, read at once: an autoreset resets few of many envs
-    chunks = mask[: words * 8].view(np.uint64)
-    k = 0  # the k-th masked env
-    for word in range(words + 1):  # the last one: the envs after the whole words
-        if word < words and chunks[word] == 0:
-            continue
-        for i in range(8 * word, min(8 * word + 8, n)):
-            if mask[i]:
-                at = k if position.shape[0] > 1 else 0
-                plant_kernel.reset_plant(i, position[at], velocity[at], state, delay_buffer)
-                k += 1
-                if set_rows:
-                    rows[T_GAIN, i] = 1.0
-                    for entry in range(REF_SIZE):
-                        rows[T_REF + entry, i] = reference[entry]
-                rows[T_OFFSET, i] = 0.0
-                rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
+    index = plant_kernel.selected(mask)
+    plant_kernel.reset_selected(index, state, delay_buffer, position, velocity)
+    for i in index:
+        if set_rows:
+            rows[T_GAIN, i] = 1.0
+            for entry in range(REF_SIZE):
+                rows[T_REF + entry, i] = reference[entry]
+        rows[T_OFFSET, i] = 0.0
+        rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
 
 
 @njit(cache=True)

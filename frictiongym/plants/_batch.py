@@ -9,7 +9,7 @@ three passes over its plants:
    all step). The rest it marks pending (``S_STUCK = PENDING``, the command due in
    ``S_FRICTION``): one plant in twenty to one in twelve under commands around the break-away
    band.
-1b. :func:`stop_lanes`, over the pending plants gathered into a work array: SIMD loops finish
+1b. :func:`two_phase_lanes`, over the pending plants gathered into a work array: SIMD loops finish
    the steps of two phases (a stop, then held; a crossing of the decay range's edge, then a
    slide to the step's end), with ``log1p`` and ``expm1`` in scalar loops of their own.
 2. A scalar loop over what is still pending (a second event, a break-away after a stop, a
@@ -516,7 +516,7 @@ def _event_lane(
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
-def stop_lanes(
+def two_phase_lanes(
     state: npt.NDArray[np.float64],
     h: float,
     params: npt.NDArray[np.float64],
@@ -626,7 +626,7 @@ def step_plants(
     params: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
 ) -> None:
-    """Step plants ``lo`` to ``hi - 1``, those not ``fresh`` (an entry per plant, or empty).
+    """Step plants ``lo`` to ``hi - 1``, those not ``fresh`` (an entry per plant).
 
     ``command`` holds one command per plant, or one for all. Compiled once and called per
     block, not inlined into each batch kernel: four inlined copies of the element step took
@@ -637,7 +637,6 @@ def step_plants(
     """
     one_row, one_command = params.shape[0] == 1, command.shape[0] == 1
     delayed = delay_buffer.shape[0] > 0
-    check = fresh.shape[0] > 0
     lanes = (
         hi - lo >= LANES_MIN  # a few plants gain nothing from the pass, and pay its calls
         and n_sub == 1
@@ -647,12 +646,10 @@ def step_plants(
         and has_exact_step(params[0, F0:K0])
     )
     if lanes:
-        if not check:
-            fresh = np.zeros(state.shape[1], dtype=np.bool_)
         _step_lanes(lo, hi, state, delay_buffer, head, command, h, params, fresh)
         return
     for i in range(lo, hi):  # the element step for every plant
-        if not (check and fresh[i]):
+        if not fresh[i]:
             c = command[0 if one_command else i]
             umax = params[0 if one_row else i, I_UMAX]
             u = apply_command(i, state, delay_buffer, head, c, umax, delayed)
@@ -681,7 +678,7 @@ def _step_lanes(
     for i in range(lo, hi):  # pass 1 never leaves a fresh plant pending
         index[pending] = i  # kept if pending: no branch to mispredict
         pending += state[S_STUCK, i] == PENDING
-    stop_lanes(state, h, params, index, pending, np.empty(WORK_ROWS * BLOCK))
+    two_phase_lanes(state, h, params, index, pending, np.empty(WORK_ROWS * BLOCK))
     for m in range(pending):  # pass 2: the element step
         i = index[m]
         if state[S_STUCK, i] == PENDING:  # else pass 1b finished it
@@ -727,11 +724,11 @@ def step_batch(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = np.empty(0, dtype=np.bool_)  # no plant is fresh
+    no_one = np.zeros(n, dtype=np.bool_)  # no plant is fresh
     for block in range((n + BLOCK - 1) // BLOCK):
         lo = block * BLOCK
         step_plants(
-            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, everyone
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
         )
     return -1
 
@@ -751,10 +748,10 @@ def step_batch_parallel(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    everyone = np.empty(0, dtype=np.bool_)  # no plant is fresh
+    no_one = np.zeros(n, dtype=np.bool_)  # no plant is fresh
     for block in prange((n + BLOCK - 1) // BLOCK):
         lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
         step_plants(
-            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, everyone
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
         )
     return -1

@@ -298,7 +298,7 @@ class Plant:
     def _selection(self, mask: npt.ArrayLike | None) -> npt.NDArray[np.bool_]:
         if mask is None:
             return np.ones(self.num_plants, dtype=bool)
-        selection = np.asarray(mask, dtype=bool)
+        selection = np.ascontiguousarray(mask, dtype=bool)
         if selection.shape != (self.num_plants,):
             raise ValueError(f"mask must have shape ({self.num_plants},), got {selection.shape}")
         return selection
