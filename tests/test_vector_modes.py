@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
+from frictiongym.envs import _kernel as env_kernel
 from tests._envs import ALTINO, IDS, RANDOM_KWARGS, SERVO, commands
 
 MODES = list(AutoresetMode)
@@ -88,6 +89,49 @@ def test_each_mode_returns_what_sync_vector_env_returns(env_id, mode, kwargs):
         assert_same(a, b, f"call {k}")
     ends = sum(int((out[2] | out[3]).sum()) for out in ours if len(out) == 5)
     assert ends >= 2 * NUM_ENVS  # each env ended at least twice
+
+
+@pytest.mark.parametrize("env_id", IDS)
+@pytest.mark.parametrize("mode", MODES, ids=[m.name for m in MODES])
+def test_episodes_after_a_reset_with_another_reference_go_back_to_the_default_one(env_id, mode):
+    # an autoreset leaves the task rows alone while every env holds the default ones: after a
+    # reset of all, or of some, with another reference it must write them again
+    custom = 0.3 if env_id == SERVO else 25.0
+    envs = native(env_id, mode), sync(env_id, mode)
+    traces = []
+    for env in envs:
+        actions = commands(env_id, 90, shape=(NUM_ENVS,), seed=2)
+        if env_id == ALTINO:
+            actions[10:, 1] = 1000.0  # terminations as well as truncations
+        trace: list[Any] = [env.reset(seed=3, options={"reference": custom})]
+        for t, a in enumerate(actions):
+            if t == 45:
+                options = {"reset_mask": np.array([False, True, False]), "reference": custom}
+                trace.append(env.reset(options=options))
+            out = env.step(a)
+            trace.append(out)
+            done = out[2] | out[3]
+            if mode is AutoresetMode.DISABLED and done.any():
+                trace.append(env.reset(options={"reset_mask": done}))
+        traces.append(trace)
+    for k, (a, b) in enumerate(zip(*traces, strict=True)):
+        assert_same(a, b, f"call {k}")
+    # every env has been reset without options since; the single env runs the same reset
+    # code, so the rows are checked against the default row itself
+    sim = envs[0].unwrapped.sim
+    default = np.repeat(sim.reference.sample()[:, None], NUM_ENVS, axis=1)
+    np.testing.assert_array_equal(sim.rows[env_kernel.T_REF :], default)
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_a_single_env_reset_without_options_after_one_with_them_is_a_default_reset(env_id):
+    env = gym.make(env_id)
+    default = env.reset(seed=1)[1]
+    custom = {"reference": 0.3 if env_id == SERVO else 25.0, "position": default["position"] / 2}
+    changed = env.reset(options=custom)[1]
+    assert changed["reference"] == custom["reference"] != default["reference"]
+    again = env.reset(seed=1)[1]
+    assert again == default
 
 
 @pytest.mark.parametrize("mode", MODES, ids=[m.name for m in MODES])

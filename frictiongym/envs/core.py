@@ -195,6 +195,9 @@ class Simulation:
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
         )
         self.rows: FloatArray = np.zeros((env_kernel.TASK_ROW_SIZE, self.num_envs))
+        #: Whether every env's task rows hold what a reset that draws nothing sets (unit gain,
+        #: the default reference, the plant's command limit): then an autoreset leaves them.
+        self._rows_default = False
         self.noise_state: npt.NDArray[np.uint64] = np.zeros(self.num_envs, dtype=np.uint64)
 
     def _task_config(
@@ -332,6 +335,13 @@ class Simulation:
         the reference (if random) and the seed of its sensor noise (if noisy). Envs that draw
         nothing are reset in one compiled call (an autoreset costs a few µs).
         """
+        plants = self.plants
+        if not options and self._rows_default:  # an autoreset: the rows hold what it would set
+            x0, v0 = self._default_start
+            ref_row = self._default_reference_row
+            args = (plants.state, plants.delay_buffer, plants.rows, self.rows, x0, v0, ref_row)
+            env_kernel.reset_envs(mask, *args, False)
+            return
         reference = self.reference
         if options:
             unknown = set(options) - set(RESET_OPTIONS)
@@ -361,7 +371,11 @@ class Simulation:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
             if self.randomize is not None:
                 self.plants.prime_rows(mask)
-        plants = self.plants
+        # Every env's task rows are the default ones after a reset of all to the default; any
+        # other reset may leave some that are not (nothing drawn: at most this reset's envs).
+        self._rows_default = (
+            not draws and reference is self.reference and (self._rows_default or mask.all())
+        )
         env_kernel.reset_envs(
             mask,
             plants.state,
