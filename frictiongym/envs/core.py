@@ -145,6 +145,7 @@ class Simulation:
     _nominal_row: FloatArray
     _default_start: tuple[FloatArray, FloatArray]
     _default_reference_row: FloatArray
+    _rows_default: bool
 
     def __init__(
         self,
