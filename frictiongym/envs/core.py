@@ -375,7 +375,7 @@ class Simulation:
         # Every env's task rows are the default ones after a reset of all to the default; any
         # other reset may leave some that are not (nothing drawn: at most this reset's envs).
         self._rows_default = (
-            not draws and reference is self.reference and (self._rows_default or mask.all())
+            not draws and reference is self.reference and (self._rows_default or bool(mask.all()))
         )
         env_kernel.reset_envs(
             mask,
