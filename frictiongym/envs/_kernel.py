@@ -609,10 +609,13 @@ def publish_envs(
 
 
 def float64_commands(command: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.float64]:
-    """Return ``command`` as a contiguous float64 array (itself if it is one already).
+    """Return ``command`` itself if it is a contiguous float64 array, else a float64 buffer.
 
-    Compiled per type (:func:`_float64_commands`): the plant kernel then sees one command type
-    and compiles once, not once per type (30 s each).
+    A buffer of one command per env is left empty: each block converts its own envs'
+    commands into it (:func:`convert_commands`), on the thread that steps them, so that no
+    thread reads commands another has just written. Compiled per type
+    (:func:`_float64_commands`): the plant kernel then sees one command type and compiles once,
+    not once per type (30 s each).
     """
     return np.ascontiguousarray(command, dtype=np.float64)
 
@@ -621,7 +624,36 @@ def float64_commands(command: npt.NDArray[np.floating[Any]]) -> npt.NDArray[np.f
 def _float64_commands(command):  # type: ignore[no-untyped-def]  # numba matches its signature
     if command.dtype == types.float64 and command.layout == "C":
         return lambda command: command
-    return lambda command: np.ascontiguousarray(command).astype(np.float64)
+
+    def buffer(command):  # type: ignore[no-untyped-def]
+        if command.shape[0] == 1:  # one command for all: every block reads it
+            return np.ascontiguousarray(command).astype(np.float64)
+        return np.empty(command.shape[0])
+
+    return buffer
+
+
+def convert_commands(
+    lo: int,
+    hi: int,
+    command: npt.NDArray[np.floating[Any]],
+    buffer: npt.NDArray[np.float64],
+) -> None:
+    """Fill ``buffer`` (:func:`float64_commands`) with the commands of envs ``lo`` to ``hi - 1``."""
+    buffer[lo:hi] = command[lo:hi]
+
+
+@overload(convert_commands)
+def _convert_commands(lo, hi, command, buffer):  # type: ignore[no-untyped-def]
+    if command.dtype == types.float64 and command.layout == "C":
+        return lambda lo, hi, command, buffer: None  # the buffer is the command array itself
+
+    def convert(lo, hi, command, buffer):  # type: ignore[no-untyped-def]
+        if command.shape[0] > 1:  # else converted whole
+            for i in range(lo, hi):
+                buffer[i] = command[i]
+
+    return convert
 
 
 @njit(cache=True, inline="always")
@@ -630,6 +662,7 @@ def _step_block(
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
     head: int,
+    given: npt.NDArray[np.floating[Any]],
     command: npt.NDArray[np.float64],
     dt: float,
     n_sub: int,
@@ -644,11 +677,14 @@ def _step_block(
 ) -> None:
     """Step the envs of one block (those not ``fresh``), then observe them all.
 
-    Two loops, not one: fused into one loop body the plant step and the observation compiled
-    to code half as fast as the two apart (docs/benchmarks.md, "A kernel near the machine's
-    limit"); a block's state stays in cache from the first loop to the second.
+    ``given`` holds the caller's commands, ``command`` them as float64 (:func:`float64_commands`;
+    this block converts its own). Two loops, not one: fused into one loop body the plant step
+    and the observation compiled to code half as fast as the two apart (docs/benchmarks.md, "A
+    kernel near the machine's limit"); a block's state stays in cache from the first loop to
+    the second.
     """
     start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
+    convert_commands(start, stop, given, command)
     plant_batch.step_plants(
         start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )
@@ -688,6 +724,7 @@ def step_envs(
             state,
             delay_buffer,
             head,
+            command,
             command64,
             dt,
             n_sub,
@@ -731,6 +768,7 @@ def step_envs_parallel(
             state,
             delay_buffer,
             head,
+            command,
             command64,
             dt,
             n_sub,
