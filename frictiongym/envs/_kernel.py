@@ -128,7 +128,8 @@ OUT_SIZE = 6
 F_TERMINATED = 0
 F_TRUNCATED = 1
 F_STUCK = 2
-FLAG_SIZE = 3
+F_DONE = 3  #: terminated or truncated
+FLAG_SIZE = 4
 
 #: Envs per block: the plant kernel's blocks.
 BLOCK = plant_batch.BLOCK
@@ -269,6 +270,7 @@ def _write(
     _publish(i, encoder, state, obs)
     for flag, row in _FLAG_ROWS:
         _flag(i, flag, row, state, flags)
+    _done(i, flags)
 
 
 @njit(cache=True, inline="always")
@@ -342,6 +344,12 @@ def _flag(
 ) -> None:
     """Set flag ``flag`` of env ``i`` from state row ``row`` (1.0: set)."""
     flags[flag, i] = state[row, i] != 0.0
+
+
+@njit(cache=True, inline="always")
+def _done(i: int, flags: npt.NDArray[np.bool_]) -> None:
+    """Set env ``i``'s done flag from its other flags: terminated or truncated."""
+    flags[F_DONE, i] = flags[F_TERMINATED, i] | flags[F_TRUNCATED, i]
 
 
 @njit(cache=True, inline="always")
@@ -451,6 +459,8 @@ def _observe_lanes(
     for flag, row in _FLAG_ROWS:
         for i in range(np.uint64(lo), np.uint64(hi)):
             _flag(i, flag, row, state, flags)
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        _done(i, flags)
 
 
 @njit(cache=True, parallel=True, error_model="numpy")
@@ -466,7 +476,7 @@ def observe_block(
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
-) -> None:
+) -> int:
     """Observe envs ``lo`` to ``hi - 1``: in SIMD code, unless sensor noise needs calls.
 
     The references are evaluated first, in a loop of their own (a sine needs a call, a step
@@ -474,7 +484,8 @@ def observe_block(
     then the fresh envs (just reset, rare) once more on their own. With sensor noise every env
     takes the scalar path. Compiled on its own (the parallel pipeline starts no threads here; it
     drops reference counting) with NumPy's error model, so that no exception branch stays in the
-    loops. Both ways compute the same values with the same operations.
+    loops. Both ways compute the same values with the same operations. Returns how many of
+    these envs ended their episode (terminated or truncated).
     """
     noisy = config[C_NOISE] > 0.0
     if not noisy:
@@ -493,6 +504,10 @@ def observe_block(
         for i in range(lo, hi):
             if noisy or fresh[i]:
                 _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
+    ended = 0
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        ended += flags[F_DONE, i]
+    return ended
 
 
 @njit(cache=True)
@@ -674,8 +689,8 @@ def _step_block(
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
-) -> None:
-    """Step the envs of one block (those not ``fresh``), then observe them all.
+) -> int:
+    """Step the envs of one block (those not ``fresh``), observe them all; return how many ended.
 
     ``given`` holds the caller's commands, ``command`` them as float64 (:func:`float64_commands`;
     this block converts its own). Two loops, not one: fused into one loop body the plant step
@@ -690,7 +705,7 @@ def _step_block(
     )
     for i in range(start, stop):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
-    observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
+    return observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 
 @plant_kernel.serial_njit
@@ -712,14 +727,16 @@ def step_envs(
 ) -> int:
     """Step every env not ``fresh`` under ``command`` and observe all of them, in place.
 
-    Returns -1, or the index of the first non-finite command (then nothing changed).
+    Returns the index of the first non-finite command (then nothing changed), or else -1 minus
+    the number of envs whose episode ended on this step (their ``F_DONE`` flags).
     """
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     command64 = float64_commands(command)  # one type for the plant kernel
+    ended = 0
     for block in range((state.shape[1] + BLOCK - 1) // BLOCK):
-        _step_block(
+        ended += _step_block(
             block,
             state,
             delay_buffer,
@@ -737,7 +754,7 @@ def step_envs(
             out,
             flags,
         )
-    return -1
+    return -1 - ended
 
 
 @njit(cache=True, parallel=True)
@@ -762,8 +779,9 @@ def step_envs_parallel(
     if bad >= 0:
         return bad
     command64 = float64_commands(command)  # one type for the plant kernel
+    ended = 0
     for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
-        _step_block(
+        ended += _step_block(
             np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
             state,
             delay_buffer,
@@ -781,4 +799,4 @@ def step_envs_parallel(
             out,
             flags,
         )
-    return -1
+    return -1 - ended

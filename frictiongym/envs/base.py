@@ -234,7 +234,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         self._out_values, self._flags_values = self._out.ravel(), self._flags.ravel()  # views
         outputs = (self._command, self._fresh, self._obs, self._out, self._flags)
         #: One step on the arrays above: the simulation's bound run, or the device's.
-        self._run: Callable[[], None] = (
+        self._run: Callable[[], object] = (
             self.sim.bind(*outputs)
             if isinstance(self.sim, Simulation)
             else functools.partial(self.sim.run, *outputs)

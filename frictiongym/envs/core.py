@@ -83,8 +83,11 @@ class EnvCore(Protocol):
         obs: npt.NDArray[np.float32],
         out: FloatArray,
         flags: BoolArray,
-    ) -> None:
-        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
+    ) -> int:
+        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs.
+
+        Returns how many envs ended their episode (terminated or truncated).
+        """
 
     def frame(self, i: int) -> Frame:
         """Return what a frame of env ``i`` draws."""
@@ -396,13 +399,17 @@ class Simulation:
         obs: npt.NDArray[np.float32],
         out: FloatArray,
         flags: BoolArray,
-    ) -> None:
-        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs."""
+    ) -> int:
+        """Step the envs not ``fresh`` under ``command``, observe all; write the outputs.
+
+        Returns how many envs ended their episode (their ``F_DONE`` flags).
+        """
         bad = self.plants.run(
             command, self.rows, self.noise_state, self.config, fresh, obs, out, flags
         )
         if bad >= 0:
             raise ValueError(_bad_action(command, bad))
+        return -1 - bad
 
     def bind(
         self,

@@ -200,11 +200,12 @@ class DeviceSession:
         obs: npt.NDArray[np.float32],
         out: FloatArray,
         flags: BoolArray,
-    ) -> None:
+    ) -> int:
         """Hold ``command[0]`` on the device for one period (or observe its first sample).
 
         Any exception, wherever it comes from (the device, the observation, a log write that
         fails on a full disk, a ``KeyboardInterrupt``), zeroes the motor before it propagates.
+        Returns 1 if the episode ended, else 0 (as :meth:`Simulation.run` counts).
         """
         try:
             requested = float(command[0])
@@ -221,7 +222,7 @@ class DeviceSession:
             if sample.status & Status.LIMIT and not fresh[0]:  # the device stopped itself
                 if not flags[env_kernel.F_TERMINATED, 0]:
                     out[env_kernel.O_REWARD, 0] -= env_kernel.setting(task.config, "penalty")
-                flags[env_kernel.F_TERMINATED, 0] = True
+                flags[env_kernel.F_TERMINATED, 0] = flags[env_kernel.F_DONE, 0] = True
             self.last_sample = sample
             self._account(sample, not fresh[0], 0.0 if fresh[0] else requested, obs, out, flags)
         except BaseException as exc:
@@ -231,6 +232,7 @@ class DeviceSession:
             raise
         if flags[env_kernel.F_TERMINATED, 0]:
             self.backend.stop()
+        return int(flags[env_kernel.F_DONE, 0])
 
     def stop(self) -> None:
         """Zero the motor after an error, unless a stop already did (the backend's own)."""

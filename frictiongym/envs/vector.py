@@ -109,8 +109,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         self.observation_space = batch_space(self.single_observation_space, self.num_envs)
         self._seeds: list[int | None] = [None] * self.num_envs
         self._rngs: list[np.random.Generator | None] = [None] * self.num_envs
-        # Which envs ended on the last step, and whether any did; fresh for a step with none
-        # (the kernel only reads it). A step computes the next `_done` into this buffer.
+        # Which envs ended on the last step (a row of its flags), and whether any did; fresh
+        # for a step with none (the kernel only reads it).
         self._done = np.zeros(self.num_envs, dtype=bool)
         self._ended = False
         self._none_fresh = np.zeros(self.num_envs, dtype=bool)
@@ -255,14 +255,15 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 fresh = self._done
                 self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
-        self.sim.run(command, fresh, obs, out, flags)
+        ended = self.sim.run(command, fresh, obs, out, flags)
         # Rows of this step's own output arrays, fresh every step (copied below only where a
         # same-step reset writes them again).
         reward = out[env_kernel.O_REWARD]
         terminated = flags[env_kernel.F_TERMINATED]
         truncated = flags[env_kernel.F_TRUNCATED]
-        done = np.logical_or(terminated, truncated, out=self._done)  # the kernel has read it
-        self._ended = bool(np.count_nonzero(done))
+        # the kernel's count: this thread need not read the flags its threads just wrote
+        self._done, self._ended = flags[env_kernel.F_DONE], ended > 0
+        done = self._done
         if mode is AutoresetMode.SAME_STEP and self._ended:
             reward, terminated, truncated = reward.copy(), terminated.copy(), truncated.copy()
             final_obs = np.full(self.num_envs, None, dtype=object)
@@ -274,8 +275,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 "final_info": self._info(out, flags, done),
                 "_final_info": done.copy(),
             }
-            self.sim.prepare_reset(done, self._rng)
-            self.sim.observe(done, obs, out, flags)
+            reset = final["_final_obs"]  # not `done`: observing writes its row of `flags`
+            self.sim.prepare_reset(reset, self._rng)
+            self.sim.observe(reset, obs, out, flags)
             info = {**final, **self._info(out, flags)}
             done[:] = False
             self._ended = False
