@@ -463,14 +463,15 @@ def device_physics(
     plant: PlantParams | None = None,
     params: str | os.PathLike[str] | DeviceParams | None = None,
     delay: float | None = None,
+    deadzone: float | None = None,
 ) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
     """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
 
     ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"`` (the default law,
     which the file's replaces); ``delay`` defaults to the device's dead time in whole periods of
-    ``dt``. Returns the file (or None), the plant's law (without the viscous slope a file puts
-    in ``B``), the law a compensator models by default (the file's, else the paper preset) and
-    the plant.
+    ``dt``, ``deadzone`` to the plant's dead zone (none in the presets). Returns the file (or
+    None), the plant's law (without the viscous slope a file puts in ``B``), the law a
+    compensator models by default (the file's, else the paper preset) and the plant.
     """
     loaded = None
     if params is not None:
@@ -501,5 +502,15 @@ def device_physics(
         delay = round(nominal.dead_time / dt) * dt
     dead_time = real_number("delay", delay, ">= 0")
     end_stop = min(nominal.end_stop, device.end_stop)
+    width = nominal.dead_zone
+    if deadzone is not None:
+        width = real_number("deadzone", deadzone, ">= 0")
+        if width >= nominal.command_limit:
+            unit = device.command_unit
+            raise ValueError(
+                f"deadzone={deadzone!r} {unit} leaves no command that drives the plant: it must "
+                f"be below the command limit, {nominal.command_limit:g} {unit}"
+            )
     model = device.paper_friction if loaded is None else loaded.friction
-    return loaded, friction, model, replace(nominal, dead_time=dead_time, end_stop=end_stop)
+    plant = replace(nominal, dead_time=dead_time, end_stop=end_stop, dead_zone=width)
+    return loaded, friction, model, plant

@@ -38,8 +38,9 @@ def make(
     substeps: int | None = None,
     lag: float = 0.0,
     dead_time: float = 0.0,
+    dead_zone: float = 0.0,
 ) -> Plant:
-    params = PlantParams(inertia, damping, limit, lag=lag, dead_time=dead_time)
+    params = PlantParams(inertia, damping, limit, lag=lag, dead_time=dead_time, dead_zone=dead_zone)
     return Plant(params, friction, dt, num_plants=num_plants, substeps=substeps)
 
 

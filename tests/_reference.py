@@ -125,6 +125,9 @@ class ReferencePlant:
         Control period.
     command_limit : float
         Symmetric saturation of the command.
+    dead_zone : float
+        Half-width of the actuator's dead zone (applied after the saturation): the drive is
+        zero inside it and the command less the half-width, toward zero, outside.
     load : callable, optional
         Extra external force ``load(t, x)`` (e.g. a spring); it makes the stuck mode end
         on an event inside the period.
@@ -139,6 +142,7 @@ class ReferencePlant:
         law: Any,
         dt: float,
         command_limit: float = math.inf,
+        dead_zone: float = 0.0,
         load: Load | None = None,
         rtol: float = 1e-12,
         atol: float = 1e-15,
@@ -149,6 +153,7 @@ class ReferencePlant:
         self.law = law if isinstance(law, Law) else Law.of(law)
         self.dt = float(dt)
         self.umax = float(command_limit)
+        self.dead_zone = float(dead_zone)
         self.load = load
         self.rtol = rtol
         self.atol = atol
@@ -297,6 +302,10 @@ class ReferencePlant:
             t = k * self.dt
             c = float(commands[k]) if controller is None else float(controller(t, x, v))
             u = min(max(c, -self.umax), self.umax)
+            if abs(u) <= self.dead_zone:
+                u = 0.0
+            else:
+                u -= self.dead_zone if u > 0.0 else -self.dead_zone
             x1, v1 = self.period(t, x, v, u)
             # momentum balance: integral of friction (law incl. its viscous part) over the step
             fr[k] = u - (self.B * (x1 - x) + self.J * (v1 - v)) / self.dt

@@ -76,7 +76,8 @@ class AltinoDistanceEnv(FrictionEnv):
     (default 0.05 s), ``reference`` (``"step"``: 5 cm, default; ``"step_sequence"``,
     ``"ramp"``, ``"sine"``, ``"random_steps"``: a new level in 3–18 cm every 5 s; a number; or a
     generator), ``sensor_noise`` (True: 2 readout units, std), ``quantize`` (integer readout),
-    ``delay`` (default one period, 0.05 s), ``randomize`` (``"inertia"`` is the car's mass,
+    ``delay`` (default one period, 0.05 s), ``deadzone`` (motor units, default 0: none),
+    ``randomize`` (``"inertia"`` is the car's mass,
     ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``params`` (an identified
     ``friction.json`` of this car: its ``J`` is the mass, its ``B`` the total damping, viscous
     slope included; the preset is the file ``J = 2.2``, ``B = viscous = 10.93``),

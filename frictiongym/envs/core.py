@@ -121,7 +121,8 @@ class Simulation:
         Batch size.
     **settings
         The env's arguments, as the env classes document them (``friction``, ``dt``,
-        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``randomize``, ``plant``,
+        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``deadzone``, ``randomize``,
+        ``plant``,
         ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
         :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
         (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
@@ -161,6 +162,7 @@ class Simulation:
         sensor_noise: bool | float = False,
         quantize: bool = True,
         delay: float | None = None,
+        deadzone: float | None = None,
         randomize: Mapping[str, Any] | DomainRandomization | None = None,
         plant: PlantParams | None = None,
         params: str | os.PathLike[str] | DeviceParams | None = None,
@@ -177,10 +179,12 @@ class Simulation:
         self.device = device
         self.num_envs = int(num_envs)
         self.dt = device.dt if dt is None else real_number("dt", dt, "> 0")
-        physics = device_physics(device, self.dt, friction, plant, params, delay)
+        physics = device_physics(device, self.dt, friction, plant, params, delay, deadzone)
         self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)
+        if self.randomize is not None:
+            self.randomize.check(self.plant)
         self.limit = (
             device.limit
             if safety_limit is None

@@ -79,8 +79,11 @@ class RotaryServoEnv(FrictionEnv):
     * ``sensor_noise``: False (default), True (one encoder count, std) or a std in rad;
     * ``quantize``: encoder quantisation (default True);
     * ``delay``: actuator dead time, s, whole periods (default 0);
+    * ``deadzone``: half-width of the amplifier's dead zone, V: a command up to it in
+      magnitude drives nothing, a larger one drives ``u - deadzone sign(u)`` (default 0: none);
     * ``randomize``: factor ranges drawn at each reset, e.g. ``{"friction": (0.5, 1.5),
-      "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``;
+      "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``
+      (``"deadzone"`` scales the ``deadzone`` given);
     * ``plant``: a :class:`~frictiongym.plants.PlantParams` replacing the nominal plant;
     * ``params``: identified parameters, the path of a ``friction.json`` (or its directory) or
       a :class:`~frictiongym.params.DeviceParams`: the plant gets the file's ``J`` and total

@@ -38,6 +38,7 @@ from frictiongym.plants._kernel import (
     _MAX_SEGMENTS,
     F0,
     I_B,
+    I_DEAD_ZONE,
     I_J,
     I_LAG,
     I_STOP,
@@ -56,6 +57,7 @@ from frictiongym.plants._kernel import (
     _affine_advance_by,
     advance,
     breakaway_direction,
+    dead_zone,
     exact_phase,
     exact_static,
     has_exact_step,
@@ -73,7 +75,7 @@ BLOCK = 256
 LANES_MIN = 16
 #: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
 PENDING = 2.0
-if ROW_SIZE != 25:  # slide_lanes unpacks the plant row by hand
+if ROW_SIZE != 26:  # slide_lanes unpacks the plant row by hand
     raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
 
 
@@ -162,16 +164,21 @@ def apply_command(
     head: int,
     c: float,
     umax: float,
+    width: float,
     delayed: bool,
 ) -> float:
-    """Saturate plant ``i``'s command ``c``, record it, and return the command due now."""
+    """Saturate plant ``i``'s command ``c`` and record it; return the drive due now.
+
+    The drive is the command due now (after the dead time) through the dead zone of half-width
+    ``width``.
+    """
     c = min(max(c, -umax), umax)
     state[S_COMMAND, i] = c
     if delayed:
         due = delay_buffer[head, i]
         delay_buffer[head, i] = c
-        return due
-    return c
+        return dead_zone(due, width)
+    return dead_zone(c, width)
 
 
 @njit(cache=True, inline="always")
@@ -262,7 +269,7 @@ def _lane(
         )
     )
     c = min(max(c, -umax), umax)
-    u = due if delayed else c
+    u = dead_zone(due if delayed else c, row[I_DEAD_ZONE])
     moving = v != 0.0
     s_rest = 1.0 if u > us_pos else (-1.0 if u < -us_neg else 0.0)
     s = (1.0 if v > 0.0 else -1.0) if moving else s_rest
@@ -308,6 +315,7 @@ def _row(params: npt.NDArray[np.float64], r: int) -> tuple[float, ...]:
         params[r, 22],
         params[r, 23],
         params[r, 24],
+        params[r, 25],
     )
 
 
@@ -651,8 +659,9 @@ def step_plants(
     for i in range(lo, hi):  # the element step for every plant
         if not fresh[i]:
             c = command[0 if one_command else i]
-            umax = params[0 if one_row else i, I_UMAX]
-            u = apply_command(i, state, delay_buffer, head, c, umax, delayed)
+            r = 0 if one_row else i
+            width = params[r, I_DEAD_ZONE]
+            u = apply_command(i, state, delay_buffer, head, c, params[r, I_UMAX], width, delayed)
             advance_plant(i, state, u, h, n_sub, params, one_row)
 
 

@@ -54,13 +54,14 @@ warnings.filterwarnings(
 )
 
 
-# Plant row: [J, B, u_max, lag, end stop] followed by the friction row.
+# Plant row: [J, B, u_max, lag, end stop, dead zone] followed by the friction row.
 I_J = 0
 I_B = 1
 I_UMAX = 2
 I_LAG = 3
 I_STOP = 4  #: position of the rigid end stop ahead (inf: none)
-F0 = 5  #: offset of the friction row inside a plant row
+I_DEAD_ZONE = 5  #: half-width of the command's dead zone (0: none), command units
+F0 = 6  #: offset of the friction row inside a plant row
 #: Offset of the exact step's coefficient cache: for each slope b of the static law (the Coulomb
 #: range's, then the decay range's forward and backward), the key ``l = b / J * h`` of a full
 #: substep ``h`` and ``E1(l)``, ``E2(l)`` (:func:`_phi12`). A phase uses the cached values only
@@ -96,7 +97,7 @@ COLUMNS = {
 def pack_row(
     plant: tuple[float, ...], friction: npt.NDArray[np.float64]
 ) -> npt.NDArray[np.float64]:
-    """Return one plant row: ``(J, B, u_max, lag, end stop)``, the friction row, an empty cache."""
+    """Return a plant row: ``(J, B, u_max, lag, end stop, dead zone)``, friction row, cache."""
     return np.concatenate((plant, friction, np.full(ROW_SIZE - K0, np.nan)))
 
 
@@ -106,9 +107,13 @@ def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
 
 
 def scale_row(
-    row: npt.NDArray[np.float64], friction: float, inertia: float, damping: float
+    row: npt.NDArray[np.float64],
+    friction: float,
+    inertia: float,
+    damping: float,
+    dead_zone: float = 1.0,
 ) -> npt.NDArray[np.float64]:
-    """Return a plant row with its friction levels, inertia and damping (B, viscous) scaled."""
+    """Return a plant row with friction levels, inertia, damping (B, viscous), dead zone scaled."""
     scaled = row.copy()
     levels = [
         F0 + i
@@ -122,6 +127,7 @@ def scale_row(
     scaled[levels] *= friction
     scaled[I_J] *= inertia
     scaled[[I_B, F0 + friction_core.I_VISCOUS]] *= damping
+    scaled[I_DEAD_ZONE] *= dead_zone
     scaled[K0:] = np.nan  # the cache no longer matches (prime_rows refills it)
     return scaled
 
@@ -193,6 +199,18 @@ def reset_plant(
     state[S_STUCK, i] = 1.0 if velocity == 0.0 else 0.0
     for slot in range(delay_buffer.shape[0]):
         delay_buffer[slot, i] = 0.0
+
+
+@njit(cache=True, inline="always")
+def dead_zone(u: float, width: float) -> float:
+    """Return the drive of command ``u`` through a dead zone of half-width ``width``.
+
+    No drive while ``|u| <= width``, and ``u - width sign(u)`` beyond: the actuator dead zone
+    of Tao and Kokotovic (Adaptive Control of Systems with Actuator and Sensor Nonlinearities,
+    Wiley 1996, ch. 2) with equal slopes and a symmetric band. With ``width = 0.0`` it returns
+    ``u`` bit for bit (``-0.0`` too).
+    """
+    return math.copysign(max(abs(u) - width, 0.0), u)
 
 
 #: A packed row as the element functions receive it: a tuple of floats, not an array view.

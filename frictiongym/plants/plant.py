@@ -49,6 +49,10 @@ class PlantParams:
         Position of a rigid end stop ahead (position units): the body cannot pass it, and
         hitting it stops it dead (inelastic contact, located inside the step). ``inf``: none.
         The Altino env sets it to the wall.
+    dead_zone : float, default 0.0
+        Half-width of the actuator's dead zone, command units: a command (after saturation
+        and dead time) of magnitude up to it drives nothing, a larger one drives
+        ``u - dead_zone * sign(u)`` (:func:`~frictiongym.plants._kernel.dead_zone`). 0: none.
     """
 
     inertia: float
@@ -57,14 +61,21 @@ class PlantParams:
     lag: float = 0.0
     dead_time: float = 0.0
     end_stop: float = math.inf
+    dead_zone: float = 0.0
 
     def __post_init__(self) -> None:
-        check_finite(self, "inertia", "damping", "command_limit", "lag", "dead_time")
+        check_finite(self, "inertia", "damping", "command_limit", "lag", "dead_time", "dead_zone")
         check_positive(self, "inertia", "command_limit")
-        check_nonnegative(self, "damping", "lag", "dead_time")
+        check_nonnegative(self, "damping", "lag", "dead_time", "dead_zone")
         if not (isinstance(self.end_stop, numbers.Real) and not math.isnan(self.end_stop)):
             raise ValueError(
                 f"PlantParams.end_stop must be a position or inf (no stop), got {self.end_stop!r}"
+            )
+        if self.dead_zone >= self.command_limit:
+            raise ValueError(
+                f"PlantParams.dead_zone={self.dead_zone!r} leaves no command that drives the "
+                f"plant (command_limit={self.command_limit!r}); use a dead zone narrower than "
+                "the command limit"
             )
 
     def delay_steps(self, dt: float) -> int:
@@ -80,7 +91,14 @@ class PlantParams:
 
 def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
     """Pack plant and friction parameters into one kernel row."""
-    plant = (params.inertia, params.damping, params.command_limit, params.lag, params.end_stop)
+    plant = (
+        params.inertia,
+        params.damping,
+        params.command_limit,
+        params.lag,
+        params.end_stop,
+        params.dead_zone,
+    )
     return plant_kernel.pack_row(plant, friction.row())
 
 

@@ -35,6 +35,9 @@ class DomainRandomization:
     sensor_gain : (float, float), optional
         Factor on the sensor: the encoder's scale (a calibration error) for the servo, the IR
         reflectivity for the Altino.
+    deadzone : (float, float), optional
+        Factor on the actuator's dead zone (the env's ``deadzone=``; nothing to scale without
+        one). Drawn last, so adding it leaves the other draws of a seed as they were.
 
     Examples
     --------
@@ -45,6 +48,7 @@ class DomainRandomization:
     inertia: Range | None = None
     damping: Range | None = None
     sensor_gain: Range | None = None
+    deadzone: Range | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -83,6 +87,15 @@ class DomainRandomization:
             "(e.g. randomize={'friction': (0.8, 1.2)})"
         )
 
+    def check(self, plant: PlantParams) -> None:
+        """Raise a ValueError if a draw could widen ``plant``'s dead zone to its command limit."""
+        if self.deadzone is not None and plant.dead_zone * self.deadzone[1] >= plant.command_limit:
+            raise ValueError(
+                f"randomize deadzone={self.deadzone!r} can widen the dead zone "
+                f"({plant.dead_zone:g}) to the command limit ({plant.command_limit:g}), where "
+                "no command drives the plant; lower the upper factor"
+            )
+
     def lightest(self, plant: PlantParams) -> PlantParams:
         """Return ``plant`` at the least inertia a draw can give (it sets the substeps)."""
         if self.inertia is None:
@@ -101,5 +114,5 @@ class DomainRandomization:
 
 def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
     """Scaled copy of a plant row, and the sensor-gain factor."""
-    scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping"))
+    scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping", "deadzone"))
     return plant_kernel.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)
