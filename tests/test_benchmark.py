@@ -4,11 +4,13 @@ import csv
 import json
 import math
 
+import gymnasium as gym
 import pytest
 
 from frictiongym.benchmark.command import OUTPUTS
-from frictiongym.benchmark.scenarios import all_scenarios
+from frictiongym.benchmark.scenarios import DEAD_ZONE_FRACTIONS, all_scenarios
 from frictiongym.cli import main
+from frictiongym.devices import DEVICES
 
 REQUIRED = ("scenario", "env_id", "controller", "gains", "seed", "metrics")
 METRICS = (
@@ -252,3 +254,17 @@ def test_residual_runs_get_their_figures(residual_model, tmp_path):
     assert pngs <= set(OUTPUTS)  # a rerun with --overwrite replaces them all
     assert "residual_altino_response.png" not in pngs  # no Altino model given
     assert "rotary_response.png" not in pngs  # the paper's group did not run
+
+
+def test_the_drivetrain_group_puts_a_dead_zone_the_compensator_does_not_know_in_the_plant():
+    scenarios = [s for s in all_scenarios() if s.group == "drivetrain"]
+    assert len(scenarios) == 2 * len(DEAD_ZONE_FRACTIONS) * len(DEVICES)
+    for device in DEVICES:
+        breakaway = max(device.paper_friction.breakaway)
+        mine = [s for s in scenarios if s.env_id == device.env_id]
+        widths = sorted({s.env_kwargs["deadzone"] for s in mine})
+        assert widths == [f * breakaway for f in DEAD_ZONE_FRACTIONS]
+        assert {s.mode for s in mine} == {None, "command"}
+        env = gym.make(device.env_id, **mine[-1].env_kwargs)
+        assert env.unwrapped.sim.plant.dead_zone == widths[-1]
+        assert env.unwrapped.sim.model_friction == device.paper_friction  # the model: friction

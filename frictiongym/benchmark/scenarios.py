@@ -22,7 +22,10 @@ from frictiongym.friction import FRICTION_NAMES
 MISMATCH_SCALES = (0.5, 0.8, 1.0, 1.2, 1.5)
 #: Seeds of the noisy scenarios (the noiseless ones are deterministic: one run).
 NOISE_SEEDS = (0, 1, 2, 3, 4)
-GROUPS = ("paper", "mismatch", "noise", "friction", "residual")
+GROUPS = ("paper", "mismatch", "noise", "friction", "drivetrain", "residual")
+#: Widths of the actuator dead zone in the ``drivetrain`` group, as fractions of the device's
+#: break-away level (the larger of its two directions, paper friction).
+DEAD_ZONE_FRACTIONS = (0.25, 0.5, 1.0)
 #: Seeds of the held-out randomised plants of the ``residual`` group: disjoint from training,
 #: whose env copies are seeded ``S + i`` for small ``S`` (``frictiongym train --seed``).
 HELDOUT_SEED = 1000
@@ -39,7 +42,7 @@ class Scenario:
     name : str
         Unique name, e.g. ``paper-rotary-pid``.
     group : str
-        ``paper``, ``mismatch``, ``noise`` or ``friction``.
+        ``paper``, ``mismatch``, ``noise``, ``friction``, ``drivetrain`` or ``residual``.
     env_id : str
     gains : PIDGains
     mode : str or None
@@ -234,6 +237,38 @@ def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]
     ]
 
 
+def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> list[Scenario]:
+    """Return PID and compensated PID with an actuator dead zone in the plant.
+
+    The dead zone's half-width is a fraction of each device's break-away level; the
+    compensator models friction only (it knows nothing of the zone).
+    """
+    out = []
+    for device in DEVICES:
+        breakaway = max(device.paper_friction.breakaway)
+        gains = device.paper_gains
+        variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
+            ("pid", PIDGains(**gains["pid"]), None),
+            ("compensated", PIDGains(**gains["compensated"]), "command"),
+        )
+        for fraction in fractions:
+            width = fraction * breakaway
+            for kind, pid_gains, mode in variants:
+                out.append(
+                    Scenario(
+                        f"drivetrain-{device.kind}-deadzone-x{fraction:g}-{kind}",
+                        "drivetrain",
+                        device.env_id,
+                        pid_gains,
+                        mode=mode,
+                        env_kwargs={"deadzone": width},
+                        description=f"{kind}, dead zone ±{width:g} {device.command_unit} "
+                        f"({fraction:g} x break-away)",
+                    )
+                )
+    return out
+
+
 def residual_scenarios(
     device: str,
     model: str,
@@ -306,4 +341,10 @@ def all_scenarios(quick: bool = False) -> list[Scenario]:
     """Return the default benchmark; ``quick``: the paper's scenarios and a small mismatch grid."""
     if quick:
         return paper_scenarios() + mismatch_scenarios(("command",), (0.5, 1.5))
-    return paper_scenarios() + mismatch_scenarios() + noise_scenarios() + friction_scenarios()
+    return (
+        paper_scenarios()
+        + mismatch_scenarios()
+        + noise_scenarios()
+        + friction_scenarios()
+        + drivetrain_scenarios()
+    )
