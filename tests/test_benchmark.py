@@ -256,15 +256,20 @@ def test_residual_runs_get_their_figures(residual_model, tmp_path):
     assert "rotary_response.png" not in pngs  # the paper's group did not run
 
 
-def test_the_drivetrain_group_puts_a_dead_zone_the_compensator_does_not_know_in_the_plant():
+def test_the_drivetrain_group_puts_a_dead_zone_in_the_plant_and_models_it_or_not():
     scenarios = [s for s in all_scenarios() if s.group == "drivetrain"]
-    assert len(scenarios) == 2 * len(DEAD_ZONE_FRACTIONS) * len(DEVICES)
+    assert len(scenarios) == 3 * len(DEAD_ZONE_FRACTIONS) * len(DEVICES)
     for device in DEVICES:
         breakaway = max(device.paper_friction.breakaway)
         mine = [s for s in scenarios if s.env_id == device.env_id]
         widths = sorted({s.env_kwargs["deadzone"] for s in mine})
         assert widths == [f * breakaway for f in DEAD_ZONE_FRACTIONS]
         assert {s.mode for s in mine} == {None, "command"}
+        for s in mine:  # the compensated-zone runs model the plant's zone, the others none
+            modelled = s.env_kwargs["deadzone"] if s.name.endswith("-zone") else 0.0
+            assert s.dead_zone == modelled
         env = gym.make(device.env_id, **mine[-1].env_kwargs)
         assert env.unwrapped.sim.plant.dead_zone == widths[-1]
-        assert env.unwrapped.sim.model_friction == device.paper_friction  # the model: friction
+        controller = mine[-1].controller(env)
+        assert controller.dead_zone == widths[-1]
+        assert controller.model == device.paper_friction

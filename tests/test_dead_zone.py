@@ -15,6 +15,7 @@ import pytest
 from _plants import DT, ROTARY_B, ROTARY_J, asym, make, run
 from _reference import PID, ReferencePlant
 
+from frictiongym.controllers import FrictionCompensator
 from frictiongym.friction import ROTARY_PAPER, NoFriction
 from frictiongym.plants import Plant, PlantParams
 from frictiongym.plants._kernel import I_DEAD_ZONE, dead_zone
@@ -177,3 +178,32 @@ def test_randomisation_scales_the_dead_zone_and_refuses_one_too_wide():
     assert len(set(widths)) == 64
     with pytest.raises(ValueError, match="lower the upper factor"):
         gym.make(SERVO, deadzone=8.0, randomize={"deadzone": (0.5, 1.5)})
+
+
+@pytest.mark.parametrize("env_id", [SERVO, ALTINO])
+def test_a_compensator_that_models_the_dead_zone_drives_the_plant_as_without_one(env_id):
+    # the zone's inverse, u + d sign(u), then the zone give u back (up to a rounding of
+    # (|u| + d) - d), so the loop runs as the zone-free compensated loop
+    width = max(gym.make(env_id).unwrapped.sim.friction.breakaway)
+    runs = []
+    for zone in (width, 0.0):
+        env = gym.make(env_id, deadzone=zone)
+        controller = FrictionCompensator.for_env(env, dead_zone=zone)
+        obs, _ = env.reset(seed=0)
+        controller.reset()
+        positions = []
+        for _ in range(300):
+            obs, _, terminated, _, info = env.step(controller(obs))
+            positions.append(info["position"])
+            assert not terminated
+        runs.append(np.array(positions))
+    scale = np.max(np.abs(runs[1]))
+    np.testing.assert_allclose(runs[0], runs[1], rtol=0.0, atol=1e-9 * scale)
+    unmodelled = FrictionCompensator.for_env(gym.make(env_id, deadzone=width))
+    assert unmodelled.dead_zone == 0.0  # nothing is assumed about the plant
+
+
+def test_the_compensator_refuses_a_negative_dead_zone():
+    env = gym.make(SERVO)
+    with pytest.raises(ValueError, match="dead_zone"):
+        FrictionCompensator.for_env(env, dead_zone=-0.1)

@@ -43,8 +43,9 @@ paper-altino-pid-ki10, paper-altino-pid-ki20, paper-altino-compensated, and the 
 the nominal model), mismatch (every compensator variant with its model's friction levels
 x0.5, x0.8, x1, x1.2, x1.5), noise (sensor noise off, on over several seeds, and an ideal
 sensor without quantisation), friction (each friction law in the plant), drivetrain (an
-actuator dead zone of 0.25, 0.5 and 1 times the break-away level, which the compensator does
-not model). The default run takes well under 2 minutes on 2 cores.
+actuator dead zone of 0.25, 0.5 and 1 times the break-away level, with the compensator
+modelling friction only, or the zone too). The default run takes well under 2 minutes on 2
+cores.
 
 --residual DEVICE=MODEL (a model.zip of `frictiongym train`, DEVICE its device's kind) adds
 the group residual: the compensated PID and the residual controller on the paper's step, on

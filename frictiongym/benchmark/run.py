@@ -48,7 +48,7 @@ class Result:
             "env_kwargs": dict(s.env_kwargs),
             "controller": s.controller_name,
             "gains": {"kp": s.gains.kp, "ki": s.gains.ki, "kd": s.gains.kd},
-            "compensator": None if s.mode is None else {"mode": s.mode, "scale": s.scale},
+            "compensator": None if s.mode is None else s.compensator_record(),
             "seed": self.seed,
             "terminated": self.terminated,
             "metrics": {k: _finite(v) for k, v in self.metrics.as_dict().items()},

@@ -59,6 +59,8 @@ class Scenario:
         Path of a residual model (``frictiongym train``'s ``model.zip``): the controller is
         :class:`~frictiongym.controllers.ResidualController` on the base it was trained with,
         and ``gains`` and ``mode`` only describe that base.
+    dead_zone : float
+        The actuator dead zone the compensator models (its ``dead_zone=``; 0: none).
     """
 
     name: str
@@ -71,6 +73,7 @@ class Scenario:
     seeds: tuple[int, ...] = (0,)
     description: str = ""
     residual: str | None = None
+    dead_zone: float = 0.0
 
     @property
     def controller_name(self) -> str:
@@ -96,7 +99,12 @@ class Scenario:
         pid = PID.for_env(env, self.gains)
         if self.mode is None:
             return pid
-        return FrictionCompensator(pid, mode=self.mode, scale=self.scale)
+        return FrictionCompensator(pid, mode=self.mode, scale=self.scale, dead_zone=self.dead_zone)
+
+    def compensator_record(self) -> dict[str, Any]:
+        """Return the compensator's settings as ``results.json`` records them."""
+        zone = {"dead_zone": self.dead_zone} if self.dead_zone else {}
+        return {"mode": self.mode, "scale": self.scale, **zone}
 
 
 def paper_scenarios() -> list[Scenario]:
@@ -240,20 +248,22 @@ def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]
 def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> list[Scenario]:
     """Return PID and compensated PID with an actuator dead zone in the plant.
 
-    The dead zone's half-width is a fraction of each device's break-away level; the
-    compensator models friction only (it knows nothing of the zone).
+    The dead zone's half-width is a fraction of each device's break-away level. The
+    compensator models friction only (``compensated``), or friction and the zone
+    (``compensated-zone``: it sends the zone's inverse).
     """
     out = []
     for device in DEVICES:
         breakaway = max(device.paper_friction.breakaway)
         gains = device.paper_gains
-        variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
-            ("pid", PIDGains(**gains["pid"]), None),
-            ("compensated", PIDGains(**gains["compensated"]), "command"),
+        variants: tuple[tuple[str, PIDGains, Mode | None, bool], ...] = (
+            ("pid", PIDGains(**gains["pid"]), None, False),
+            ("compensated", PIDGains(**gains["compensated"]), "command", False),
+            ("compensated-zone", PIDGains(**gains["compensated"]), "command", True),
         )
         for fraction in fractions:
             width = fraction * breakaway
-            for kind, pid_gains, mode in variants:
+            for kind, pid_gains, mode, modelled in variants:
                 out.append(
                     Scenario(
                         f"drivetrain-{device.kind}-deadzone-x{fraction:g}-{kind}",
@@ -264,6 +274,7 @@ def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> 
                         env_kwargs={"deadzone": width},
                         description=f"{kind}, dead zone ±{width:g} {device.command_unit} "
                         f"({fraction:g} x break-away)",
+                        dead_zone=width if modelled else 0.0,
                     )
                 )
     return out

@@ -68,6 +68,10 @@ class FrictionCompensator(Controller):
     scale : float, default 1.0
         Model mismatch in level: every break-away and Coulomb level of ``model`` is
         multiplied by it (1.2: friction over-estimated by 20 %).
+    dead_zone : float, default 0.0
+        The modelled half-width ``d`` of an actuator dead zone, command units (the env's
+        ``deadzone=``): the compensated command ``u`` is sent as ``u + d sign(u)``, the dead
+        zone's inverse (Tao and Kokotovic 1996), so that the plant is driven by ``u``. 0: none.
     """
 
     def __init__(
@@ -79,6 +83,7 @@ class FrictionCompensator(Controller):
         rest_speed: float | None = None,
         smoothing: float | None = None,
         scale: float = 1.0,
+        dead_zone: float = 0.0,
     ) -> None:
         spec = base.spec
         if spec.velocity is None:
@@ -110,6 +115,7 @@ class FrictionCompensator(Controller):
         self.rest_speed = rest
         self.smoothing = smooth
         self.scale = float(scale)
+        self.dead_zone = real_number("dead_zone", dead_zone, ">= 0")
 
     @classmethod
     def for_env(  # its base, not a LoopSpec, follows the env
@@ -153,8 +159,12 @@ class FrictionCompensator(Controller):
 
     def command(self, observation: FloatArray) -> FloatArray:  # noqa: D102
         u = self.base.command(observation)
-        return np.asarray(u + self.compensation(observation, u), dtype=np.float64)
+        compensated = np.asarray(u + self.compensation(observation, u), dtype=np.float64)
+        if self.dead_zone:  # the zone's inverse: the plant is then driven by `compensated`
+            compensated = compensated + self.dead_zone * np.sign(compensated)
+        return compensated
 
     def __repr__(self) -> str:
         mismatch = f", scale={self.scale:g}" if self.scale != 1.0 else ""
-        return f"FrictionCompensator({self.base!r}, mode={self.mode!r}{mismatch})"
+        zone = f", dead_zone={self.dead_zone:g}" if self.dead_zone else ""
+        return f"FrictionCompensator({self.base!r}, mode={self.mode!r}{mismatch}{zone})"
