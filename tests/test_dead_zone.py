@@ -17,6 +17,7 @@ from _reference import PID, ReferencePlant
 
 from frictiongym.controllers import FrictionCompensator
 from frictiongym.friction import ROTARY_PAPER, NoFriction
+from frictiongym.identification.identify import identify, make_env
 from frictiongym.plants import Plant, PlantParams
 from frictiongym.plants._kernel import I_DEAD_ZONE, dead_zone
 
@@ -207,3 +208,18 @@ def test_the_compensator_refuses_a_negative_dead_zone():
     env = gym.make(SERVO)
     with pytest.raises(ValueError, match="dead_zone"):
         FrictionCompensator.for_env(env, dead_zone=-0.1)
+
+
+def test_identify_sees_a_dead_zone_as_friction_levels_raised_by_its_width():
+    # ramps and constant levels drive in the direction of motion: there the zone's shift and
+    # friction add, so every level grows by the zone's width; J, B and the decay speeds do not
+    width = 0.105
+    fitted = [
+        identify(make_env(SERVO, deadzone=zone), seed=0, laws=("paper",)).fits["paper"].values
+        for zone in (0.0, width)
+    ]
+    plain, zoned = fitted
+    for key in ("us_pos", "us_neg", "uc_pos", "uc_neg"):
+        assert zoned[key] - plain[key] == pytest.approx(width, abs=2e-3)
+    for key in ("v0_pos", "v0_neg", "viscous"):
+        assert zoned[key] == pytest.approx(plain[key], rel=1e-2)
