@@ -273,7 +273,8 @@ def describe(setup: Setup) -> str:
     return (
         f"mass {p.inertia:g} units·s²/cm, damping {p.damping:g} + viscous "
         f"{getattr(setup.friction, 'viscous', 0.0):g} units/(cm/s), lag {p.lag:g} s, dead time "
-        f"{p.dead_time:g} s, limit ±{p.command_limit:g}, dt {setup.dt:g} s, "
+        f"{p.dead_time:g} s, dead zone ±{p.dead_zone:g}, limit ±{p.command_limit:g}, "
+        f"dt {setup.dt:g} s, "
         f"{setup.start_cm:g} → {ALTINO_TARGET_CM:g} cm in {setup.duration:g} s, friction "
         f"{_friction_label(setup.friction)}, derivative on {setup.derivative}"
     )
@@ -394,7 +395,8 @@ def box(base: Setup) -> None:
     plants = list(itertools.product(BOX_MASSES, BOX_LAGS, BOX_DEAD_PERIODS, BOX_DTS))
     print(
         f"\nBox sweep ({len(plants)} plant points per start: mass {BOX_MASSES}, lag {BOX_LAGS} "
-        f"s, dead time {BOX_DEAD_PERIODS} periods, dt {BOX_DTS} s;\nfriction "
+        f"s, dead time {BOX_DEAD_PERIODS} periods, dt {BOX_DTS} s, dead zone "
+        f"±{base.plant.dead_zone:g};\nfriction "
         f"{_friction_label(base.friction)}, derivative on {base.derivative}, {base.duration:g} s)"
     )
     print(
@@ -481,6 +483,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="dead time, s, whole periods (default: one period)",
     )
     parser.add_argument(
+        "--dead-zone",
+        type=float,
+        default=p.dead_zone,
+        help=f"half-width of the motor's dead zone, motor units ({p.dead_zone:g}; the "
+        "compensator does not model it)",
+    )
+    parser.add_argument(
         "--start",
         type=float,
         default=ALTINO_START_CM,
@@ -532,7 +541,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     dead_time = args.dt if args.dead_time is None else args.dead_time
     try:
         plant = dataclasses.replace(
-            ALTINO_PLANT, inertia=args.mass, lag=args.lag, dead_time=dead_time
+            ALTINO_PLANT,
+            inertia=args.mass,
+            lag=args.lag,
+            dead_time=dead_time,
+            dead_zone=args.dead_zone,
         )
         plant.delay_steps(args.dt)
     except ValueError as err:
