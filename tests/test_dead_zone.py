@@ -223,3 +223,13 @@ def test_identify_sees_a_dead_zone_as_friction_levels_raised_by_its_width():
         assert zoned[key] - plain[key] == pytest.approx(width, abs=2e-3)
     for key in ("v0_pos", "v0_neg", "viscous"):
         assert zoned[key] == pytest.approx(plain[key], rel=1e-2)
+
+
+def test_a_device_refuses_a_simulated_dead_zone():
+    with pytest.raises(ValueError, match="deadzone"):
+        gym.make(SERVO, backend="emulator://rotary", log=False, deadzone=0.5)
+
+
+def test_randomising_a_dead_zone_the_plant_does_not_have_is_refused():
+    with pytest.raises(ValueError, match="give the env deadzone"):
+        gym.make(SERVO, randomize={"deadzone": (0.5, 1.5)})

@@ -258,3 +258,28 @@ def test_what_a_review_found_odd_now_answers_as_sync_does():
         }
     )
     assert obs[1, 1] == pytest.approx(12.0, abs=0.1)
+
+
+@pytest.mark.parametrize(
+    "kwargs", [{"reference": "random_steps"}, RANDOM_KWARGS], ids=["reference", "randomize"]
+)
+def test_a_refused_action_after_an_episode_end_spends_none_of_the_resets_draws(kwargs):
+    envs = [native(SERVO, AutoresetMode.NEXT_STEP, **kwargs) for _ in range(2)]
+    action = np.full((NUM_ENVS, 1), 0.3, np.float32)
+    for env in envs:
+        env.reset(seed=1)
+        for _ in range(MAX_STEPS):  # every env is truncated: the next step resets them
+            env.step(action)
+    bad = action.copy()
+    bad[2] = np.nan
+    with pytest.raises(ValueError, match="not a finite number"):
+        envs[0].step(bad)
+    assert_same(envs[0].step(action), envs[1].step(action))
+
+
+def test_a_single_env_resets_after_a_refused_action():
+    env = gym.make(SERVO)
+    first = env.reset(seed=0)
+    with pytest.raises(ValueError, match="finite"):
+        env.step(np.array([np.nan], np.float32))
+    assert_same(env.reset(seed=0), first)

@@ -171,6 +171,7 @@ class FrictionEnv(gym.Env[ObsArray, ActArray]):
         """Start an episode at rest (or as ``options`` say); see the class docstring."""
         super().reset(seed=seed)
         self._fresh[0] = True
+        self._command[0] = 0.0  # not a refused action's NaN: a reset sends no command
         self.sim.prepare_reset(self._fresh, lambda _: self.np_random, options)
         self.sim.run(self._command, self._fresh, self._obs, self._out, self._flags)
         self._fresh[0] = False

@@ -196,6 +196,13 @@ class Simulation:
         if horizon is None:  # the episode's length, where the env knows it (the vector env)
             horizon = max_episode_steps or device.episode_steps
         self._bound_reward(terminal_cost, horizon)
+        #: Whether a reset draws from the envs' generators (randomised factors, a random
+        #: reference, the seed of the sensor noise): a refused step must not have drawn.
+        self.resets_draw: bool = (
+            self.randomize is not None
+            or self.reference.random
+            or env_kernel.setting(self.config, "noise") > 0.0
+        )
         self.plants = self._new_plants(parallel)
         self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
         # A random reference is sampled per env at reset; the zero row only fills the argument.
@@ -437,6 +444,12 @@ class Simulation:
                 raise ValueError(_bad_action(command, bad))
 
         return step
+
+    def check_commands(self, command: npt.NDArray[np.floating[Any]]) -> None:
+        """Raise the ValueError :meth:`run` would raise for a non-finite command, now."""
+        finite = np.isfinite(command)
+        if not finite.all():
+            raise ValueError(_bad_action(command, int(np.argmin(finite))))
 
     def observations(self) -> npt.NDArray[np.float32]:
         """Return every env's last observation again, rebuilt from what its state keeps."""

@@ -46,6 +46,7 @@ SIM_ONLY = {
     "randomize": "domain randomisation is for training in simulation",
     "sensor_noise": "the device's sensor has its own noise",
     "delay": "the device's dead time is what it is",
+    "deadzone": "the device's actuator has the dead zone it has",
     "parallel": "a device is one env",
 }
 

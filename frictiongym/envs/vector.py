@@ -253,6 +253,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 )
             if mode is AutoresetMode.NEXT_STEP:
                 fresh = self._done
+                if self.sim.resets_draw:  # a refused action must not spend the reset's draws
+                    self.sim.check_commands(command)
                 self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
         ended = self.sim.run(command, fresh, obs, out, flags)

@@ -36,8 +36,9 @@ class DomainRandomization:
         Factor on the sensor: the encoder's scale (a calibration error) for the servo, the IR
         reflectivity for the Altino.
     deadzone : (float, float), optional
-        Factor on the actuator's dead zone (the env's ``deadzone=``; nothing to scale without
-        one). Drawn last, so adding it leaves the other draws of a seed as they were.
+        Factor on the actuator's dead zone (the env's ``deadzone=``, which must be set). Drawn
+        after the other factors, which a seed therefore draws as before; a random reference
+        and the noise seed, drawn after every factor, change.
 
     Examples
     --------
@@ -88,7 +89,12 @@ class DomainRandomization:
         )
 
     def check(self, plant: PlantParams) -> None:
-        """Raise a ValueError if a draw could widen ``plant``'s dead zone to its command limit."""
+        """Refuse a dead-zone range: for a plant without a zone, or reaching its command limit."""
+        if self.deadzone is not None and plant.dead_zone == 0.0:
+            raise ValueError(
+                f"randomize deadzone={self.deadzone!r} scales the actuator's dead zone, and this "
+                "plant has none: give the env deadzone=... too (its nominal half-width)"
+            )
         if self.deadzone is not None and plant.dead_zone * self.deadzone[1] >= plant.command_limit:
             raise ValueError(
                 f"randomize deadzone={self.deadzone!r} can widen the dead zone "
