@@ -122,8 +122,7 @@ class Simulation:
     **settings
         The env's arguments, as the env classes document them (``friction``, ``dt``,
         ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``deadzone``, ``randomize``,
-        ``plant``,
-        ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
+        ``plant``, ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
         :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
         (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
     """
