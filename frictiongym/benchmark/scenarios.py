@@ -253,23 +253,23 @@ def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> 
     (``compensated-zone``: it sends the zone's inverse).
     """
     out = []
-    for device in DEVICES:
+    for device_kind, env_id, pid_gains, comp_gains in _devices():
+        device = devices.get(env_id)
         breakaway = max(device.paper_friction.breakaway)
-        gains = device.paper_gains
         variants: tuple[tuple[str, PIDGains, Mode | None, bool], ...] = (
-            ("pid", PIDGains(**gains["pid"]), None, False),
-            ("compensated", PIDGains(**gains["compensated"]), "command", False),
-            ("compensated-zone", PIDGains(**gains["compensated"]), "command", True),
+            ("pid", pid_gains, None, False),
+            ("compensated", comp_gains, "command", False),
+            ("compensated-zone", comp_gains, "command", True),
         )
         for fraction in fractions:
             width = fraction * breakaway
-            for kind, pid_gains, mode, modelled in variants:
+            for kind, gains, mode, modelled in variants:
                 out.append(
                     Scenario(
-                        f"drivetrain-{device.kind}-deadzone-x{fraction:g}-{kind}",
+                        f"drivetrain-{device_kind}-deadzone-x{fraction:g}-{kind}",
                         "drivetrain",
-                        device.env_id,
-                        pid_gains,
+                        env_id,
+                        gains,
                         mode=mode,
                         env_kwargs={"deadzone": width},
                         description=f"{kind}, dead zone ±{width:g} {device.command_unit} "

@@ -369,7 +369,7 @@ class Simulation:
             options = {}
         x0, v0 = self.start_state(options, int(np.count_nonzero(mask)) if options else 1)
         noisy = env_kernel.setting(self.config, "noise") > 0.0
-        draws = self.randomize is not None or reference.random or noisy
+        draws = self.resets_draw or reference.random  # an option's reference may be random
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
         if not draws and reference is not self.reference:
             ref_row = reference.sample()
