@@ -34,18 +34,21 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.friction import _core as friction_core
+from frictiongym.plants._backlash import step_backlash
 from frictiongym.plants._kernel import (
     _MAX_SEGMENTS,
     F0,
     I_B,
     I_DEAD_ZONE,
+    I_GAP,
     I_J,
     I_LAG,
+    I_LOAD_FRICTION,
+    I_LOAD_INERTIA,
     I_STOP,
     I_UMAX,
     K0,
     LOG_SERIES_LIMIT,
-    ROW_SIZE,
     S_COMMAND,
     S_FRICTION,
     S_LAG,
@@ -75,7 +78,7 @@ BLOCK = 256
 LANES_MIN = 16
 #: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
 PENDING = 2.0
-if ROW_SIZE != 26:  # slide_lanes unpacks the plant row by hand
+if I_GAP != 26:  # slide_lanes unpacks the plant row up to the backlash by hand
     raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
 
 
@@ -127,6 +130,10 @@ def advance_plant(
     )
     x0, v0 = state[S_X, i], state[S_V, i]
     z, y = state[S_Z, i], state[S_LAG, i]
+    if params[r, I_GAP] > 0.0:
+        drivetrain = (params[r, I_GAP], params[r, I_LOAD_INERTIA], params[r, I_LOAD_FRICTION])
+        step_backlash(i, state, u, h, n_sub, plant, friction, cache, drivetrain)
+        return
     if n_sub == 1 and plant[I_LAG] == 0.0 and has_exact_step(friction):
         # The exact law's step without advance's substep loop (a call of advance costs more
         # than most steps): one phase, and the rest phase by phase only if that one ended at
@@ -651,6 +658,7 @@ def step_plants(
         and one_row
         and not (one_command and state.shape[1] > 1)
         and params[0, I_LAG] == 0.0
+        and params[0, I_GAP] == 0.0
         and has_exact_step(params[0, F0:K0])
     )
     if lanes:
@@ -720,7 +728,7 @@ def step_batch(
         Control period.
     n_sub : int
         Substeps per control period.
-    params : ndarray, shape (N, ROW_SIZE) or (1, ROW_SIZE)
+    params : ndarray, shape (N, ROW_SIZE) or (1, ROW_SIZE), ``ROW_SIZE`` of :mod:`._kernel`
         Plant rows (broadcast if one row).
 
     Returns

@@ -69,7 +69,11 @@ F0 = 6  #: offset of the friction row inside a plant row
 #: accuracy; :func:`prime_rows` fills it.
 K0 = F0 + friction_core.ROW_SIZE
 CACHE_SLOPES = 3
-ROW_SIZE = K0 + 3 * CACHE_SLOPES
+#: Backlash between motor and load, after the cache (a field the fast passes never read):
+I_GAP = K0 + 3 * CACHE_SLOPES  #: half the play, position units (0: a rigid drivetrain)
+I_LOAD_INERTIA = I_GAP + 1  #: the load's share of J (the motor has the rest)
+I_LOAD_FRICTION = I_GAP + 2  #: the load's share of the friction law and of B
+ROW_SIZE = I_GAP + 3
 if friction_core.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
     raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
 
@@ -81,7 +85,9 @@ S_LAG = 3  #: actuator-lag output
 S_FRICTION = 4  #: friction force averaged over the last step (nonlinear + viscous part of the law)
 S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
-STATE_SIZE = 7
+S_GAP = 7  #: backlash: the motor's offset from the middle of the play (0.0 without backlash)
+S_MOTOR_V = 8  #: backlash: the motor's velocity (equal to S_V while engaged)
+STATE_SIZE = 9
 #: The state columns by what they hold, for the plant's named accessors.
 COLUMNS = {
     "position": S_X,
@@ -91,14 +97,22 @@ COLUMNS = {
     "friction_force": S_FRICTION,
     "command": S_COMMAND,
     "stuck": S_STUCK,
+    "gap": S_GAP,
+    "motor_velocity": S_MOTOR_V,
 }
 
 
 def pack_row(
-    plant: tuple[float, ...], friction: npt.NDArray[np.float64]
+    plant: tuple[float, ...],
+    friction: npt.NDArray[np.float64],
+    backlash: tuple[float, float, float] = (0.0, 1.0, 1.0),
 ) -> npt.NDArray[np.float64]:
-    """Return a plant row: ``(J, B, u_max, lag, end stop, dead zone)``, friction row, cache."""
-    return np.concatenate((plant, friction, np.full(ROW_SIZE - K0, np.nan)))
+    """Return a plant row.
+
+    The row holds ``(J, B, u_max, lag, end stop, dead zone)``, the friction row, the coefficient
+    cache, then ``backlash``: ``(half play, load's share of J, load's share of friction and B)``.
+    """
+    return np.concatenate((plant, friction, np.full(I_GAP - K0, np.nan), backlash))
 
 
 def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -128,7 +142,7 @@ def scale_row(
     scaled[I_J] *= inertia
     scaled[[I_B, F0 + friction_core.I_VISCOUS]] *= damping
     scaled[I_DEAD_ZONE] *= dead_zone
-    scaled[K0:] = np.nan  # the cache no longer matches (prime_rows refills it)
+    scaled[K0:I_GAP] = np.nan  # the cache no longer matches (prime_rows refills it)
     return scaled
 
 
@@ -197,6 +211,7 @@ def reset_plant(
     state[S_X, i] = position
     state[S_V, i] = velocity
     state[S_STUCK, i] = 1.0 if velocity == 0.0 else 0.0
+    state[S_MOTOR_V, i] = velocity  # in the middle of any play, moving with the load
     for slot in range(delay_buffer.shape[0]):
         delay_buffer[slot, i] = 0.0
 
@@ -655,6 +670,18 @@ def lugre_substep(
 
 
 @njit(cache=True, inline="always")
+def lagged(u: float, y: float, hs: float, lag: float) -> tuple[float, float]:
+    """Return the force of a substep ``hs`` under ``u`` through the actuator lag, and its output.
+
+    The force is the lag output's exact average over the substep (``u`` itself without a lag).
+    """
+    if lag > 0.0:
+        em1 = math.expm1(-hs / lag)
+        return u - (y - u) * em1 * lag / hs, u + (y - u) * (1.0 + em1)
+    return u, y
+
+
+@njit(cache=True, inline="always")
 def has_exact_step(friction: Row | npt.NDArray[np.float64]) -> bool:
     """Whether the law has the event-exact step: static, with a ``step`` or ``linear`` decay."""
     return friction[friction_core.I_LAW] == friction_core.LAW_STATIC and (
@@ -710,11 +737,7 @@ def advance(
     # not impulse / h, which can be off by one ulp (the test oracle F_f = u of docs/physics.md).
     held = law == friction_core.LAW_STATIC and lag == 0.0
     for _ in range(n_sub):
-        force = u
-        if lag > 0.0:  # hold the lag output at its exact average over the substep
-            em1 = math.expm1(-hs / lag)
-            force = u - (y - u) * em1 * lag / hs
-            y = u + (y - u) * (1.0 + em1)
+        force, y = lagged(u, y, hs, lag)
         if v != 0.0 or breakaway_direction(force, friction) != 0.0:
             held = False
         if exact:

@@ -53,6 +53,18 @@ class PlantParams:
         Half-width of the actuator's dead zone, command units: a command (after saturation
         and dead time) of magnitude up to it drives nothing, a larger one drives
         ``u - dead_zone * sign(u)`` (:func:`~frictiongym.plants._kernel.dead_zone`). 0: none.
+    backlash : float, default 0.0
+        Free play between the motor and the load, position units (the full width: the motor
+        turns this far between the faces without moving the load). 0: a rigid drivetrain.
+        With play the plant is two bodies (:mod:`frictiongym.plants._backlash`, docs/physics.md);
+        the load is what the position and velocity report. It needs a law with the exact step
+        (a static law with a ``step`` or ``linear`` decay).
+    load_inertia : float, default 0.5
+        The load's share of ``inertia`` (the motor has the rest), in (0, 1). Used only with
+        backlash; 0.5 has no source: take it from the drivetrain (the envs set their devices').
+    load_friction : float, default 0.5
+        The load's share of the friction law's levels and viscous slope and of ``damping``
+        (the motor has the rest), in [0, 1]. Used only with backlash; 0.5 has no source either.
     """
 
     inertia: float
@@ -62,11 +74,35 @@ class PlantParams:
     dead_time: float = 0.0
     end_stop: float = math.inf
     dead_zone: float = 0.0
+    backlash: float = 0.0
+    load_inertia: float = 0.5
+    load_friction: float = 0.5
 
     def __post_init__(self) -> None:
-        check_finite(self, "inertia", "damping", "command_limit", "lag", "dead_time", "dead_zone")
+        check_finite(
+            self,
+            "inertia",
+            "damping",
+            "command_limit",
+            "lag",
+            "dead_time",
+            "dead_zone",
+            "backlash",
+            "load_inertia",
+            "load_friction",
+        )
         check_positive(self, "inertia", "command_limit")
-        check_nonnegative(self, "damping", "lag", "dead_time", "dead_zone")
+        check_nonnegative(self, "damping", "lag", "dead_time", "dead_zone", "backlash")
+        if not 0.0 < self.load_inertia < 1.0:
+            raise ValueError(
+                f"PlantParams.load_inertia={self.load_inertia!r} is the load's share of the "
+                "inertia: give a fraction strictly between 0 and 1 (both bodies have mass)"
+            )
+        if not 0.0 <= self.load_friction <= 1.0:
+            raise ValueError(
+                f"PlantParams.load_friction={self.load_friction!r} is the load's share of the "
+                "friction and damping: give a fraction from 0 to 1"
+            )
         if not (isinstance(self.end_stop, numbers.Real) and not math.isnan(self.end_stop)):
             raise ValueError(
                 f"PlantParams.end_stop must be a position or inf (no stop), got {self.end_stop!r}"
@@ -99,7 +135,14 @@ def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
         params.end_stop,
         params.dead_zone,
     )
-    return plant_kernel.pack_row(plant, friction.row())
+    if params.backlash > 0.0 and not friction.exact:
+        raise ValueError(
+            f"backlash={params.backlash!r} needs a friction law with the event-exact step (a "
+            f"static law with a 'step' or 'linear' decay, or none), got {friction!r}; use such a "
+            "law or no backlash"
+        )
+    drivetrain = (params.backlash / 2.0, params.load_inertia, params.load_friction)
+    return plant_kernel.pack_row(plant, friction.row(), drivetrain)
 
 
 def default_substeps(
@@ -176,7 +219,7 @@ class Plant:
 
     Notes
     -----
-    The state lives in one ``(7 + task_columns, N)`` float64 array (:attr:`state`, one row per
+    The state lives in one ``(9 + task_columns, N)`` float64 array (:attr:`state`, one row per
     quantity, its index in :mod:`frictiongym.plants._kernel`); the properties below are views
     into it.
     """
