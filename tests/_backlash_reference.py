@@ -13,9 +13,12 @@ viscous slope and of the damping ``B``; the motor carries ``1 - phi``. The load'
 Each control period is integrated with :func:`scipy.integrate.solve_ivp` (DOP853) one smooth
 piece at a time, restarting at terminal events:
 
-* FREE (state ``x_L, v_L, d, v_m``): each sliding body's stop (``v = 0``) and decay edge
-  (``|v| = v0``), and the contacts ``d = +g`` (rising) and ``d = -g`` (falling). A body at rest
-  stays at rest for the whole piece, since its input is constant (the load's is 0).
+* FREE (state ``x_L, v_L``, gap change ``e = d - d_start``, relative speed ``w = v_m - v_L``):
+  each sliding body's stop (``v = 0``) and decay edge (``|v| = v0``), and the contacts
+  ``d = +g`` (rising) and ``d = -g`` (falling). A body at rest stays at rest for the whole
+  piece, since its input is constant (the load's is 0). A piece that starts on the face the
+  bodies just left watches that face through ``e / (t - t_start)^3``, which has no root at the
+  start, so a return to the face within the integrator's first step is still located.
 * ENGAGED ``sigma`` (state ``x_L, v``, ``d = sigma g``): the pair as one body with the total
   law; events stop, edge and the contact force ``sigma F`` falling through 0 (separation).
 
@@ -26,6 +29,7 @@ a rigid pair: always ENGAGED, never separating, the one-body band at rest.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -113,14 +117,16 @@ class _Body:
         us, uc, v0 = self.law.side(s)
         return self.bt - ((us - uc) / v0 if inner else 0.0)
 
-    def events(self, index: int, s: float, inner: bool) -> list[tuple[Callable, str]]:
-        """Stop and decay-edge events of the velocity ``y[index]`` on the branch."""
+    def events(
+        self, vel: Callable[[np.ndarray], float], s: float, inner: bool
+    ) -> list[tuple[Callable, str]]:
+        """Stop and decay-edge events of the velocity ``vel(y)`` on the branch."""
         out: list[tuple[Callable, str]] = []
         law = self.law
         if inner or not law.decays(s):
 
             def stop(t: float, y: np.ndarray) -> float:
-                return y[index]
+                return vel(y)
 
             stop.terminal = True  # type: ignore[attr-defined]
             stop.direction = -s  # type: ignore[attr-defined]
@@ -129,12 +135,22 @@ class _Body:
             v0 = law.side(s)[2]
 
             def edge(t: float, y: np.ndarray) -> float:
-                return s * y[index] - v0
+                return s * vel(y) - v0
 
             edge.terminal = True  # type: ignore[attr-defined]
             edge.direction = 1.0 if inner else -1.0  # type: ignore[attr-defined]
             out.append((edge, "edge"))
         return out
+
+
+def _second(y: np.ndarray) -> float:
+    """The velocity of a one-body state and the load's of a FREE state."""
+    return y[1]
+
+
+def _motor_v(y: np.ndarray) -> float:
+    """The motor's velocity ``v_L + w`` of a FREE state."""
+    return y[1] + y[3]
 
 
 def _scaled(law: Law, share: float) -> Law:
@@ -187,6 +203,15 @@ class BacklashReference:
         Half-width of the actuator's dead zone, applied after the saturation.
     rtol, atol, max_step : float
         Integrator settings (``max_step`` defaults to ``dt / 4``).
+
+    Attributes
+    ----------
+    Jm, JL : float
+        Motor and load inertias.
+    events : list of (float, str)
+        Terminal events of the last :meth:`run`, in order: ``"stop"``/``"edge"``/``"sep"``
+        (ENGAGED), ``"load-stop"``, ``"motor-edge"``, ... and ``"contact+"``/``"contact-"``
+        (FREE).
     """
 
     def __init__(
@@ -206,7 +231,9 @@ class BacklashReference:
     ) -> None:
         self.J = float(inertia)
         self.B = float(damping)
-        self.law = law if isinstance(law, Law) else Law.of(law)
+        if type(law).__name__ == "Law":  # also a Law imported under another module name
+            law = Law(*(getattr(law, f.name) for f in dataclasses.fields(Law)))
+        self.law = Law.of(law) if not isinstance(law, Law) else law
         if self.law.shape not in SHAPES:
             raise ValueError(
                 f"the backlash reference supports the shapes {SHAPES}, not {self.law.shape!r}"
@@ -309,7 +336,7 @@ class BacklashReference:
         def rhs(_t: float, y: np.ndarray) -> list[float]:
             return [y[1], (u - pair.resist(y[1], s, inner)) / pair.mass]
 
-        evs = pair.events(1, s, inner)
+        evs = pair.events(_second, s, inner)
         acc0 = (u - pair.resist(st.v, s, inner)) / pair.mass
         # F is affine in v on a branch and v is monotone there: the force can only cross 0 if
         # both its slope and the acceleration are nonzero (skip an identically zero F).
@@ -354,42 +381,59 @@ class BacklashReference:
         if br_m is None and br_l is None:  # both held for the rest of the period
             return t1
         motor, load = self.motor, self.load
+        # y = [x_L, v_L, e, w]: the gap as e = d - d_ref from its start and the relative speed
+        # w = v_m - v_L, both starting at 0.0 so that a piece leaving a face resolves the
+        # first tiny separation exactly (on d itself it would round back onto the face and
+        # re-trigger the contact).
+        d_ref = st.d
 
         def rhs(_t: float, y: np.ndarray) -> list[float]:
-            # y = [x_L, v_L, d, v_m]; a body at rest has zero velocity and acceleration
+            # a body at rest has zero velocity and acceleration all piece
             a_l = 0.0 if br_l is None else -load.resist(y[1], *br_l) / load.mass
-            a_m = 0.0 if br_m is None else (u - motor.resist(y[3], *br_m)) / motor.mass
-            return [y[1], a_l, y[3] - y[1], a_m]
+            a_m = 0.0 if br_m is None else (u - motor.resist(y[1] + y[3], *br_m)) / motor.mass
+            return [y[1], a_l, y[3], a_m - a_l]
 
         evs: list[tuple[Callable, str]] = []
         if br_l is not None:
-            evs += [(e, f"load-{k}") for e, k in load.events(1, *br_l)]
+            evs += [(e, f"load-{k}") for e, k in load.events(_second, *br_l)]
         if br_m is not None:
-            evs += [(e, f"motor-{k}") for e, k in motor.events(3, *br_m)]
+            evs += [(e, f"motor-{k}") for e, k in motor.events(_motor_v, *br_m)]
 
-        # contacts only from inside: the directions keep a piece that starts on a face while
-        # the bodies separate from re-triggering at its start
-        def hit_pos(_t: float, y: np.ndarray) -> float:
-            return y[2] - g
+        # Contacts only from inside (the event directions). A piece that starts on a face (the
+        # bodies just separated) has e = 0 there: its contact function is e / (t - t_start)^3,
+        # negative from the start whether the gap opens at first, second or third order, so
+        # that the start is no root and a quick return to the face is still located (e
+        # itself would have a root at the start and hide the return in the same step).
+        t_start = t
 
-        def hit_neg(_t: float, y: np.ndarray) -> float:
-            return y[2] + g
+        def on_face(tt: float, e: float) -> float:
+            return -1.0 if tt == t_start else e / (tt - t_start) ** 3
+
+        def hit_pos(tt: float, y: np.ndarray) -> float:
+            return on_face(tt, y[2]) if d_ref == g else y[2] - (g - d_ref)
+
+        def hit_neg(tt: float, y: np.ndarray) -> float:
+            return -on_face(tt, -y[2]) if d_ref == -g else y[2] + (g + d_ref)
 
         hit_pos.terminal = hit_neg.terminal = True  # type: ignore[attr-defined]
         hit_pos.direction, hit_neg.direction = 1.0, -1.0  # type: ignore[attr-defined]
         evs += [(hit_pos, "contact+"), (hit_neg, "contact-")]
-        sol = self._solve(rhs, t, t1, [st.x, st.v, st.d, st.vm], [e for e, _ in evs])
+        y0 = [st.x, st.v, 0.0, st.vm - st.v]
+        sol = self._solve(rhs, t, t1, y0, [e for e, _ in evs])
         first = self._first_event(sol)
         if first is None:
-            st.x, st.v, st.d, st.vm = (float(a) for a in sol.y[:, -1])
-            return t1
-        i, te, ye = first
-        st.x, st.v, st.d, st.vm = (float(a) for a in ye)
-        kind = evs[i][1]
+            t_end, y, kind = t1, sol.y[:, -1], "end"
+        else:
+            t_end, y, kind = first[1], first[2], evs[first[0]][1]
+        st.x, st.v = float(y[0]), float(y[1])
+        st.d, st.vm = d_ref + float(y[2]), float(y[1] + y[3])
+        st.d = min(max(st.d, -g), g)  # rounding of d_ref + e only: events keep it inside
         if br_l is None:
             st.v = 0.0
         if br_m is None:
             st.vm = 0.0
+        if kind == "end":
+            return t1
         if kind == "load-stop":
             st.v = 0.0
         elif kind == "load-edge":
@@ -401,9 +445,9 @@ class BacklashReference:
             assert br_m is not None
             st.vm = br_m[0] * motor.law.side(br_m[0])[2]
         else:
-            self._engage(te, st, 1.0 if kind == "contact+" else -1.0)
-        self.events.append((te, kind))
-        return te
+            self._engage(t_end, st, 1.0 if kind == "contact+" else -1.0)
+        self.events.append((t_end, kind))
+        return t_end
 
     # -- one control period -----------------------------------------------------------------
     def period(self, t0: float, st: _State, u: float) -> None:
@@ -497,9 +541,15 @@ class BacklashReference:
             self.period(t, st, u)
             # momentum balance (impacts conserve momentum): friction impulse of both bodies
             dxm, dx = st.x + st.d - xm, st.x - x
-            fr[k] = u - (
-                self.B * ((1.0 - w) * dxm + w * dx) + self.Jm * (st.vm - vm) + self.JL * (st.v - v)
-            ) / self.dt
+            fr[k] = (
+                u
+                - (
+                    self.B * ((1.0 - w) * dxm + w * dx)
+                    + self.Jm * (st.vm - vm)
+                    + self.JL * (st.v - v)
+                )
+                / self.dt
+            )
             us[k] = u
             xs[k + 1], vs[k + 1], ds[k + 1], vms[k + 1] = st.x, st.v, st.d, st.vm
             engaged[k + 1] = st.engaged

@@ -470,17 +470,27 @@ class Plant:
 
     @property
     def position(self) -> FloatArray:
-        """Positions, shape (N,)."""
+        """Positions, shape (N,); the load's, with backlash."""
         return self._column("position")
 
     @property
     def velocity(self) -> FloatArray:
-        """Velocities, shape (N,); exactly 0.0 while stuck."""
+        """Velocities, shape (N,); exactly 0.0 while stuck; the load's, with backlash."""
         return self._column("velocity")
 
     @property
+    def gap(self) -> FloatArray:
+        """With backlash, the motor's offset from the middle of the play, in ``±backlash / 2``."""
+        return self._column("gap")
+
+    @property
+    def motor_velocity(self) -> FloatArray:
+        """With backlash, the motor's velocity (the load's while the pair is engaged)."""
+        return self._column("motor_velocity")
+
+    @property
     def stuck(self) -> npt.NDArray[np.bool_]:
-        """Whether each plant ended the last step stuck."""
+        """Whether each plant ended the last step stuck (with backlash: both bodies at rest)."""
         return self._column("stuck") != 0.0
 
     @property
