@@ -464,12 +464,14 @@ def device_physics(
     params: str | os.PathLike[str] | DeviceParams | None = None,
     delay: float | None = None,
     deadzone: float | None = None,
+    backlash: float | None = None,
 ) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
     """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
 
     ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"`` (the default law,
     which the file's replaces); ``delay`` defaults to the device's dead time in whole periods of
-    ``dt``, ``deadzone`` to the plant's dead zone (none in the presets). Returns the file (or
+    ``dt``, ``deadzone`` to the plant's dead zone and ``backlash`` to its play (none in the
+    presets). Returns the file (or
     None), the plant's law (without the viscous slope a file puts in ``B``), the law a
     compensator models by default (the file's, else the paper preset) and the plant.
     """
@@ -511,6 +513,13 @@ def device_physics(
                 f"deadzone={deadzone!r} {unit} leaves no command that drives the plant: it must "
                 f"be below the command limit, {nominal.command_limit:g} {unit}"
             )
+    play = nominal.backlash if backlash is None else real_number("backlash", backlash, ">= 0")
+    if play > 0.0 and not friction.exact:
+        raise ValueError(
+            f"backlash={play!r} {device.position_unit} needs a friction law with the event-exact "
+            f"step ('paper', 'coulomb', 'none', or a static law with a 'step' or 'linear' "
+            f"decay), got {friction!r}"
+        )
     model = device.paper_friction if loaded is None else loaded.friction
-    plant = replace(nominal, dead_time=dead_time, end_stop=end_stop, dead_zone=width)
+    plant = replace(nominal, dead_time=dead_time, end_stop=end_stop, dead_zone=width, backlash=play)
     return loaded, friction, model, plant

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from _backlash_reference import BacklashReference
@@ -25,6 +26,7 @@ from frictiongym.friction import (
     StictionCoulomb,
 )
 from frictiongym.plants import Plant, PlantParams
+from frictiongym.plants._kernel import I_GAP, I_LOAD_FRICTION, I_LOAD_INERTIA
 
 
 def pair(
@@ -146,8 +148,6 @@ def test_energy_is_never_created():
     plant = pair(law(), width, damping=0.2, num_plants=8)
     shares = rng.uniform(0.1, 0.9, (2, 8))
     plant.own_rows()
-    from frictiongym.plants._kernel import I_LOAD_FRICTION, I_LOAD_INERTIA
-
     plant.rows[:, I_LOAD_INERTIA], plant.rows[:, I_LOAD_FRICTION] = shares
     commands = np.cumsum(rng.normal(0.0, 0.2, (n, 8)), axis=0)
     psi = shares[0]
@@ -311,3 +311,75 @@ def test_a_pair_that_separates_inside_a_step_matches_the_reference_solver():
     assert got["gap"][-1] < width / 2  # the motor left the face
     for name in ("x", "v", "gap", "motor_v"):
         np.testing.assert_allclose(got[name], getattr(want, name), rtol=0.0, atol=1e-12)
+
+
+# == the envs' backlash= argument ===========================================================
+SERVO, ALTINO = "frictiongym/RotaryServo-v1", "frictiongym/AltinoDistance-v1"
+
+
+@pytest.mark.parametrize(("env_id", "width"), [(SERVO, 0.05), (ALTINO, 2.0)])  # steps to cross
+def test_the_envs_take_a_play_the_motor_crosses_before_the_load_moves(env_id, width):
+    env = gym.make(env_id, backlash=width, delay=0.0)
+    sim = env.unwrapped.sim
+    assert sim.plant.backlash == width
+    push = np.array([1.5 * max(sim.friction.breakaway)], np.float32)
+    env.reset(seed=0)
+    plants = sim.plants
+    start, crossing = plants.position[0], 0
+    while plants.gap[0] < width / 2:  # the motor crosses the play: the load stays put
+        info = env.step(push)[4]
+        crossing += 1
+        assert crossing < 50
+        if plants.gap[0] < width / 2:
+            assert plants.position[0] == start
+            assert info["velocity"] == 0.0
+    assert crossing >= 2
+    for _ in range(5):
+        env.step(push)
+    assert plants.gap[0] == width / 2  # engaged, pushing the load
+    assert plants.velocity[0] > 0.0
+
+
+@pytest.mark.parametrize("env_id", [SERVO, ALTINO])
+def test_a_vector_env_with_random_play_steps_the_same_serial_and_threaded(env_id):
+    runs = []
+    for parallel in (False, True):
+        env = gym.make_vec(
+            env_id,
+            num_envs=300,
+            vectorization_mode="vector_entry_point",
+            backlash=0.02 if env_id == SERVO else 0.3,
+            randomize={"backlash": (0.5, 1.5), "friction": (0.8, 1.2)},
+            parallel=parallel,
+        )
+        env.reset(seed=4)
+        rng = np.random.default_rng(0)
+        limit = env.single_action_space.high
+        observations = [
+            env.step(rng.uniform(-limit, limit, (300, 1)).astype(np.float32))[0] for _ in range(60)
+        ]
+        plays = env.unwrapped.sim.plants.rows[:, I_GAP]
+        assert len(set(plays)) == 300
+        runs.append((np.array(observations), env.unwrapped.sim.plants.state.copy()))
+    np.testing.assert_array_equal(runs[0][0], runs[1][0])
+    np.testing.assert_array_equal(runs[0][1], runs[1][1])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"backlash": -0.1}, "backlash must be >= 0"),
+        ({"backlash": math.nan}, "backlash"),
+        ({"backlash": 0.1, "friction": "lugre"}, "event-exact"),
+        ({"backlash": 0.1, "friction": "stribeck"}, "event-exact"),
+        ({"randomize": {"backlash": (0.5, 1.5)}}, "give the env backlash"),
+    ],
+)
+def test_a_bad_backlash_argument_gets_a_message_that_names_it(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        gym.make(SERVO, **kwargs)
+
+
+def test_a_device_refuses_a_simulated_play():
+    with pytest.raises(ValueError, match="backlash"):
+        gym.make(SERVO, backend="emulator://rotary", log=False, backlash=0.05)

@@ -121,7 +121,8 @@ class Simulation:
         Batch size.
     **settings
         The env's arguments, as the env classes document them (``friction``, ``dt``,
-        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``deadzone``, ``randomize``,
+        ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``deadzone``, ``backlash``,
+        ``randomize``,
         ``plant``, ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
         :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
         (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
@@ -162,6 +163,7 @@ class Simulation:
         quantize: bool = True,
         delay: float | None = None,
         deadzone: float | None = None,
+        backlash: float | None = None,
         randomize: Mapping[str, Any] | DomainRandomization | None = None,
         plant: PlantParams | None = None,
         params: str | os.PathLike[str] | DeviceParams | None = None,
@@ -178,7 +180,9 @@ class Simulation:
         self.device = device
         self.num_envs = int(num_envs)
         self.dt = device.dt if dt is None else real_number("dt", dt, "> 0")
-        physics = device_physics(device, self.dt, friction, plant, params, delay, deadzone)
+        physics = device_physics(
+            device, self.dt, friction, plant, params, delay, deadzone, backlash
+        )
         self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
         self.randomize = DomainRandomization.from_spec(randomize)

@@ -47,6 +47,7 @@ SIM_ONLY = {
     "sensor_noise": "the device's sensor has its own noise",
     "delay": "the device's dead time is what it is",
     "deadzone": "the device's actuator has the dead zone it has",
+    "backlash": "the device's drivetrain has the play it has",
     "parallel": "a device is one env",
 }
 

@@ -81,9 +81,13 @@ class RotaryServoEnv(FrictionEnv):
     * ``delay``: actuator dead time, s, whole periods (default 0);
     * ``deadzone``: half-width of the amplifier's dead zone, V: a command up to it in
       magnitude drives nothing, a larger one drives ``u - deadzone sign(u)`` (default 0: none);
+    * ``backlash``: free play between the motor and the disc, rad (default 0: none, as on the
+      QUBE, whose disc sits on the shaft): the motor turns this far between the faces without
+      moving the disc, which then carries 0.8 of ``J`` and no friction (``plant=`` sets other
+      shares); the position and velocity are the disc's (docs/physics.md, "Backlash");
     * ``randomize``: factor ranges drawn at each reset, e.g. ``{"friction": (0.5, 1.5),
       "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``
-      (``"deadzone"`` scales the ``deadzone`` given);
+      (``"deadzone"`` and ``"backlash"`` scale the ``deadzone`` and ``backlash`` given);
     * ``plant``: a :class:`~frictiongym.plants.PlantParams` replacing the nominal plant;
     * ``params``: identified parameters, the path of a ``friction.json`` (or its directory) or
       a :class:`~frictiongym.params.DeviceParams`: the plant gets the file's ``J`` and total

@@ -126,8 +126,9 @@ def scale_row(
     inertia: float,
     damping: float,
     dead_zone: float = 1.0,
+    backlash: float = 1.0,
 ) -> npt.NDArray[np.float64]:
-    """Return a plant row with friction levels, inertia, damping (B, viscous), dead zone scaled."""
+    """Return a plant row with its friction levels, J, damping (B, viscous), zone, play scaled."""
     scaled = row.copy()
     levels = [
         F0 + i
@@ -142,6 +143,7 @@ def scale_row(
     scaled[I_J] *= inertia
     scaled[[I_B, F0 + friction_core.I_VISCOUS]] *= damping
     scaled[I_DEAD_ZONE] *= dead_zone
+    scaled[I_GAP] *= backlash
     scaled[K0:I_GAP] = np.nan  # the cache no longer matches (prime_rows refills it)
     return scaled
 

@@ -14,7 +14,13 @@ from frictiongym.plants.plant import PlantParams
 #: Paper Eq. (2) and §3.1: J_e = 7.143e-3 V·s², B_e = 0.0446 V·s (first-order identification,
 #: load disk included; B_e contains the viscous slope 0.0411 V/(rad/s) of Fig. 8(b)).
 #: ±10 V: the QUBE-Servo 2 amplifier's command range (Quanser's QUBE-Servo 2 user manual).
-ROTARY_PLANT = PlantParams(inertia=7.143e-3, damping=0.0446, command_limit=10.0)
+#: Backlash (none by default: the disc sits on the motor shaft by a magnet, no gearbox): with
+#: ``backlash=`` the load is the disc, 0.80 of J (disc 0.5 m r^2 = 0.5 x 0.053 kg x (0.0248 m)^2
+#: = 1.63e-5 kg·m², rotor 4.0e-6 kg·m²: the QUBE-Servo 2 user manual's parameter table), and it
+#: carries no friction (the motor's brushes and bearings hold it all; assumed, docs/physics.md).
+ROTARY_PLANT = PlantParams(
+    inertia=7.143e-3, damping=0.0446, command_limit=10.0, load_inertia=0.8, load_friction=0.0
+)
 
 #: 500 Hz, Quanser's usual QUBE-Servo 2 rate (its QUARC models, e.g. ``q_qube2_swingup``, use
 #: Ts = 2 ms).
@@ -44,7 +50,18 @@ ROTARY_PAPER_GAINS = {"kp": 7.8, "ki": 1.5, "kd": 0.275}
 #:   period; the mechanical lag is the mass itself.
 #: * ``dead_time`` 0.05 s = one control period: Bluetooth SPP latency (tens of ms) plus the 10 ms
 #:   the on-board library waits per frame (the vendor's ``Altino.h``).
-ALTINO_PLANT = PlantParams(inertia=2.2, damping=0.0, command_limit=1000.0, lag=0.0, dead_time=0.05)
+#: * ``load_inertia`` 0.8 and ``load_friction`` 0.5, used only with ``backlash=`` (a gear train's
+#:   play, cm of travel): the car's mass against the rotor's reflected inertia, and rolling
+#:   resistance against the gearbox's friction. Assumed, see docs/altino-model.md.
+ALTINO_PLANT = PlantParams(
+    inertia=2.2,
+    damping=0.0,
+    command_limit=1000.0,
+    lag=0.0,
+    dead_time=0.05,
+    load_inertia=0.8,
+    load_friction=0.5,
+)
 
 #: 20 Hz: one drive command and one sensor poll per period fit the Altino's serial protocol with
 #: its 10 ms per-frame delay, which makes 10–50 Hz the realistic range. Assumed, see

@@ -39,6 +39,9 @@ class DomainRandomization:
         Factor on the actuator's dead zone (the env's ``deadzone=``, which must be set). Drawn
         after the other factors, which a seed therefore draws as before; a random reference
         and the noise seed, drawn after every factor, change.
+    backlash : (float, float), optional
+        Factor on the play between motor and load (the env's ``backlash=``, which must be
+        set). Drawn last of the factors, with the same consequence for later draws.
 
     Examples
     --------
@@ -50,6 +53,7 @@ class DomainRandomization:
     damping: Range | None = None
     sensor_gain: Range | None = None
     deadzone: Range | None = None
+    backlash: Range | None = None
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -89,7 +93,12 @@ class DomainRandomization:
         )
 
     def check(self, plant: PlantParams) -> None:
-        """Refuse a dead-zone range: for a plant without a zone, or reaching its command limit."""
+        """Refuse a range that scales what the plant lacks, or a zone up to the command limit."""
+        if self.backlash is not None and plant.backlash == 0.0:
+            raise ValueError(
+                f"randomize backlash={self.backlash!r} scales the play between motor and load, "
+                "and this plant has none: give the env backlash=... too (its nominal width)"
+            )
         if self.deadzone is not None and plant.dead_zone == 0.0:
             raise ValueError(
                 f"randomize deadzone={self.deadzone!r} scales the actuator's dead zone, and this "
@@ -120,5 +129,6 @@ class DomainRandomization:
 
 def apply_factors(plant_row: FloatArray, factors: Mapping[str, float]) -> tuple[FloatArray, float]:
     """Scaled copy of a plant row, and the sensor-gain factor."""
-    scales = (factors.get(name, 1.0) for name in ("friction", "inertia", "damping", "deadzone"))
+    names = ("friction", "inertia", "damping", "deadzone", "backlash")
+    scales = (factors.get(name, 1.0) for name in names)
     return plant_kernel.scale_row(plant_row, *scales), factors.get("sensor_gain", 1.0)
