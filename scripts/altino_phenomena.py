@@ -270,10 +270,16 @@ def print_table(setup: Setup, runs: dict[str, Rollout]) -> None:
 def describe(setup: Setup) -> str:
     """One line naming the model a table was computed with."""
     p = setup.plant
+    play = (
+        f"play {p.backlash:g} cm (car {p.load_inertia:g} of the mass, {p.load_friction:g} of the "
+        "friction), "
+        if p.backlash
+        else ""
+    )
     return (
         f"mass {p.inertia:g} units·s²/cm, damping {p.damping:g} + viscous "
         f"{getattr(setup.friction, 'viscous', 0.0):g} units/(cm/s), lag {p.lag:g} s, dead time "
-        f"{p.dead_time:g} s, dead zone ±{p.dead_zone:g}, limit ±{p.command_limit:g}, "
+        f"{p.dead_time:g} s, dead zone ±{p.dead_zone:g}, limit ±{p.command_limit:g}, {play}"
         f"dt {setup.dt:g} s, "
         f"{setup.start_cm:g} → {ALTINO_TARGET_CM:g} cm in {setup.duration:g} s, friction "
         f"{_friction_label(setup.friction)}, derivative on {setup.derivative}"
@@ -490,6 +496,24 @@ def build_parser() -> argparse.ArgumentParser:
         "compensator does not model it)",
     )
     parser.add_argument(
+        "--backlash",
+        type=float,
+        default=p.backlash,
+        help=f"play between motor and car as car travel, cm ({p.backlash:g}: none)",
+    )
+    parser.add_argument(
+        "--load-inertia",
+        type=float,
+        default=p.load_inertia,
+        help=f"the car's share of the mass, with --backlash ({p.load_inertia:g})",
+    )
+    parser.add_argument(
+        "--load-friction",
+        type=float,
+        default=p.load_friction,
+        help=f"the car's share of the friction, with --backlash ({p.load_friction:g})",
+    )
+    parser.add_argument(
         "--start",
         type=float,
         default=ALTINO_START_CM,
@@ -546,6 +570,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             lag=args.lag,
             dead_time=dead_time,
             dead_zone=args.dead_zone,
+            backlash=args.backlash,
+            load_inertia=args.load_inertia,
+            load_friction=args.load_friction,
         )
         plant.delay_steps(args.dt)
     except ValueError as err:

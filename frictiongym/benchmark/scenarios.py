@@ -7,6 +7,7 @@ that differ only in their seed run side by side in one vector env.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,6 +27,15 @@ GROUPS = ("paper", "mismatch", "noise", "friction", "drivetrain", "residual")
 #: Widths of the actuator dead zone in the ``drivetrain`` group, as fractions of the device's
 #: break-away level (the larger of its two directions, paper friction).
 DEAD_ZONE_FRACTIONS = (0.25, 0.5, 1.0)
+#: Plays between motor and load in the ``drivetrain`` group, in each device's position units.
+#: Servo: 0.5, 1 and 2 degrees of the disc, from a good small gearbox to a worn hobby servo's
+#: output (the QUBE itself has none: its disc sits on the motor shaft). Altino: 0.05, 0.1 and
+#: 0.2 cm of car travel, 1 to 5 degrees of wheel play on a wheel of about 2.5 cm radius. Both
+#: assumed, not measured (docs/results.md).
+BACKLASH_WIDTHS = {  # device: (label, width in its position unit)
+    "rotary": tuple((f"{degrees:g}deg", math.radians(degrees)) for degrees in (0.5, 1.0, 2.0)),
+    "altino": tuple((f"{cm:g}cm", cm) for cm in (0.05, 0.1, 0.2)),
+}
 #: Seeds of the held-out randomised plants of the ``residual`` group: disjoint from training,
 #: whose env copies are seeded ``S + i`` for small ``S`` (``frictiongym train --seed``).
 HELDOUT_SEED = 1000
@@ -246,12 +256,41 @@ def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]
 
 
 def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> list[Scenario]:
-    """Return PID and compensated PID with an actuator dead zone in the plant.
+    """Return PID and compensated PID with an actuator dead zone, then a play, in the plant.
 
     The dead zone's half-width is a fraction of each device's break-away level. The
     compensator models friction only (``compensated``), or friction and the zone
-    (``compensated-zone``: it sends the zone's inverse).
+    (``compensated-zone``: it sends the zone's inverse). The plays are
+    :data:`BACKLASH_WIDTHS`; the compensator models friction only.
     """
+    return _dead_zone_scenarios(fractions) + _backlash_scenarios()
+
+
+def _backlash_scenarios() -> list[Scenario]:
+    out = []
+    for device_kind, env_id, pid_gains, comp_gains in _devices():
+        unit = devices.get(env_id).position_unit
+        for label, width in BACKLASH_WIDTHS[device_kind]:
+            for kind, gains, mode in (
+                ("pid", pid_gains, None),
+                ("compensated", comp_gains, "command"),
+            ):
+                out.append(
+                    Scenario(
+                        f"drivetrain-{device_kind}-backlash-{label}-{kind}",
+                        "drivetrain",
+                        env_id,
+                        gains,
+                        mode=mode,
+                        env_kwargs={"backlash": width},
+                        description=f"{kind}, play of {width:.3g} {unit} ({label}) between "
+                        "motor and load",
+                    )
+                )
+    return out
+
+
+def _dead_zone_scenarios(fractions: tuple[float, ...]) -> list[Scenario]:
     out = []
     for device_kind, env_id, pid_gains, comp_gains in _devices():
         device = devices.get(env_id)
