@@ -465,13 +465,14 @@ def device_physics(
     delay: float | None = None,
     deadzone: float | None = None,
     backlash: float | None = None,
+    jitter: float | None = None,
 ) -> tuple[DeviceParams | None, FrictionModel, FrictionModel, PlantParams]:
     """Resolve the physics settings of a simulated ``device`` (an env's or the emulator's).
 
     ``params`` excludes ``plant`` and a ``friction`` other than ``"paper"`` (the default law,
     which the file's replaces); ``delay`` defaults to the device's dead time in whole periods of
-    ``dt``, ``deadzone`` to the plant's dead zone and ``backlash`` to its play (none in the
-    presets). Returns the file (or
+    ``dt``, ``deadzone``, ``backlash`` and ``jitter`` to the plant's dead zone, play and
+    latency jitter (none in the presets). Returns the file (or
     None), the plant's law (without the viscous slope a file puts in ``B``), the law a
     compensator models by default (the file's, else the paper preset) and the plant.
     """
@@ -520,6 +521,19 @@ def device_physics(
             f"step ('paper', 'coulomb', 'none', or a static law with a 'step' or 'linear' "
             f"decay), got {friction!r}"
         )
+    late = nominal.jitter if jitter is None else real_number("jitter", jitter, ">= 0")
+    if late >= dt:
+        raise ValueError(
+            f"jitter={late!r} s reaches the control period dt={dt:g} s; use a jitter below it "
+            "(a whole period more latency is delay=)"
+        )
     model = device.paper_friction if loaded is None else loaded.friction
-    plant = replace(nominal, dead_time=dead_time, end_stop=end_stop, dead_zone=width, backlash=play)
+    plant = replace(
+        nominal,
+        dead_time=dead_time,
+        end_stop=end_stop,
+        dead_zone=width,
+        backlash=play,
+        jitter=late,
+    )
     return loaded, friction, model, plant

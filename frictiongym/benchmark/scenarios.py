@@ -270,11 +270,12 @@ def _backlash_scenarios() -> list[Scenario]:
     out = []
     for device_kind, env_id, pid_gains, comp_gains in _devices():
         unit = devices.get(env_id).position_unit
+        variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
+            ("pid", pid_gains, None),
+            ("compensated", comp_gains, "command"),
+        )
         for label, width in BACKLASH_WIDTHS[device_kind]:
-            for kind, gains, mode in (
-                ("pid", pid_gains, None),
-                ("compensated", comp_gains, "command"),
-            ):
+            for kind, gains, mode in variants:
                 out.append(
                     Scenario(
                         f"drivetrain-{device_kind}-backlash-{label}-{kind}",

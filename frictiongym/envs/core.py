@@ -122,7 +122,7 @@ class Simulation:
     **settings
         The env's arguments, as the env classes document them (``friction``, ``dt``,
         ``reference``, ``sensor_noise``, ``quantize``, ``delay``, ``deadzone``, ``backlash``,
-        ``randomize``,
+        ``jitter``, ``randomize``,
         ``plant``, ``params``, ``effort_weight``, ``safety_limit``, ``limit_penalty``; see
         :class:`~frictiongym.envs.RotaryServoEnv`), and the vector env's ``max_episode_steps``
         (None: the single env's ``TimeLimit`` ends episodes) and ``parallel``.
@@ -164,6 +164,7 @@ class Simulation:
         delay: float | None = None,
         deadzone: float | None = None,
         backlash: float | None = None,
+        jitter: float | None = None,
         randomize: Mapping[str, Any] | DomainRandomization | None = None,
         plant: PlantParams | None = None,
         params: str | os.PathLike[str] | DeviceParams | None = None,
@@ -181,7 +182,7 @@ class Simulation:
         self.num_envs = int(num_envs)
         self.dt = device.dt if dt is None else real_number("dt", dt, "> 0")
         physics = device_physics(
-            device, self.dt, friction, plant, params, delay, deadzone, backlash
+            device, self.dt, friction, plant, params, delay, deadzone, backlash, jitter
         )
         self.params, self.friction, self.model_friction, self.plant = physics
         self.reference = resolve_reference(reference, device.references)
@@ -205,6 +206,7 @@ class Simulation:
             self.randomize is not None
             or self.reference.random
             or env_kernel.setting(self.config, "noise") > 0.0
+            or self.plant.jitter > 0.0
         )
         self.plants = self._new_plants(parallel)
         self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
@@ -350,8 +352,9 @@ class Simulation:
         """Reset the envs of ``mask``; the next :meth:`run` with ``fresh=mask`` observes them.
 
         Each env draws, from its own generator and in this order: the randomised factors,
-        the reference (if random) and the seed of its sensor noise (if noisy). Envs that draw
-        nothing are reset in one compiled call (an autoreset costs a few µs).
+        the reference (if random), the seed of its sensor noise (if noisy) and the seed of its
+        drive's jitter (if any). Envs that draw nothing are reset in one compiled call (an
+        autoreset costs a few µs).
         """
         plants = self.plants
         if not options and self._rows_default:  # an autoreset: the rows hold what it would set
@@ -377,6 +380,7 @@ class Simulation:
         ref_row = self._default_reference_row  # set by reset_envs only when nothing is drawn
         if not draws and reference is not self.reference:
             ref_row = reference.sample()
+        jittery, jitter_seeds = self.plant.jitter > 0.0, []
         if draws:
             for j in np.flatnonzero(mask):
                 rng = rng_of(int(j))
@@ -387,6 +391,8 @@ class Simulation:
                 env_kernel.set_episode(self.rows, int(j), gain, reference.sample(rng))
                 if noisy:
                     self.noise_state[j] = rng.integers(2**64, dtype=np.uint64)
+                if jittery:
+                    jitter_seeds.append(rng.integers(2**52))
             if self.randomize is not None:
                 self.plants.prime_rows(mask)
         # Every env's task rows are the default ones after a reset of all to the default; any
@@ -405,6 +411,8 @@ class Simulation:
             ref_row,
             not draws,
         )
+        if jittery:  # after the reset, which zeroes the plant's state
+            plants.seed_jitter(np.array(jitter_seeds, dtype=np.float64), mask)
 
     def run(
         self,

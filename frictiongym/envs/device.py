@@ -48,6 +48,7 @@ SIM_ONLY = {
     "delay": "the device's dead time is what it is",
     "deadzone": "the device's actuator has the dead zone it has",
     "backlash": "the device's drivetrain has the play it has",
+    "jitter": "the device's loop has the timing it has",
     "parallel": "a device is one env",
 }
 

@@ -61,6 +61,22 @@ _NO_CACHE = (math.nan,) * 9
 _BRACKET = 4e-16
 
 
+@njit(cache=True)
+def _phase(
+    x: float,
+    v: float,
+    u: float,
+    t_left: float,
+    j: float,
+    b_total: float,
+    p: Row,
+    stop: float,
+    cache: Row,
+) -> tuple[float, float, float, float]:
+    """:func:`exact_phase`, compiled once for this module's six calls (not inlined in each)."""
+    return exact_phase(x, v, u, t_left, j, b_total, p, stop, cache)
+
+
 @njit(cache=True, inline="always")
 def side_row(p: Row, share: float) -> Row:
     """Return the friction row of one side: its levels and viscous slope times ``share``."""
@@ -213,8 +229,8 @@ def free_phase(
     """
     jm, bm, jl, bl = sides
     inf = math.inf
-    dxm, vm1, dt_m, imp_m = exact_phase(0.0, vm, u, t_left, jm, bm, pm, inf, _NO_CACHE)
-    xl, vl, dt_l, imp_l = exact_phase(x, v, 0.0, t_left, jl, bl, pl, stop, _NO_CACHE)
+    dxm, vm1, dt_m, imp_m = _phase(0.0, vm, u, t_left, jm, bm, pm, inf, _NO_CACHE)
+    xl, vl, dt_l, imp_l = _phase(x, v, 0.0, t_left, jl, bl, pl, stop, _NO_CACHE)
     dt = min(dt_m, dt_l)
     am, bbm = body_law(0.0, vm, u, bm, pm, inf)
     al, bbl = body_law(x, v, 0.0, bl, pl, stop)
@@ -222,9 +238,9 @@ def free_phase(
     if tau <= dt:
         dt = tau
     if dt_m != dt:
-        dxm, vm1, _, imp_m = exact_phase(0.0, vm, u, dt, jm, bm, pm, inf, _NO_CACHE)
+        dxm, vm1, _, imp_m = _phase(0.0, vm, u, dt, jm, bm, pm, inf, _NO_CACHE)
     if dt_l != dt:
-        xl, vl, _, imp_l = exact_phase(x, v, 0.0, dt, jl, bl, pl, stop, _NO_CACHE)
+        xl, vl, _, imp_l = _phase(x, v, 0.0, dt, jl, bl, pl, stop, _NO_CACHE)
     impulse = imp_m + imp_l
     if sigma == 0.0:
         return xl, vl, d + (dxm - (xl - x)), vm1, dt, impulse, False
@@ -263,9 +279,9 @@ def engaged_phase(
         if s != sigma or held_at_stop(x, s, stop):
             if breakaway_direction(u, pm) == -sigma:
                 return x, v, 0.0, 0.0, False  # the motor leaves the face; the load stays
-            x1, v1, dt, imp = exact_phase(x, v, u, t_left, j, b_total, p, stop, cache)
+            x1, v1, dt, imp = _phase(x, v, u, t_left, j, b_total, p, stop, cache)
             return x1, v1, dt, imp, True  # held
-    x1, v1, dt, imp = exact_phase(x, v, u, t_left, j, b_total, p, stop, cache)
+    x1, v1, dt, imp = _phase(x, v, u, t_left, j, b_total, p, stop, cache)
     if not check:
         return x1, v1, dt, imp, True
     s = sigma if v == 0.0 else (1.0 if v > 0.0 else -1.0)

@@ -42,6 +42,7 @@ from frictiongym.plants._kernel import (
     I_DEAD_ZONE,
     I_GAP,
     I_J,
+    I_JITTER,
     I_LAG,
     I_LOAD_FRICTION,
     I_LOAD_INERTIA,
@@ -50,7 +51,9 @@ from frictiongym.plants._kernel import (
     K0,
     LOG_SERIES_LIMIT,
     S_COMMAND,
+    S_DRIVE,
     S_FRICTION,
+    S_JITTER_RNG,
     S_LAG,
     S_STUCK,
     S_V,
@@ -64,6 +67,7 @@ from frictiongym.plants._kernel import (
     exact_phase,
     exact_static,
     has_exact_step,
+    jitter_draw,
     phase_impulse,
     phi12_given,
     serial_njit,
@@ -102,6 +106,64 @@ def advance_plant(
     one_row: bool,
 ) -> None:
     """Step plant ``i`` under the command ``u`` due now (saturated, after the dead time)."""
+    if params[0 if one_row else i, I_JITTER] > 0.0:
+        jittered_step(i, state, u, h, n_sub, params, one_row)
+    else:
+        _advance(i, state, u, h, n_sub, params, one_row)
+
+
+@njit(cache=True)
+def jittered_step(
+    i: int,
+    state: npt.NDArray[np.float64],
+    u: float,
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    one_row: bool,
+) -> None:
+    """:func:`advance_plant` with a random latency: the last drive holds, then ``u`` takes over.
+
+    The switch comes at ``jitter`` times a uniform draw after the step's start; the reported
+    friction is the time average over both parts.
+    """
+    rng, draw = jitter_draw(state[S_JITTER_RNG, i])
+    state[S_JITTER_RNG, i] = rng
+    late = params[0 if one_row else i, I_JITTER] * draw
+    friction = 0.0
+    if late > 0.0:
+        _advance_for(i, state, state[S_DRIVE, i], late, n_sub, params, one_row)
+        friction = state[S_FRICTION, i] * late
+    _advance_for(i, state, u, h - late, n_sub, params, one_row)
+    state[S_FRICTION, i] = (friction + state[S_FRICTION, i] * (h - late)) / h
+    state[S_DRIVE, i] = u
+
+
+@njit(cache=True)
+def _advance_for(
+    i: int,
+    state: npt.NDArray[np.float64],
+    u: float,
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    one_row: bool,
+) -> None:
+    """:func:`_advance`, compiled once for the jittered step's two calls."""
+    _advance(i, state, u, h, n_sub, params, one_row)
+
+
+@njit(cache=True, inline="always")
+def _advance(
+    i: int,
+    state: npt.NDArray[np.float64],
+    u: float,
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    one_row: bool,
+) -> None:
+    """:func:`advance_plant` without the jitter: over ``h``, all under ``u``."""
     r = 0 if one_row else i
     plant = (params[r, I_J], params[r, I_B], params[r, I_UMAX], params[r, I_LAG], params[r, I_STOP])
     friction = (
@@ -659,6 +721,7 @@ def step_plants(
         and not (one_command and state.shape[1] > 1)
         and params[0, I_LAG] == 0.0
         and params[0, I_GAP] == 0.0
+        and params[0, I_JITTER] == 0.0
         and has_exact_step(params[0, F0:K0])
     )
     if lanes:

@@ -73,7 +73,8 @@ CACHE_SLOPES = 3
 I_GAP = K0 + 3 * CACHE_SLOPES  #: half the play, position units (0: a rigid drivetrain)
 I_LOAD_INERTIA = I_GAP + 1  #: the load's share of J (the motor has the rest)
 I_LOAD_FRICTION = I_GAP + 2  #: the load's share of the friction law and of B
-ROW_SIZE = I_GAP + 3
+I_JITTER = I_GAP + 3  #: the largest extra latency of a new drive, s (0: none)
+ROW_SIZE = I_GAP + 4
 if friction_core.ROW_SIZE != 11:  # step_batch unpacks the friction row by hand
     raise ImportError("frictiongym.plants._kernel.step_batch must unpack every friction field")
 
@@ -87,7 +88,9 @@ S_COMMAND = 5  #: last command after saturation
 S_STUCK = 6  #: 1.0 if the body ended the last step stuck
 S_GAP = 7  #: backlash: the motor's offset from the middle of the play (0.0 without backlash)
 S_MOTOR_V = 8  #: backlash: the motor's velocity (equal to S_V while engaged)
-STATE_SIZE = 9
+S_DRIVE = 9  #: jitter: the drive in effect at the end of the last step
+S_JITTER_RNG = 10  #: jitter: the generator's state, a 52-bit integer held exactly
+STATE_SIZE = 11
 #: The state columns by what they hold, for the plant's named accessors.
 COLUMNS = {
     "position": S_X,
@@ -99,6 +102,8 @@ COLUMNS = {
     "stuck": S_STUCK,
     "gap": S_GAP,
     "motor_velocity": S_MOTOR_V,
+    "drive": S_DRIVE,
+    "jitter_rng": S_JITTER_RNG,
 }
 
 
@@ -106,13 +111,16 @@ def pack_row(
     plant: tuple[float, ...],
     friction: npt.NDArray[np.float64],
     backlash: tuple[float, float, float] = (0.0, 1.0, 1.0),
+    jitter: float = 0.0,
 ) -> npt.NDArray[np.float64]:
     """Return a plant row.
 
     The row holds ``(J, B, u_max, lag, end stop, dead zone)``, the friction row, the coefficient
-    cache, then ``backlash``: ``(half play, load's share of J, load's share of friction and B)``.
+    cache, then ``backlash``: ``(half play, load's share of J, load's share of friction and B)``
+    and the ``jitter`` of the drive's latency.
     """
-    return np.concatenate((plant, friction, np.full(I_GAP - K0, np.nan), backlash))
+    cache = np.full(I_GAP - K0, np.nan)
+    return np.concatenate((plant, friction, cache, backlash, (jitter,)))
 
 
 def end_stops(rows: npt.NDArray[np.float64]) -> npt.NDArray[np.float64]:
@@ -216,6 +224,27 @@ def reset_plant(
     state[S_MOTOR_V, i] = velocity  # in the middle of any play, moving with the load
     for slot in range(delay_buffer.shape[0]):
         delay_buffer[slot, i] = 0.0
+
+
+# The jitter's generator: a linear congruential state modulo 2^52 (full period: the multiplier
+# is 1 mod 4, the increment odd; the constants of Knuth's MMIX), held exactly in a float64 state
+# column and read through the splitmix64 finaliser (Steele, Lea and Flood, OOPSLA 2014), which
+# hides the low bits' short periods and decorrelates neighbouring seeds.
+_LCG_MULTIPLIER = np.uint64(6364136223846793005)
+_LCG_INCREMENT = np.uint64(1442695040888963407)
+_MASK52 = np.uint64((1 << 52) - 1)
+_MIX1 = np.uint64(0xBF58476D1CE4E5B9)
+_MIX2 = np.uint64(0x94D049BB133111EB)
+
+
+@njit(cache=True, inline="always")
+def jitter_draw(state: float) -> tuple[float, float]:
+    """Advance the generator state ``state``; return the new state and a draw in ``[0, 1)``."""
+    s = (np.uint64(state) * _LCG_MULTIPLIER + _LCG_INCREMENT) & _MASK52
+    z = (s ^ (s >> np.uint64(30))) * _MIX1
+    z = (z ^ (z >> np.uint64(27))) * _MIX2
+    z = z ^ (z >> np.uint64(31))
+    return float(s), float(z >> np.uint64(11)) * 2.0**-53
 
 
 @njit(cache=True, inline="always")

@@ -65,6 +65,11 @@ class PlantParams:
     load_friction : float, default 0.5
         The load's share of the friction law's levels and viscous slope and of ``damping``
         (the motor has the rest), in [0, 1]. Used only with backlash; 0.5 has no source either.
+    jitter : float, default 0.0
+        Varying latency of the drive, s, on top of ``dead_time``: each step's new drive takes
+        effect at a uniformly random instant up to ``jitter`` after the step starts, the last
+        drive holding until then (a wireless link's loop timing). Below the control period;
+        0: none. The draws come from a generator per plant (:meth:`Plant.seed_jitter`).
     """
 
     inertia: float
@@ -77,6 +82,7 @@ class PlantParams:
     backlash: float = 0.0
     load_inertia: float = 0.5
     load_friction: float = 0.5
+    jitter: float = 0.0
 
     def __post_init__(self) -> None:
         check_finite(
@@ -90,9 +96,10 @@ class PlantParams:
             "backlash",
             "load_inertia",
             "load_friction",
+            "jitter",
         )
         check_positive(self, "inertia", "command_limit")
-        check_nonnegative(self, "damping", "lag", "dead_time", "dead_zone", "backlash")
+        check_nonnegative(self, "damping", "lag", "dead_time", "dead_zone", "backlash", "jitter")
         if not 0.0 < self.load_inertia < 1.0:
             raise ValueError(
                 f"PlantParams.load_inertia={self.load_inertia!r} is the load's share of the "
@@ -142,7 +149,7 @@ def plant_row(params: PlantParams, friction: FrictionModel) -> FloatArray:
             "law or no backlash"
         )
     drivetrain = (params.backlash / 2.0, params.load_inertia, params.load_friction)
-    return plant_kernel.pack_row(plant, friction.row(), drivetrain)
+    return plant_kernel.pack_row(plant, friction.row(), drivetrain, params.jitter)
 
 
 def default_substeps(
@@ -219,7 +226,7 @@ class Plant:
 
     Notes
     -----
-    The state lives in one ``(9 + task_columns, N)`` float64 array (:attr:`state`, one row per
+    The state lives in one ``(11 + task_columns, N)`` float64 array (:attr:`state`, one row per
     quantity, its index in :mod:`frictiongym.plants._kernel`); the properties below are views
     into it.
     """
@@ -257,6 +264,13 @@ class Plant:
         self.num_plants = int(num_plants)
         self._params: list[PlantParams] = self._per_plant(params, "params", PlantParams)
         frictions: list[FrictionModel] = self._per_plant(friction, "friction", FrictionModel)
+        late = max(p.jitter for p in self._params)
+        if late >= self.dt:
+            raise ValueError(
+                f"PlantParams.jitter={late!r} s reaches the control period dt={self.dt!r} s: a "
+                "drive would take effect after the next one is due; use a jitter below dt (a "
+                "whole period more latency is dead_time)"
+            )
         delays = {p.delay_steps(self.dt) for p in self._params}
         if len(delays) > 1:
             raise ValueError("all plants of a batch must share one dead time")
@@ -389,6 +403,19 @@ class Plant:
             )
         start = (np.ascontiguousarray(pos), np.ascontiguousarray(vel))
         plant_kernel.reset_plants(selected, self.state, self.delay_buffer, *start)
+        self._column("jitter_rng")[selected] = np.flatnonzero(selected)  # a stream per plant
+
+    def seed_jitter(self, seeds: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> None:
+        """Set the jitter generators of plants (all, or those of ``mask``) to ``seeds``.
+
+        ``seeds`` holds integers from 0 to 2**52 - 1, one per selected plant or one for all;
+        :meth:`reset` seeds plant ``i`` with ``i``.
+        """
+        selected = self._selection(mask)
+        values = np.broadcast_to(np.asarray(seeds), int(np.count_nonzero(selected)))
+        if not np.all((values >= 0) & (values < 2**52) & (values == np.floor(values))):
+            raise ValueError("jitter seeds must be integers from 0 to 2**52 - 1")
+        self._column("jitter_rng")[selected] = values
 
     def place(
         self, position: float, *, stop: bool = False, mask: npt.ArrayLike | None = None
