@@ -69,6 +69,7 @@ def altino_step(
     plant: PlantParams = ALTINO.plant,
     dt: float = ALTINO.dt,
     derivative: Literal["measurement", "error"] = "measurement",
+    seed: int | None = 0,
 ) -> Rollout:
     """Run the paper's Altino experiment: drive from ``start_cm`` to ``target_cm`` from a wall.
 
@@ -102,6 +103,9 @@ def altino_step(
         zero (no kick). ``error``: on the error with the previous error initialised to zero,
         as a textbook ``kd * (e_k - e_(k-1)) / dt`` does, which kicks the first command by
         ``kd * e_0 / dt``; with a constant target the two differ only in that first sample.
+    seed : int or None, default 0
+        Seed of the env's reset: it draws only what the plant randomises (a ``jitter``'s
+        stream), so it changes nothing else.
 
     Returns
     -------
@@ -119,14 +123,20 @@ def altino_step(
     controller = (
         pid if compensator is None else FrictionCompensator(pid, compensator, rest_speed=0.0)
     )
-    return _run(env, controller, duration, dt, {"position": float(start_cm)})
+    return _run(env, controller, duration, dt, {"position": float(start_cm)}, seed)
 
 
 def _run(
-    env: Any, controller: Any, duration: float, dt: float, options: dict[str, float] | None = None
+    env: Any,
+    controller: Any,
+    duration: float,
+    dt: float,
+    options: dict[str, float] | None = None,
+    seed: int | None = None,
 ) -> Rollout:
     """Record ``duration`` s of ``controller`` on ``env`` (closed after the run)."""
     try:
-        return rollout(env, controller, max(1, round(duration / dt)), options=options)
+        steps = max(1, round(duration / dt))
+        return rollout(env, controller, steps, seed=seed, options=options)
     finally:
         env.close()

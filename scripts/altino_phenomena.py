@@ -107,6 +107,7 @@ class Setup:
     duration: float = 60.0
     friction: FrictionModel = ALTINO_PAPER
     derivative: Literal["measurement", "error"] = "measurement"
+    seed: int = 0  #: of the env's reset: the jitter's stream
 
 
 @dataclass(frozen=True)
@@ -147,6 +148,7 @@ def run_scenario(scenario: Scenario, setup: Setup) -> Rollout:
         plant=setup.plant,
         dt=setup.dt,
         derivative=setup.derivative,
+        seed=setup.seed,
     )
 
 
@@ -276,6 +278,8 @@ def describe(setup: Setup) -> str:
         if p.backlash
         else ""
     )
+    if p.jitter:
+        play += f"latency jitter up to {p.jitter:g} s (seed {setup.seed}), "
     return (
         f"mass {p.inertia:g} units·s²/cm, damping {p.damping:g} + viscous "
         f"{getattr(setup.friction, 'viscous', 0.0):g} units/(cm/s), lag {p.lag:g} s, dead time "
@@ -436,6 +440,108 @@ def box(base: Setup) -> None:
     )
 
 
+#: The plausible drivetrain box swept by ``--drivetrain-box`` (docs/altino-model.md §9 states
+#: each range's source): play as car travel, cm; the car's shares of mass and friction; the
+#: drive's latency jitter, s; the motor's dead zone, units; the effective mass.
+DRIVE_PLAYS = (0.0, 0.05, 0.1, 0.2, 0.3)
+DRIVE_LOAD_INERTIAS = (0.6, 0.8, 0.95)
+DRIVE_LOAD_FRICTIONS = (0.2, 0.5, 0.8)
+DRIVE_JITTERS = (0.0, 0.01, 0.025, 0.045)
+DRIVE_DEAD_ZONES = (0.0, 50.0, 100.0)
+DRIVE_MASSES = (1.1, 2.2, 3.3)
+#: Seeds of the jitter's stream at the closest points.
+DRIVE_SEEDS = (0, 1, 2, 3, 4)
+
+
+def _closeness(s: dict[str, Summary]) -> float:
+    """How far a point is from the paper's three phenomena together (0: all three, by margin).
+
+    Sums, over the three experiments, a distance to the paper's description in cm or s:
+    Ki=10 resting 1 to 3 cm past the target (2 cm), Ki=20 peak-to-peak amplitude below 0.2 cm
+    or fewer than 3 crossings, the compensated loop's settling beyond 1 s.
+    """
+    a, b, c = s["ki10"], s["ki20"], s["comp"]
+    ki10 = abs(a.rest - (ALTINO_TARGET_CM - 2.0)) if math.isfinite(a.rest) else 5.0
+    ki20 = 5.0 if b.collided else max(0.0, 0.2 - b.p2p) * 5.0 + max(0, 3 - b.crossings)
+    comp = min(5.0, max(0.0, c.settling - 1.0)) + min(5.0, max(0.0, c.rise - 1.0))
+    return ki10 + ki20 + comp
+
+
+def drivetrain_box(base: Setup) -> None:
+    """Run the three experiments over the plausible drivetrain box; report the closest points.
+
+    Prints how many points show each phenomenon and all three, then the ten points closest to
+    the paper (:func:`_closeness`), each rerun with the jitter seeds :data:`DRIVE_SEEDS`.
+    """
+    grid = list(
+        itertools.product(
+            DRIVE_PLAYS,
+            DRIVE_LOAD_INERTIAS,
+            DRIVE_LOAD_FRICTIONS,
+            DRIVE_JITTERS,
+            DRIVE_DEAD_ZONES,
+            DRIVE_MASSES,
+        )
+    )
+    print(
+        f"\nDrivetrain box ({len(grid)} points: play {DRIVE_PLAYS} cm, car's mass share "
+        f"{DRIVE_LOAD_INERTIAS}, friction share {DRIVE_LOAD_FRICTIONS}, jitter {DRIVE_JITTERS} s, "
+        f"dead zone {DRIVE_DEAD_ZONES}, mass {DRIVE_MASSES}; the rest: {describe(base)})"
+    )
+    seen = {sc.key: 0 for sc in SCENARIOS}
+    together = 0
+    scored = []
+    for play, psi, phi, jitter, zone, mass in grid:
+        if play == 0.0 and (psi, phi) != (DRIVE_LOAD_INERTIAS[0], DRIVE_LOAD_FRICTIONS[0]):
+            continue  # without play the shares change nothing
+        plant = dataclasses.replace(
+            base.plant,
+            inertia=mass,
+            backlash=play,
+            load_inertia=psi,
+            load_friction=phi,
+            jitter=jitter,
+            dead_zone=zone,
+        )
+        setup = dataclasses.replace(base, plant=plant)
+        s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
+        flags = [reproduced(sc.key, s[sc.key]) for sc in SCENARIOS]
+        for sc, flag in zip(SCENARIOS, flags, strict=True):
+            seen[sc.key] += flag
+        together += all(flags)
+        scored.append((-sum(flags), _closeness(s), (play, psi, phi, jitter, zone, mass)))
+    runs = len(scored)
+    print(
+        f"points run: {runs}; Ki=10 seen at {seen['ki10']}, Ki=20 at {seen['ki20']}, "
+        f"compensated at {seen['comp']}, all three at {together}"
+    )
+    print(
+        f"\n{'play':>5}{'car m':>6}{'car f':>6}{'jitter':>7}{'zone':>5}{'mass':>5} | seed "
+        f"{'Ki10 rest':>9}{'Ki20 p2p':>9}{'cross':>6}{'comp rise':>10}{'settle':>7} seen"
+    )
+    for _, _, point in sorted(scored)[:10]:
+        play, psi, phi, jitter, zone, mass = point
+        plant = dataclasses.replace(
+            base.plant,
+            inertia=mass,
+            backlash=play,
+            load_inertia=psi,
+            load_friction=phi,
+            jitter=jitter,
+            dead_zone=zone,
+        )
+        for seed in DRIVE_SEEDS if jitter else DRIVE_SEEDS[:1]:
+            setup = dataclasses.replace(base, plant=plant, seed=seed)
+            s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
+            flags = "".join("Y" if reproduced(sc.key, s[sc.key]) else "." for sc in SCENARIOS)
+            a, b, c = s["ki10"], s["ki20"], s["comp"]
+            print(
+                f"{play:>5g}{psi:>6g}{phi:>6g}{jitter:>7g}{zone:>5g}{mass:>5g} | {seed:>4} "
+                f"{_f(a.rest):>9}{_f(b.p2p):>9}{b.crossings:>6}{_f(c.rise):>10}"
+                f"{_f(c.settling):>7} {flags}"
+            )
+
+
 def plot(runs: dict[str, Rollout], setup: Setup, path: str) -> None:
     """Write the three responses (distance and command) to a PNG."""
     import matplotlib
@@ -502,6 +608,13 @@ def build_parser() -> argparse.ArgumentParser:
         help=f"play between motor and car as car travel, cm ({p.backlash:g}: none)",
     )
     parser.add_argument(
+        "--jitter",
+        type=float,
+        default=p.jitter,
+        help=f"latency jitter of the drive, s, below --dt ({p.jitter:g}: none)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="the env's seed: the jitter's (0)")
+    parser.add_argument(
         "--load-inertia",
         type=float,
         default=p.load_inertia,
@@ -545,6 +658,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--box", action="store_true", help="also sweep the plausible box of model choices"
     )
+    parser.add_argument(
+        "--drivetrain-box",
+        action="store_true",
+        help="also sweep the plausible drivetrain box: play, its shares, latency jitter, dead "
+        "zone and mass (issue L; a few minutes)",
+    )
     parser.add_argument("--plot", metavar="PATH", help="write the three responses to this PNG")
     return parser
 
@@ -573,11 +692,12 @@ def main(argv: Sequence[str] | None = None) -> int:
             backlash=args.backlash,
             load_inertia=args.load_inertia,
             load_friction=args.load_friction,
+            jitter=args.jitter,
         )
         plant.delay_steps(args.dt)
     except ValueError as err:
         parser.error(str(err))
-    setup = Setup(plant, args.dt, args.start, args.duration, friction, args.derivative)
+    setup = Setup(plant, args.dt, args.start, args.duration, friction, args.derivative, args.seed)
     argv_used = sys.argv[1:] if argv is None else list(argv)
     print(f"$ python scripts/altino_phenomena.py {shlex.join(argv_used)}".rstrip())
     print(f"Model: {describe(setup)}\n")
@@ -587,6 +707,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         sensitivity(setup)
     if args.box:
         box(setup)
+    if args.drivetrain_box:
+        drivetrain_box(setup)
     if args.plot:
         plot(runs, setup, args.plot)
     return 0
