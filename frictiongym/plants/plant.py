@@ -512,7 +512,11 @@ class Plant:
 
     @property
     def motor_velocity(self) -> FloatArray:
-        """With backlash, the motor's velocity (the load's while the pair is engaged)."""
+        """With backlash, the motor's velocity (the load's while the pair is engaged).
+
+        A plant without play does not keep it up to date (it holds the reset's velocity): read
+        :attr:`velocity` there.
+        """
         return self._column("motor_velocity")
 
     @property
