@@ -383,3 +383,47 @@ def test_a_bad_backlash_argument_gets_a_message_that_names_it(kwargs, match):
 def test_a_device_refuses_a_simulated_play():
     with pytest.raises(ValueError, match="backlash"):
         gym.make(SERVO, backend="emulator://rotary", log=False, backlash=0.05)
+
+
+# == regressions found by an independent review ============================================
+def servo_pair(width: float) -> Plant:
+    params = PlantParams(
+        7.143e-3, 0.0446, 10.0, backlash=width, load_inertia=0.8, load_friction=0.3
+    )
+    return Plant(params, ROTARY_PAPER, 0.002)
+
+
+def test_a_separation_at_the_end_of_a_step_far_from_the_origin_keeps_the_gap_in_the_play():
+    # (xl - x) rounds to the float spacing at x = 3 rad: the gap came out 1.8e-16 past the
+    # face, no contact was found on it afterwards and the motor ran through the load
+    width = 0.01
+    plant = servo_pair(width)
+    plant.reset(position=3.0, velocity=-0.3491257334865249)
+    plant.gap[:] = width / 2  # engaged on face +1, moving back
+    plant.step(-0.12092979014779326)  # separates just before the step ends
+    for _ in range(4):
+        plant.step(0.6)  # drives the motor back onto the face
+        assert abs(plant.gap[0]) <= width / 2
+    assert plant.gap[0] == width / 2
+    assert plant.motor_velocity[0] == plant.velocity[0]
+
+
+@pytest.mark.parametrize("width", [4e-6, 0.01])
+def test_a_gap_that_leaves_a_face_by_less_than_its_rounding_finds_the_contact_again(width):
+    plant = servo_pair(width)
+    plant.reset(velocity=-1.5540495894463209)
+    plant.gap[:] = width / 2
+    plant.motor_velocity[:] = -1.5540495894463209 - 2.4e-10  # a hair faster away from the face
+    for _ in range(3):
+        plant.step(0.41)  # pulls the motor back onto it
+        assert abs(plant.gap[0]) <= width / 2
+
+
+def test_placing_a_pair_with_a_stop_halts_both_bodies():
+    plant = pair(law(), 0.02)
+    plant.velocity[:] = plant.motor_velocity[:] = 3.0
+    plant.place(0.5, stop=True)
+    assert plant.motor_velocity[0] == 0.0
+    plant.step(0.0)
+    assert plant.position[0] == 0.5
+    assert plant.stuck[0]

@@ -102,9 +102,15 @@ def test_bad_jitter_is_refused_with_a_message():
     with pytest.raises(ValueError, match="reaches the control period"):
         Plant(PlantParams(1.0, 0.0, 1.0, jitter=H), NoFriction(), H)
     plant = Plant(PlantParams(1.0, 0.0, 1.0, jitter=0.001), NoFriction(), H)
-    for seed in (-1, 2.5, 2**53):
+    for seed in (-1, 2.5, 2**53, "a", [1, 2]):
         with pytest.raises(ValueError, match="jitter seeds"):
             plant.seed_jitter(seed)
+
+
+def test_only_plants_with_a_jitter_get_a_stream():
+    params = [PlantParams(1.0, 0.0, 1.0), PlantParams(1.0, 0.0, 1.0, jitter=0.001)] * 2
+    plant = Plant(params, NoFriction(), H, num_plants=4)
+    np.testing.assert_array_equal(plant.state[plant_kernel.S_JITTER_RNG], [0.0, 1.0, 0.0, 3.0])
 
 
 def altino_run(seed: int, **kwargs: object) -> np.ndarray:

@@ -78,7 +78,8 @@ class AltinoDistanceEnv(FrictionEnv):
     generator), ``sensor_noise`` (True: 2 readout units, std), ``quantize`` (integer readout),
     ``delay`` (default one period, 0.05 s), ``deadzone`` (motor units, default 0: none),
     ``backlash`` (the gear train's play as car travel, cm, default 0: none; the car is then
-    0.8 of the mass and carries half the friction, assumed), ``randomize`` (``"inertia"`` is
+    0.8 of the mass and carries half the friction, assumed), ``jitter`` (the Bluetooth loop's
+    varying latency, s, below ``dt``; default 0: none), ``randomize`` (``"inertia"`` is
     the car's mass,
     ``"sensor_gain"`` the wall's IR reflectivity), ``plant``, ``params`` (an identified
     ``friction.json`` of this car: its ``J`` is the mass, its ``B`` the total damping, viscous

@@ -85,6 +85,9 @@ class RotaryServoEnv(FrictionEnv):
       QUBE, whose disc sits on the shaft): the motor turns this far between the faces without
       moving the disc, which then carries 0.8 of ``J`` and no friction (``plant=`` sets other
       shares); the position and velocity are the disc's (docs/physics.md, "Backlash");
+    * ``jitter``: varying latency of the drive, s, below ``dt``: each new command takes
+      effect at a uniformly random instant up to ``jitter`` after the step starts (on top of
+      ``delay``), drawn from the env's seed (default 0: none);
     * ``randomize``: factor ranges drawn at each reset, e.g. ``{"friction": (0.5, 1.5),
       "inertia": (0.9, 1.1), "damping": (0.8, 1.2), "sensor_gain": (0.99, 1.01)}``
       (``"deadzone"`` and ``"backlash"`` scale the ``deadzone`` and ``backlash`` given);

@@ -158,8 +158,8 @@ def _crossing(
 ) -> tuple[float, float]:
     """First contact on ``[t0, t1]``, over which the gap is monotone: its time and face.
 
-    ``(inf, 0.0)`` if none. A gap that starts on a face at ``t0 = 0`` and moves into it
-    is a contact at once.
+    ``(inf, 0.0)`` if none. A gap that starts on a face (or past it, by rounding) and moves
+    into it is a contact at ``t0``.
     """
     d0 = _relative(t0, d, motor, load)[0]
     d1 = _relative(t1, d, motor, load)[0]
@@ -167,8 +167,8 @@ def _crossing(
         face = sigma * g
         if sigma * d1 >= g and sigma * d0 < g:
             return _root(t0, t1, d, motor, load, True, face), sigma
-        if t0 == 0.0 and d0 == face and sigma * d1 > g:
-            return 0.0, sigma
+        if sigma * d0 >= g and sigma * d1 > sigma * d0:  # on (or past) the face, moving in
+            return t0, sigma
     return math.inf, 0.0
 
 
@@ -242,8 +242,9 @@ def free_phase(
     if dt_l != dt:
         xl, vl, _, imp_l = _phase(x, v, 0.0, dt, jl, bl, pl, stop, _NO_CACHE)
     impulse = imp_m + imp_l
-    if sigma == 0.0:
-        return xl, vl, d + (dxm - (xl - x)), vm1, dt, impulse, False
+    if sigma == 0.0:  # no contact: the gap stays in the play whatever the rounding says
+        # (xl - x) is rounded to the spacing of floats at x, the search's displacement is not
+        return xl, vl, min(max(d + (dxm - (xl - x)), -g), g), vm1, dt, impulse, False
     common = vl if vm1 == vl else (jm * vm1 + jl * vl) / (jm + jl)  # inelastic impact
     if xl >= stop and common > 0.0:
         common = 0.0  # the load is against the end stop: the stop takes the motor's momentum

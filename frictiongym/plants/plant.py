@@ -403,16 +403,26 @@ class Plant:
             )
         start = (np.ascontiguousarray(pos), np.ascontiguousarray(vel))
         plant_kernel.reset_plants(selected, self.state, self.delay_buffer, *start)
-        self._column("jitter_rng")[selected] = np.flatnonzero(selected)  # a stream per plant
+        jittery = np.broadcast_to(self.rows[:, plant_kernel.I_JITTER] > 0.0, self.num_plants)
+        seeded = selected & jittery  # a stream per plant with a jitter; 0 elsewhere
+        self._column("jitter_rng")[seeded] = np.flatnonzero(seeded)
 
     def seed_jitter(self, seeds: npt.ArrayLike, mask: npt.ArrayLike | None = None) -> None:
         """Set the jitter generators of plants (all, or those of ``mask``) to ``seeds``.
 
-        ``seeds`` holds integers from 0 to 2**52 - 1, one per selected plant or one for all;
-        :meth:`reset` seeds plant ``i`` with ``i``.
+        ``seeds`` holds integers from 0 to 2**52 - 1, one per selected plant or one for all.
+        :meth:`reset` reseeds plant ``i`` (if it has a jitter) with ``i``, so call this after
+        it; the envs draw their seeds from their own generators at each reset.
         """
         selected = self._selection(mask)
-        values = np.broadcast_to(np.asarray(seeds), int(np.count_nonzero(selected)))
+        count = int(np.count_nonzero(selected))
+        try:
+            values = np.broadcast_to(np.asarray(seeds, dtype=np.float64), count)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"jitter seeds must be one integer or {count} (one per selected plant), "
+                f"got {seeds!r}"
+            ) from None
         if not np.all((values >= 0) & (values < 2**52) & (values == np.floor(values))):
             raise ValueError("jitter seeds must be integers from 0 to 2**52 - 1")
         self._column("jitter_rng")[selected] = values
@@ -429,6 +439,7 @@ class Plant:
         self._column("position")[selected] = position
         if stop:
             self._column("velocity")[selected] = 0.0
+            self._column("motor_velocity")[selected] = 0.0  # with backlash: both bodies
             self._column("stuck")[selected] = 1.0
 
     def step(self, command: float | npt.ArrayLike) -> None:
