@@ -8,7 +8,7 @@ import gymnasium as gym
 import pytest
 
 from frictiongym.benchmark.command import OUTPUTS
-from frictiongym.benchmark.scenarios import DEAD_ZONE_FRACTIONS, all_scenarios
+from frictiongym.benchmark.scenarios import BACKLASH_WIDTHS, DEAD_ZONE_FRACTIONS, all_scenarios
 from frictiongym.cli import main
 from frictiongym.devices import DEVICES
 
@@ -257,7 +257,8 @@ def test_residual_runs_get_their_figures(residual_model, tmp_path):
 
 
 def test_the_drivetrain_group_puts_a_dead_zone_in_the_plant_and_models_it_or_not():
-    scenarios = [s for s in all_scenarios() if s.group == "drivetrain"]
+    drivetrain = [s for s in all_scenarios() if s.group == "drivetrain"]
+    scenarios = [s for s in drivetrain if "deadzone" in s.env_kwargs]
     assert len(scenarios) == 3 * len(DEAD_ZONE_FRACTIONS) * len(DEVICES)
     for device in DEVICES:
         breakaway = max(device.paper_friction.breakaway)
@@ -273,3 +274,16 @@ def test_the_drivetrain_group_puts_a_dead_zone_in_the_plant_and_models_it_or_not
         controller = mine[-1].controller(env)
         assert controller.dead_zone == widths[-1]
         assert controller.model == device.paper_friction
+
+
+def test_the_drivetrain_group_puts_a_play_in_the_plant_for_pid_and_compensated_pid():
+    plays = [s for s in all_scenarios() if "backlash" in s.env_kwargs]
+    assert {s.group for s in plays} == {"drivetrain"}
+    for device in DEVICES:
+        mine = [s for s in plays if s.env_id == device.env_id]
+        widths = [width for _, width in BACKLASH_WIDTHS[device.kind]]
+        assert sorted({s.env_kwargs["backlash"] for s in mine}) == widths
+        names = sorted(s.controller_name for s in mine)
+        assert names == sorted(["pid", "compensated-pid"] * len(widths))
+        env = gym.make(device.env_id, **mine[-1].env_kwargs)
+        assert env.unwrapped.sim.plant.backlash == widths[-1]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -94,9 +95,7 @@ def test_randomisation_draws_in_field_order_and_scales_the_row():
     nominal = plant_row(ROTARY_PLANT, ROTARY_PAPER)
     row, gain = apply_factors(nominal, factors)
     scaled = plant_row(
-        ROTARY_PLANT.__class__(
-            ROTARY_PLANT.inertia, 2 * ROTARY_PLANT.damping, ROTARY_PLANT.command_limit
-        ),
+        dataclasses.replace(ROTARY_PLANT, damping=2 * ROTARY_PLANT.damping),
         ROTARY_PAPER.replace(
             **{
                 k: getattr(ROTARY_PAPER, k) * factors["friction"]
