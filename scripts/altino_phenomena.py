@@ -467,6 +467,20 @@ def _closeness(s: dict[str, Summary]) -> float:
     return ki10 + ki20 + comp
 
 
+def _drivetrain_plant(base: Setup, point: tuple[float, ...]) -> PlantParams:
+    """The base plant at a point ``(play, psi, phi, jitter, zone, mass)`` of the box."""
+    play, psi, phi, jitter, zone, mass = point
+    return dataclasses.replace(
+        base.plant,
+        inertia=mass,
+        backlash=play,
+        load_inertia=psi,
+        load_friction=phi,
+        jitter=jitter,
+        dead_zone=zone,
+    )
+
+
 def drivetrain_box(base: Setup) -> None:
     """Run the three experiments over the plausible drivetrain box; report the closest points.
 
@@ -491,25 +505,17 @@ def drivetrain_box(base: Setup) -> None:
     seen = {sc.key: 0 for sc in SCENARIOS}
     together = 0
     scored = []
-    for play, psi, phi, jitter, zone, mass in grid:
+    for point in grid:
+        play, psi, phi = point[:3]
         if play == 0.0 and (psi, phi) != (DRIVE_LOAD_INERTIAS[0], DRIVE_LOAD_FRICTIONS[0]):
             continue  # without play the shares change nothing
-        plant = dataclasses.replace(
-            base.plant,
-            inertia=mass,
-            backlash=play,
-            load_inertia=psi,
-            load_friction=phi,
-            jitter=jitter,
-            dead_zone=zone,
-        )
-        setup = dataclasses.replace(base, plant=plant)
+        setup = dataclasses.replace(base, plant=_drivetrain_plant(base, point))
         s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
         flags = [reproduced(sc.key, s[sc.key]) for sc in SCENARIOS]
         for sc, flag in zip(SCENARIOS, flags, strict=True):
             seen[sc.key] += flag
         together += all(flags)
-        scored.append((-sum(flags), _closeness(s), (play, psi, phi, jitter, zone, mass)))
+        scored.append((-sum(flags), _closeness(s), point))
     runs = len(scored)
     print(
         f"points run: {runs}; Ki=10 seen at {seen['ki10']}, Ki=20 at {seen['ki20']}, "
@@ -521,15 +527,7 @@ def drivetrain_box(base: Setup) -> None:
     )
     for _, _, point in sorted(scored)[:10]:
         play, psi, phi, jitter, zone, mass = point
-        plant = dataclasses.replace(
-            base.plant,
-            inertia=mass,
-            backlash=play,
-            load_inertia=psi,
-            load_friction=phi,
-            jitter=jitter,
-            dead_zone=zone,
-        )
+        plant = _drivetrain_plant(base, point)
         for seed in DRIVE_SEEDS if jitter else DRIVE_SEEDS[:1]:
             setup = dataclasses.replace(base, plant=plant, seed=seed)
             s = {sc.key: summarize(run_scenario(sc, setup)) for sc in SCENARIOS}
