@@ -19,10 +19,13 @@ and ``FrictionCompensator(base, model=PATH)`` compensates with it. A file of the
 Required: the seven friction keys of :data:`PARAM_KEYS` (command units; levels are
 magnitudes, ``>= 0``, as in :class:`~frictiongym.friction.StictionCoulomb`), ``J``, ``B`` and
 ``law`` (``"paper"``, ``"stribeck"`` or ``"coulomb"``). Optional: ``shape`` (the decay of
-``paper``, default ``"linear"``; ``stribeck`` is ``exponential``), ``device`` (the
+``paper``, default ``"linear"``; ``stribeck`` is ``exponential``), ``backlash`` (a play between
+motor and load, :class:`Backlash`: ``{"width": W, "load_inertia": psi, "load_friction": phi}``
+in position units and shares; ``frictiongym identify --backlash`` writes it), ``device`` (the
 ``Device.name`` it was identified on), ``env_id``, ``units``, ``uncertainty`` (standard errors,
-same units) and free-form ``metadata``. For ``coulomb`` ``us_*`` equal ``uc_*`` or are null and
-``v0_*`` may be null (no stiction, no decay).
+same units; ``backlash`` for the play's width) and free-form ``metadata``. A file without
+``backlash`` is a rigid drivetrain, as before the key existed. For ``coulomb`` ``us_*`` equal
+``uc_*`` or are null and ``v0_*`` may be null (no stiction, no decay).
 
 **B and viscous.** ``B`` is the *total* linear damping the plant sees: the paper's ``B_e`` of
 Eq. (2), which includes the viscous slope of the friction map (paper §4.1). ``viscous`` is
@@ -55,6 +58,7 @@ __all__ = [
     "FORMAT",
     "LAWS",
     "PARAM_KEYS",
+    "Backlash",
     "DeviceParams",
     "ParamsFileError",
     "device_physics",
@@ -68,7 +72,20 @@ PARAM_KEYS = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg", "visco
 #: Every key a file must hold.
 REQUIRED_KEYS = (*PARAM_KEYS, "J", "B", "law")
 #: Optional keys, in file order after the required ones.
-OPTIONAL_KEYS = ("shape", "device", "env_id", "units", "uncertainty", "metadata", "format")
+OPTIONAL_KEYS = (
+    "shape",
+    "backlash",
+    "device",
+    "env_id",
+    "units",
+    "uncertainty",
+    "metadata",
+    "format",
+)
+#: Keys of the ``backlash`` object, in file order.
+BACKLASH_KEYS = ("width", "load_inertia", "load_friction")
+#: Keys an ``uncertainty`` may hold.
+UNCERTAINTY_KEYS = (*PARAM_KEYS, "J", "B", "backlash")
 #: Version tag written into every file.
 FORMAT = "frictiongym.params/1"
 #: The name of the file inside a results directory.
@@ -94,6 +111,7 @@ PARAM_LIMITS: dict[str, tuple[float, float]] = {
     "viscous": (0.0, 1e6),
     **{f"{k}_{d}": (0.0, 1e6) for k in ("us", "uc") for d in ("pos", "neg")},
     **{f"v0_{d}": (1e-9, 1e6) for d in ("pos", "neg")},
+    "backlash.width": (0.0, 1e6),
 }
 
 
@@ -195,6 +213,80 @@ def _friction(source: str, data: Mapping[str, Any], law: str) -> FrictionModel:
     return StictionCoulomb(**v, shape=shape)  # type: ignore[arg-type]  # checked above
 
 
+def _backlash_values(
+    source: str, width: object, load_inertia: object, load_friction: object
+) -> tuple[float, float, float]:
+    """Return a play's width and shares as floats, else raise naming the bad field."""
+    checked = [_real(source, "backlash.width", width)]
+    for key, value, low_open in (
+        ("backlash.load_inertia", load_inertia, True),
+        ("backlash.load_friction", load_friction, False),
+    ):
+        share = _real(source, key, value, "> 0" if low_open else ">= 0")
+        if share >= 1.0 if low_open else share > 1.0:
+            what = "the inertia" if low_open else "the friction and damping"
+            interval = "strictly between 0 and 1" if low_open else "from 0 to 1"
+            raise _fail(
+                source,
+                f"{key!r} = {value!r} is the load's share of {what}: give a fraction {interval}",
+            )
+        checked.append(share)
+    return checked[0], checked[1], checked[2]
+
+
+@dataclass(frozen=True)
+class Backlash:
+    """A play between the motor and the load, as a file's optional ``backlash`` object.
+
+    The plant's :class:`~frictiongym.plants.plant.PlantParams` fields of the same meaning
+    (docs/physics.md, "Backlash"). The shares are part of the estimate: the reversal test
+    sees the play only through the motor's motion inside it, so a width holds for the shares
+    it was estimated with (docs/identification.md).
+
+    Parameters
+    ----------
+    width : float
+        ``W``, the play's full width, position units (>= 0).
+    load_inertia : float
+        The load's share of ``J``, in (0, 1).
+    load_friction : float
+        The load's share of the friction law and of ``B``, in [0, 1].
+    """
+
+    width: float
+    load_inertia: float
+    load_friction: float
+
+    def __post_init__(self) -> None:
+        values = _backlash_values("Backlash", self.width, self.load_inertia, self.load_friction)
+        for key, value in zip(BACKLASH_KEYS, values, strict=True):
+            object.__setattr__(self, key, value)
+
+    def to_dict(self) -> dict[str, float]:
+        """Return the file's ``backlash`` object."""
+        return {key: float(getattr(self, key)) for key in BACKLASH_KEYS}
+
+
+def _backlash(source: str, data: Mapping[str, Any]) -> Backlash | None:
+    """Return the file's ``backlash`` object, validated (None when absent or null)."""
+    value = data.get("backlash")
+    if value is None:
+        return None
+    example = '{"width": 0.0175, "load_inertia": 0.8, "load_friction": 0.0}'
+    if not isinstance(value, Mapping):
+        raise _fail(
+            source,
+            f"'backlash' must be a JSON object such as {example} (position units and the load's "
+            f"shares), got {value!r}",
+        )
+    missing = [k for k in BACKLASH_KEYS if k not in value]
+    unknown = sorted(set(value) - set(BACKLASH_KEYS))
+    if missing or unknown:
+        problem = f"lacks {', '.join(missing)}" if missing else f"has unknown keys {unknown}"
+        raise _fail(source, f"'backlash' {problem}; it holds exactly {example}")
+    return Backlash(*_backlash_values(source, *(value[k] for k in BACKLASH_KEYS)))
+
+
 @dataclass(frozen=True)
 class DeviceParams:
     """A device's identified friction and linear plant: the content of a ``friction.json``.
@@ -221,6 +313,9 @@ class DeviceParams:
         values are written as numbers and lists, NaN and infinities as null).
     units : mapping of str to str, optional
         Units of the quantities (see :attr:`frictiongym.devices.Device.units`).
+    backlash : Backlash, optional
+        A play between motor and load (None: a rigid drivetrain); it needs a law with the
+        event-exact step (``paper`` with a ``linear`` or ``step`` decay, or ``coulomb``).
     source : str, optional
         Where it was read from (for messages; not compared).
     """
@@ -234,6 +329,7 @@ class DeviceParams:
     uncertainty: Mapping[str, float] = field(default_factory=dict)
     metadata: Mapping[str, Any] = field(default_factory=dict)
     units: Mapping[str, str] = field(default_factory=dict)
+    backlash: Backlash | None = None
     source: str | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -254,12 +350,22 @@ class DeviceParams:
         _real(where, "J", self.inertia, "> 0")
         _real(where, "B", self.damping)
         for key, value in self.uncertainty.items():
-            if key not in (*PARAM_KEYS, "J", "B"):
+            if key not in UNCERTAINTY_KEYS:
                 raise _fail(
                     where,
-                    f"uncertainty of unknown key {key!r}; use {', '.join(REQUIRED_KEYS[:-1])}",
+                    f"uncertainty of unknown key {key!r}; use {', '.join(UNCERTAINTY_KEYS)}",
                 )
             _real(where, f"uncertainty.{key}", value)
+        if self.backlash is not None:
+            if not isinstance(self.backlash, Backlash):
+                raise _fail(where, f"backlash must be a Backlash or None, got {self.backlash!r}")
+            if self.backlash.width > 0.0 and not self.friction.exact:
+                raise _fail(
+                    where,
+                    f"'backlash' needs a law with the event-exact step ('paper' with shape "
+                    f"'linear' or 'step', or 'coulomb'), got law {self.law!r} with "
+                    f"{self.friction!r}; drop 'backlash' or change the law",
+                )
         if not all(isinstance(k, str) and isinstance(u, str) for k, u in self.units.items()):
             raise _fail(where, f"'units' must map names to strings, got {dict(self.units)!r}")
         for name in ("uncertainty", "metadata", "units"):  # private copies: callers keep theirs
@@ -280,6 +386,7 @@ class DeviceParams:
         units: Mapping[str, str] | None = None,
         uncertainty: Mapping[str, float] | None = None,
         metadata: Mapping[str, Any] | None = None,
+        backlash: Backlash | None = None,
     ) -> DeviceParams:
         """Wrap an identified law and linear plant (what identification calls).
 
@@ -300,11 +407,24 @@ class DeviceParams:
             dict(uncertainty or {}),
             dict(metadata or {}),
             dict(units),
+            backlash,
         )
 
     def plant(self, base: PlantParams) -> PlantParams:
-        """Return ``base`` with this inertia and (total) damping; limit, lag, dead time kept."""
-        return replace(base, inertia=self.inertia, damping=self.damping)
+        """Return ``base`` with this inertia and (total) damping; limit, lag, dead time kept.
+
+        With :attr:`backlash`, also its play and shares; without, ``base``'s are kept.
+        """
+        if self.backlash is None:
+            return replace(base, inertia=self.inertia, damping=self.damping)
+        return replace(
+            base,
+            inertia=self.inertia,
+            damping=self.damping,
+            backlash=self.backlash.width,
+            load_inertia=self.backlash.load_inertia,
+            load_friction=self.backlash.load_friction,
+        )
 
     def plant_friction(self) -> FrictionModel:
         """Return the law with ``viscous=0``: what a plant of damping ``B`` adds to it."""
@@ -323,6 +443,8 @@ class DeviceParams:
         out.update(J=self.inertia, B=self.damping, law=self.law)
         if isinstance(f, StictionCoulomb):
             out["shape"] = f.shape
+        if self.backlash is not None:  # absent otherwise: files without a play are unchanged
+            out["backlash"] = self.backlash.to_dict()
         out.update(device=self.device, env_id=self.env_id, units=dict(self.units))
         out.update(uncertainty=dict(self.uncertainty), metadata=_json_value(self.metadata))
         out["format"] = FORMAT
@@ -372,6 +494,7 @@ class DeviceParams:
                 _mapping(source, data, "uncertainty"),
                 _mapping(source, data, "metadata"),
                 _mapping(source, data, "units"),
+                _backlash(source, data),
                 source,
             )
         except ParamsFileError:

@@ -12,10 +12,17 @@ from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
 from frictiongym._validation import check_seed
 from frictiongym.hardware.errors import HardwareError
+from frictiongym.identification.backlash import ReversalPlan
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.figures import plot_map
 from frictiongym.identification.fit import LAWS
-from frictiongym.identification.identify import Identification, identify, make_env, plan_for
+from frictiongym.identification.identify import (
+    PLAY_ROUNDS,
+    Identification,
+    identify,
+    make_env,
+    plan_for,
+)
 from frictiongym.identification.validate import KEYS, truth
 from frictiongym.params import save_params
 
@@ -37,6 +44,14 @@ three; other files there stay); an error or a Ctrl-C leaves --out as it was.
 
 On the simulator the table also shows the simulated truth. Every experiment runs through
 the env's observations only, so a device backend (--backend) runs the same procedure.
+
+--backlash adds a reversal test: the command reverses after each steady slide, and the play
+W between motor and load is fitted to the load's path after each reversal. The load's sensor
+sees the play only through the motor's motion inside it, so W holds for the device preset's
+shares of inertia and friction, which are assumed, not measured. A resolved W goes into
+friction.json as "backlash" (gym.make(ID, params=PATH) then simulates it); one below the
+sensor's resolution is reported as not resolved, with the bound, in the summary and in
+friction.json's metadata.
 """
 
 #: What a run may write into --out.
@@ -78,6 +93,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulator only: add the device's default sensor noise",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulator (default: 0)")
+    parser.add_argument(
+        "--backlash",
+        action="store_true",
+        help="also run the reversal test and estimate a play between motor and load "
+        "(off by default; needs --law paper)",
+    )
+    parser.add_argument(
+        "--true-backlash",
+        type=float,
+        default=None,
+        metavar="W",
+        help="simulator only: a play of full width W (position units) in the simulated device "
+        "(default: none)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -115,6 +144,11 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
     for fit in result.fits.values():
         rms = "refined on all samples" if math.isnan(fit.rms) else f"{fit.rms:.3g}"
         lines.append(f"| {fit.law} | {rms} | {fit.aic:.1f} |")
+    if result.backlash is not None:
+        lines += ["", f"Reversal test: {result.backlash.describe()}."]
+        true_play = None if truth is None else truth.get("backlash")
+        if true_play is not None:
+            lines.append(f"Simulated truth: W = {true_play:.6g} {result.backlash.unit}.")
     return "\n".join(lines) + "\n"
 
 
@@ -124,12 +158,26 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     kwargs: dict[str, Any] = {"backend": args.backend}
     if sim:
         kwargs.update(friction=args.friction, sensor_noise=bool(args.noise))
-    elif args.noise or args.friction != "paper":
-        print("error: --noise and --friction apply to the simulator only", file=sys.stderr)
+        if args.true_backlash is not None:  # only when given: default runs record no key
+            kwargs["backlash"] = args.true_backlash
+    elif args.noise or args.friction != "paper" or args.true_backlash is not None:
+        print(
+            "error: --noise, --friction and --true-backlash apply to the simulator only",
+            file=sys.stderr,
+        )
+        return 2
+    if args.backlash and args.law != "paper":
+        print(
+            f"error: --backlash estimates the play with the paper law; drop --law {args.law} "
+            "or --backlash",
+            file=sys.stderr,
+        )
         return 2
     try:
         check_seed(args.seed)
         plan = plan_for(args.env)
+        if args.backlash:
+            ReversalPlan.for_device(args.env)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -163,6 +211,7 @@ def _identify(
 
     total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
     total += len(plan.relay_levels) + plan.refine
+    total += args.backlash * (1 + (PLAY_ROUNDS if plan.refine else 0))
     bar = tqdm(total=total, unit="run", desc="identify", leave=False, disable=args.quiet)
 
     def progress(label: str) -> None:
@@ -170,7 +219,7 @@ def _identify(
         bar.update(1)
 
     try:
-        result = identify(env, plan, seed=args.seed, progress=progress)
+        result = identify(env, plan, seed=args.seed, progress=progress, backlash=args.backlash)
     except IdentificationError as exc:
         print(f"error: identification failed: {exc}", file=sys.stderr)
         return 1
@@ -180,7 +229,11 @@ def _identify(
     params = result.params(args.law)
     metadata = {**params.metadata, "command": command_line, "env_kwargs": kwargs}
     save_params(out.path / "friction.json", replace(params, metadata=metadata))
-    true = truth(env.unwrapped.sim.friction, env.unwrapped.sim.plant) if sim else None
+    true: dict[str, float] | None = None
+    if sim:
+        true = truth(env.unwrapped.sim.friction, env.unwrapped.sim.plant)
+        if result.backlash is not None:
+            true["backlash"] = env.unwrapped.sim.plant.backlash
     table = summary(result, args.law, true)
     write_text_atomic(out.path / "summary.md", table)
     if not args.no_figures:

@@ -1,13 +1,14 @@
 """Identification experiments run through the env interface, so they run unchanged on a device.
 
 An experiment is a command profile held from rest (``env.reset``): a constant level, a slow
-ramp, a velocity step between two levels, or a relay that drives back and forth across a band
+ramp, a velocity step between two levels, a relay that drives back and forth across a band
 of the output (closed loop on the measured output, so it stays where the sensor resolves
-it). Each returns a :class:`~frictiongym.controllers.Rollout` of what a controller would
-see: the time, the command sent, the measured output (the observation the env's
-:class:`~frictiongym.controllers.LoopSpec` points at; ``plant_output()`` turns it into the
-plant's own direction, in which a positive command moves the output positively) and whether
-the sensor resolved it; its ``settings`` hold the experiment's
+it), or a reversal test that reverses a constant command after each steady slide (for a play
+between motor and load). Each returns a :class:`~frictiongym.controllers.Rollout` of what a
+controller would see: the time, the command sent, the measured output (the observation the
+env's :class:`~frictiongym.controllers.LoopSpec` points at; ``plant_output()`` turns it into
+the plant's own direction, in which a positive command moves the output positively) and
+whether the sensor resolved it; its ``settings`` hold the experiment's
 ``kind``, ``sign`` and levels. Nothing here reads the simulator's true state (``info``), so a
 hardware backend with the same observations gives the same analysis.
 
@@ -29,7 +30,7 @@ from frictiongym.controllers.base import LoopSpec
 from frictiongym.controllers.rollout import Rollout, observation_bounds
 
 FloatArray = npt.NDArray[np.float64]
-Kind = Literal["constant", "ramp", "step", "relay"]
+Kind = Literal["constant", "ramp", "step", "relay", "reversal"]
 
 #: Samples at the start of a ramp taken as the rest position (the ramp starts below break-away).
 REST_SAMPLES = 20
@@ -242,6 +243,69 @@ class Runner:
                 "lead": float(lead),
             },
             start_at=0.5 * (band[0] + band[1]) if start_at is None else start_at,
+            feedback=feedback,
+        )
+
+    def reversals(
+        self,
+        level_up: float,
+        level_down: float,
+        hold: float,
+        count: int,
+        band: tuple[float, float] | None = None,
+        start_at: float | None = None,
+        lead: float = 3.0,
+    ) -> Rollout:
+        """Alternate ``+level_up`` and ``-level_down`` from rest, reversing ``count`` times.
+
+        The reversal test of a play (:mod:`~frictiongym.identification.backlash`): each leg
+        holds its constant (plant direction; both levels are magnitudes above break-away) for
+        ``hold`` s, long enough to reach steady sliding, then the command reverses. With
+        ``band`` (env units) a leg also reverses as soon as the measured output, extrapolated
+        ``lead`` periods ahead, passes the band's end it moves toward (as :meth:`relay`), so a
+        sensor of short range keeps reading. The run starts at ``start_at`` (default: the
+        band's end the first leg moves away from, else the span's start), moving up, and ends
+        after the leg that follows the last reversal.
+        """
+        if count < 1 or hold <= 0.0:
+            raise ValueError(
+                f"a reversal test needs count >= 1 reversals and a hold > 0 s, got count={count!r}"
+                f", hold={hold!r}"
+            )
+        ends = None if band is None else sorted(self.spec.direction * b for b in band)
+        hold_samples = max(1, round(hold / self.spec.dt))
+        state = {"sign": 1.0, "since": 0, "legs": 1}
+
+        def feedback(y: FloatArray, k: int) -> float:
+            ahead = y[-1] + lead * (y[-1] - y[-2]) if k > 0 else y[-1]
+            passed = ends is not None and (
+                ahead > ends[1] if state["sign"] > 0 else ahead < ends[0]
+            )
+            if k - state["since"] >= hold_samples or passed:
+                state.update(legs=state["legs"] + 1)  # the leg after the last one ends the run
+                if state["legs"] <= count + 1:
+                    state.update(sign=-state["sign"], since=k)
+            return state["sign"] * (abs(level_up) if state["sign"] > 0 else abs(level_down))
+
+        def stop(y: FloatArray, k: int) -> bool:
+            return state["legs"] > count + 1
+
+        if start_at is None and band is not None:
+            start_at = self.spec.direction * ends[0]  # type: ignore[index]  # band is set
+        return self.run(
+            lambda t: np.zeros(t.shape),
+            (count + 1) * hold + self.spec.dt,
+            "reversal",
+            1.0,
+            {
+                "level_up": float(level_up),
+                "level_down": float(level_down),
+                "hold": float(hold),
+                "count": float(count),
+                **({} if band is None else {"low": float(min(band)), "high": float(max(band))}),
+            },
+            stop=stop,
+            start_at=start_at,
             feedback=feedback,
         )
 

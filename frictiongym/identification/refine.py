@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -125,7 +125,7 @@ class ReciprocalReading:
 class Refinement:
     """Result of the output-error fit."""
 
-    values: dict[str, float]  #: the keys of :data:`NAMES`
+    values: dict[str, float]  #: the keys of :data:`NAMES` (and ``"W"`` with ``fit_play``)
     stderr: dict[str, float]
     dead_time: float  #: chosen dead time, s
     rms: float  #: residual RMS, reading units (the sensor's, see :class:`Reading`)
@@ -156,8 +156,10 @@ class _Simulator:
         reading: Reading,
         direction: float,
         join: int,
+        drivetrain: tuple[float, float, float] | None = None,
     ) -> None:
         self.dt = dt
+        self.drivetrain = drivetrain
         self.limit = limit
         self.shape = shape
         self.reading = reading
@@ -194,7 +196,9 @@ class _Simulator:
         params: list[PlantParams] = []
         frictions: list[StictionCoulomb] = []
         for x in np.atleast_2d(xs):
-            inertia, damping, us_p, us_n, ratio_p, ratio_n, v0_p, v0_n = (float(v) for v in x)
+            inertia, damping, us_p, us_n, ratio_p, ratio_n, v0_p, v0_n = (
+                float(v) for v in x[: len(NAMES)]
+            )
             law = StictionCoulomb(
                 us_p,
                 us_n,
@@ -206,6 +210,16 @@ class _Simulator:
                 self.shape,  # type: ignore[arg-type]
             )
             plant = PlantParams(inertia, damping, self.limit, dead_time=delay * self.dt)
+            if self.drivetrain is not None:
+                width, load_inertia, load_friction = self.drivetrain
+                if x.size > len(NAMES):  # the play is fitted too: its width follows NAMES
+                    width = float(x[len(NAMES)])
+                plant = replace(
+                    plant,
+                    backlash=width,
+                    load_inertia=load_inertia,
+                    load_friction=load_friction,
+                )
             params += [plant] * self.runs
             frictions += [law] * self.runs
         count = len(params) // self.runs
@@ -259,7 +273,7 @@ def _candidates(x0: FloatArray, count: int, seed: int) -> FloatArray:
     scale ``u_s/B``. The sets are a scrambled Sobol sequence (``seed``), which covers the
     8-dimensional box more evenly than independent draws.
     """
-    unit = qmc.Sobol(d=x0.size, scramble=True, seed=seed).random(count)
+    unit = qmc.Sobol(d=len(NAMES), scramble=True, seed=seed).random(count)
 
     def spread(column: int, low: float, high: float) -> FloatArray:
         return np.exp(math.log(low) + unit[:, column] * math.log(high / low))
@@ -272,6 +286,7 @@ def _candidates(x0: FloatArray, count: int, seed: int) -> FloatArray:
     c[:, 4:6] = 0.3 + 0.68 * unit[:, 4:6]
     c[:, 6] = spread(6, 0.1, 3.0) * c[:, 2] / c[:, 1]
     c[:, 7] = spread(7, 0.1, 3.0) * c[:, 3] / c[:, 1]
+    c[:, len(NAMES) :] = x0[len(NAMES) :]  # a fitted play starts where it is
     c[0] = x0
     return c
 
@@ -352,6 +367,8 @@ def refine(
     local_fits: int = 2,
     polish: int = 3,
     seed: int = 0,
+    drivetrain: tuple[float, float, float] | None = None,
+    fit_play: bool = False,
 ) -> Refinement:
     """Refine ``J``, ``B`` and the friction levels against every sample of ``traces``.
 
@@ -382,6 +399,12 @@ def refine(
     seed : int, default 0
         Seed of the candidates' scrambling (fixed: the result does not depend on the env's
         seed).
+    drivetrain : (float, float, float), optional
+        A play in the simulated plant: its width and the load's shares of inertia and of
+        friction (:mod:`~frictiongym.identification.backlash`); none by default.
+    fit_play : bool, default False
+        Fit the play's width too (from ``drivetrain``'s, as ``"W"`` in the result); the
+        shares stay fixed.
     """
     if min(candidates, local_fits, polish) < 1:
         raise ValueError(
@@ -390,11 +413,18 @@ def refine(
         )
     if not traces:
         raise ValueError("refine needs at least one trace")
+    if fit_play and drivetrain is None:
+        raise ValueError("fit_play needs a drivetrain: its width starts the fit, its shares stay")
+    names = (*NAMES, "W") if fit_play else NAMES
     reading = reading or LinearReading()
-    ladder = [_Simulator(traces, dt, limit, shape, reading, direction, j) for j in _JOINS]
+    ladder = [
+        _Simulator(traces, dt, limit, shape, reading, direction, j, drivetrain) for j in _JOINS
+    ]
     sim, whole = ladder[0], ladder[-1]
     # Coulomb levels as fractions of break-away, bounded by 1, so every trial law is valid.
     x0 = np.array([start[n] for n in NAMES], dtype=np.float64)
+    if drivetrain is not None and fit_play:
+        x0 = np.append(x0, drivetrain[0])
     x0[4] = min(max(start["uc_pos"] / start["us_pos"], 0.05), 0.99)
     x0[5] = min(max(start["uc_neg"] / start["us_neg"], 0.05), 0.99)
     # A kink far beyond the speed scale us/B is a straight branch: no data can place it.
@@ -444,8 +474,8 @@ def refine(
         cov = np.full((k, k), math.nan)
     x = best.x
     # Back to levels: uc = ratio * us, its variance by the delta method.
-    values = dict(zip(NAMES, (float(v) for v in x), strict=True))
-    se = dict(zip(NAMES, (math.sqrt(max(float(c), 0.0)) for c in np.diag(cov)), strict=True))
+    values = dict(zip(names, (float(v) for v in x), strict=True))
+    se = dict(zip(names, (math.sqrt(max(float(c), 0.0)) for c in np.diag(cov)), strict=True))
     for i, j, direction_name in zip(_RATIOS, (2, 3), ("pos", "neg"), strict=True):
         grad = np.zeros(k)
         grad[i], grad[j] = x[j], x[i]

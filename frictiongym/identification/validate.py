@@ -5,6 +5,11 @@ identifies the paper's preset (draw ``-``) and devices drawn at random within ±
 each noise seed, and prints every parameter's error as a markdown table, with the issue's
 tolerances (3 % for the friction parameters, 2 % for ``J`` and ``B``). The numbers in
 docs/identification.md come from it; ``tests/test_identification.py`` checks the same draws.
+
+``--backlash W1,W2`` instead identifies the preset with each play in the simulated device and
+the reversal test on (:mod:`~frictiongym.identification.backlash`), and prints the play's
+estimate against the truth; ``--shares PSI,PHI`` makes the test assume other shares than the
+preset's (the simulated device keeps the preset's).
 """
 
 from __future__ import annotations
@@ -14,12 +19,14 @@ import math
 import sys
 import time
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from frictiongym import devices
 from frictiongym.friction import FrictionModel, StictionCoulomb
+from frictiongym.identification.backlash import ReversalPlan
 from frictiongym.identification.identify import identify, make_env
 from frictiongym.plants.plant import PlantParams
 
@@ -85,6 +92,54 @@ def errors(
     return {k: found[k] / true[k] - 1.0 for k in KEYS}
 
 
+def backlash_table(
+    env_id: str,
+    widths: Sequence[float],
+    seeds: Sequence[int],
+    noise: bool,
+    shares: tuple[float, float] | None = None,
+) -> list[str]:
+    """Identify the preset with each play and the reversal test on; return a markdown table.
+
+    Each row: the true and estimated width, its standard error, the error in per cent and in
+    standard errors, whether it was resolved (else the bound), and the largest error of the
+    rigid parameters (:data:`KEYS`) identified beside it.
+    """
+    device = devices.get(env_id)
+    plan = ReversalPlan.for_device(device)
+    if shares is not None:
+        plan = replace(plan, shares=shares)
+    unit = device.position_unit
+    rows = [
+        f"| true W ({unit}) | seed | estimated W | std. error | error | error / s.e. | "
+        "resolved | worst rigid error |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for width in widths:
+        for seed in seeds:
+            env = make_env(env_id, backlash=width, sensor_noise=noise, quantize=True)
+            result = identify(env, seed=seed, backlash=plan)
+            play = result.backlash
+            if play is None:  # identify runs the test when asked: a bug if it did not
+                raise RuntimeError("identify(backlash=...) returned no reversal test")
+            params = result.params()
+            found = {k: getattr(params.friction, k) for k in (*FRICTION_KEYS, "viscous")}
+            found.update(J=params.inertia, B=params.damping)
+            true = truth(device.paper_friction, device.plant)
+            rigid = max(abs(found[k] / true[k] - 1.0) for k in KEYS)
+            error = play.width - width
+            relative = f"{100 * error / width:+.1f} %" if width else "-"
+            resolved = "yes" if play.resolved else f"no: W < {play.upper:.3g}"
+            if not (play.resolved or math.isfinite(play.upper)):
+                resolved = f"no: {play.note}"
+            rows.append(
+                f"| {width:g} | {seed} | {play.width:.4g} | {play.stderr:.2g} | {relative} | "
+                f"{error / play.stderr:+.1f} | {resolved} | {100 * rigid:.2f} % |"
+            )
+            print(rows[-1], file=sys.stderr, flush=True)
+    return rows
+
+
 def _integers(text: str) -> list[int]:
     """Parse ``"0,2,5-7"`` into ``[0, 2, 5, 6, 7]``."""
     out: list[int] = []
@@ -103,12 +158,40 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--draws", default="", help="random devices, e.g. 0-3 (the preset always runs)"
     )
     parser.add_argument("--seeds", default="0", help="noise seeds of the simulator, e.g. 0,1")
+    parser.add_argument(
+        "--backlash",
+        default="",
+        metavar="W1,W2",
+        help="plays (position units) to simulate and estimate by the reversal test, instead "
+        "of the random devices",
+    )
+    parser.add_argument(
+        "--shares",
+        default="",
+        metavar="PSI,PHI",
+        help="with --backlash: the load's shares of inertia and friction the test assumes "
+        "(default: the device preset's)",
+    )
     args = parser.parse_args(argv)
     try:
         device = devices.get(args.env)
+        widths = [float(w) for w in filter(None, args.backlash.split(","))]
+        shares = [float(x) for x in filter(None, args.shares.split(","))]
+        if shares and len(shares) != 2:
+            raise ValueError(f"--shares takes two fractions PSI,PHI, got {args.shares!r}")
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    if widths:
+        started = time.perf_counter()
+        assumed = (shares[0], shares[1]) if shares else None
+        rows = backlash_table(args.env, widths, _integers(args.seeds), args.noise, assumed)
+        print("\n".join(rows))
+        print(
+            f"{len(rows) - 2} identifications in {time.perf_counter() - started:.0f} s",
+            file=sys.stderr,
+        )
+        return 0
     preset_friction, preset_plant = device.paper_friction, device.plant
     if not isinstance(preset_friction, StictionCoulomb):
         print(f"error: {args.env}'s preset is not the paper's law", file=sys.stderr)
