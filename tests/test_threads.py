@@ -7,6 +7,7 @@ timed: each fake twin advances the clock by the cost the test gives it.
 from __future__ import annotations
 
 import types
+from typing import Any
 
 import gymnasium as gym
 import numba
@@ -307,3 +308,25 @@ def test_trials_that_keep_losing_back_off(clock: FakeClock) -> None:
     run(kernel, 300_000)  # 30 s of serial calls
     assert twins.spent[1] <= 0.02 * twins.spent[0]
     assert kernel._wait == threads.MAX_BACKOFF
+
+
+@pytest.mark.parametrize(
+    "kernel", [plant_batch.step_batch, env_kernel.step_envs], ids=lambda k: k.__name__
+)
+def test_the_serial_kernels_never_enter_the_thread_pool(kernel: Any) -> None:
+    """A serial kernel is compiled with ``parallel=True`` for numba's pipeline alone.
+
+    An array expression in it (``np.zeros``) becomes a parallel loop that wakes the thread pool
+    on every call: one plant stepped 18x slower with a core busy, and 3 700x slower beside a
+    torch learner (docs/benchmarks.md). The cached kernels cannot be inspected, so a fresh copy
+    of the source is compiled and its code searched for numba's scheduler.
+    """
+    # The first step of a plant and of an env compiles (or loads) each kernel's signature.
+    Plant(PlantParams(inertia=1.0, damping=1.0, command_limit=1.0), ROTARY_PAPER, 0.002).step(0.0)
+    env = gym.make("frictiongym/RotaryServo-v0")
+    env.reset(seed=0)
+    env.step(env.action_space.sample())
+    copy = numba.njit(parallel=True)(kernel.py_func)
+    for signature in kernel.signatures:
+        copy.compile(signature)
+        assert "do_scheduling" not in copy.inspect_llvm(signature)

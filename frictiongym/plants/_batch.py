@@ -765,6 +765,20 @@ def _step_lanes(
             advance_plant(i, state, state[S_FRICTION, i], h, 1, params, True)
 
 
+@njit(cache=True)
+def none_fresh(n: int) -> npt.NDArray[np.bool_]:
+    """Return a mask of ``n`` plants none of which is fresh.
+
+    Not ``np.zeros``: in a kernel compiled with ``parallel=True`` that is a parallel loop, so
+    every call of even the serial kernel would wake numba's thread pool (one plant stepped
+    18x slower with a core busy; docs/benchmarks.md, "Fourth round").
+    """
+    mask = np.empty(n, dtype=np.bool_)
+    for i in range(n):
+        mask[i] = False
+    return mask
+
+
 @serial_njit
 def step_batch(
     state: npt.NDArray[np.float64],
@@ -804,7 +818,7 @@ def step_batch(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    no_one = np.zeros(n, dtype=np.bool_)  # no plant is fresh
+    no_one = none_fresh(n)
     for block in range((n + BLOCK - 1) // BLOCK):
         lo = block * BLOCK
         step_plants(
@@ -828,7 +842,7 @@ def step_batch_parallel(
     if bad >= 0:
         return bad
     n = state.shape[1]
-    no_one = np.zeros(n, dtype=np.bool_)  # no plant is fresh
+    no_one = none_fresh(n)
     for block in prange((n + BLOCK - 1) // BLOCK):
         lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
         step_plants(
