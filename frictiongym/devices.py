@@ -82,7 +82,9 @@ class Device:
     randomization: Mapping[str, tuple[float, float]]
     #: The identification plan: ``Plan`` fields (frictiongym/identification/identify.py; its
     #: schedule has no defaults; ``span`` and ``reading`` as tuples of their fields) and the
-    #: env arguments it needs; empty: ``identify`` refuses the device.
+    #: env arguments it needs; empty: ``identify`` refuses the device. An optional
+    #: ``reversal`` entry holds the ``ReversalPlan`` fields of ``identify --backlash``
+    #: (frictiongym/identification/backlash.py); without it the device has no reversal test.
     identification: Mapping[str, Any]
     #: Default ``ResidualConfig`` of a residual policy: its fields but ``device`` and ``limit``
     #: (the plant's command limit).
@@ -210,6 +212,19 @@ ROTARY = Device(
         "probe_to": 0.3,
         "probe_duration": 3.0,
         "env_kwargs": {"safety_limit": 1.0e5},
+        # The reversal test of `identify --backlash` (ReversalPlan). 1.5 times break-away gives
+        # 3.9 rad/s forward; a leg of 1 s is six time constants (J/B = 0.16 s). The play is a
+        # small part of the overshoot after each reversal, so the rigid model's errors weigh:
+        # 0.3 % on u_s moves the estimate by 8 %, on B by 34 % (slower legs trade the second
+        # for the first, and resolve less: at 1.3 times the bound is 0.0085 rad, at 1.5 times
+        # 0.005 rad). The disc turns freely, so the legs need no band.
+        "reversal": {
+            "level": 1.5,
+            "hold": 1.0,
+            "reversals": 12,
+            "max_width": 0.2,  # rad, 11.5 degrees
+            "resolution": sensors.QUBE_ENCODER_STEP,  # one count
+        },
     },
     residual={
         # 10 % of the limit = 1 V, about 5 times the break-away level (0.21 V): enough to
@@ -315,6 +330,19 @@ ALTINO = Device(
         "reading": (sensors.IR_NUMERATOR, sensors.IR_OFFSET, sensors.IR_MAX_READOUT),
         "span": (3.0, 19.5, 0.5),
         "ramp_positions": (10.0, 4.0),
+        # The reversal test: 1.2 times break-away, 5.5 cm/s toward the wall and 11 cm/s away
+        # (its map is asymmetric), so a leg across the band takes 1.8 and 0.9 s, six and four
+        # time constants. The band lies near the wall, where the IR sensor resolves 0.02 to
+        # 0.2 cm per readout count; 24 reversals (about 45 s) halve the scatter of 12 under 2
+        # counts of noise.
+        "reversal": {
+            "level": 1.2,
+            "hold": 3.0,
+            "reversals": 24,
+            "max_width": 1.0,  # cm
+            "resolution": 1.0,  # one readout count
+            "band": (4.0, 14.0),
+        },
     },
     residual={
         # 20 % of the limit = 200 motor units = the break-away level u_s: its friction is a

@@ -32,7 +32,7 @@ from frictiongym import devices
 from frictiongym.cli import tool_main
 from frictiongym.identification.backlash import BacklashEstimate, ReversalPlan, reversal_test
 from frictiongym.identification.experiments import Runner
-from frictiongym.identification.identify import PLAY_ROUNDS, identify, make_env, plan_for
+from frictiongym.identification.identify import PLAY_ROUNDS, Plan, identify, make_env, plan_for
 from frictiongym.params import Backlash, DeviceParams, ParamsFileError, load_params, save_params
 
 ROTARY = "frictiongym/RotaryServo-v1"
@@ -249,6 +249,19 @@ def test_the_command_refuses_what_the_test_cannot_do(tmp_path, capsys, extra, me
 def test_a_bad_reversal_plan_names_what_is_wrong():
     with pytest.raises(ValueError, match=r"level=0.9 must be > 1.*shares=\(1.0, 0.0\)"):
         replace(ReversalPlan.for_device(ROTARY), level=0.9, shares=(1.0, 0.0))
+
+
+def test_the_reversal_tests_come_from_the_device_descriptions():
+    for device in (devices.ROTARY, devices.ALTINO):
+        settings = device.identification["reversal"]
+        assert ReversalPlan.for_device(device) == ReversalPlan(**settings)
+    rigid_only = replace(
+        devices.ROTARY,
+        identification={k: v for k, v in devices.ROTARY.identification.items() if k != "reversal"},
+    )
+    assert Plan.for_device(rigid_only) == Plan.for_device(devices.ROTARY)  # entry ignored
+    with pytest.raises(ValueError, match=r"has no reversal test.*'reversal' entry"):
+        ReversalPlan.for_device(rigid_only)
 
 
 @pytest.mark.slow

@@ -120,48 +120,22 @@ class ReversalPlan:
     def for_device(cls, device: str | devices.Device) -> ReversalPlan:
         """Return the reversal test of ``device`` (any spelling of :func:`devices.get`).
 
+        It is the ``reversal`` entry of the device's ``identification`` settings: this class's
+        fields, ``band`` and ``shares`` as tuples.
+
         Raises
         ------
         ValueError
             If the device has no reversal test.
         """
         described = devices.get(device)
-        if described.name not in PLANS:
+        settings = described.identification.get("reversal")
+        if not settings:
             raise ValueError(
-                f"{described.name} has no reversal test; give a ReversalPlan "
-                f"(frictiongym/identification/backlash.py has {', '.join(PLANS)})"
+                f"{described.name} has no reversal test: its Device.identification "
+                "(frictiongym/devices.py) has no 'reversal' entry; give a ReversalPlan"
             )
-        return PLANS[described.name]
-
-
-#: Each device's reversal test.
-PLANS: dict[str, ReversalPlan] = {
-    # 1.5 times break-away gives 3.9 rad/s forward; a leg of 1 s is six time constants
-    # (J/B = 0.16 s). The play is a small part of the overshoot after each reversal, so the
-    # rigid model's errors weigh: 0.3 % on u_s moves the estimate by 8 %, on B by 34 %
-    # (slower legs trade the second for the first, and resolve less: at 1.3 times the bound
-    # is 0.0085 rad, at 1.5 times 0.005 rad). The disc turns freely, so the legs need no
-    # band. One count is 2π/2048.
-    "RotaryServo": ReversalPlan(
-        level=1.5,
-        hold=1.0,
-        reversals=12,
-        max_width=0.2,  # rad, 11.5 degrees
-        resolution=devices.ROTARY.encoder_step,
-    ),
-    # 1.2 times break-away: 5.5 cm/s toward the wall, 11 cm/s away (its map is asymmetric),
-    # so a leg across the band takes 1.8 and 0.9 s, six and four time constants. The band
-    # lies near the wall, where the IR sensor resolves 0.02 to 0.2 cm per readout count; 24
-    # reversals (about 45 s) halve the scatter of 12 under 2 counts of noise.
-    "AltinoDistance": ReversalPlan(
-        level=1.2,
-        hold=3.0,
-        reversals=24,
-        max_width=1.0,  # cm
-        resolution=1.0,  # one readout count
-        band=(4.0, 14.0),
-    ),
-}
+        return cls(**settings)
 
 
 @dataclass(frozen=True)
