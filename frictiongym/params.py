@@ -24,8 +24,11 @@ motor and load, :class:`Backlash`: ``{"width": W, "load_inertia": psi, "load_fri
 in position units and shares; ``frictiongym identify --backlash`` writes it), ``device`` (the
 ``Device.name`` it was identified on), ``env_id``, ``units``, ``uncertainty`` (standard errors,
 same units; ``backlash`` for the play's width) and free-form ``metadata``. A file without
-``backlash`` is a rigid drivetrain, as before the key existed. For ``coulomb`` ``us_*`` equal
-``uc_*`` or are null and ``v0_*`` may be null (no stiction, no decay).
+``backlash`` is a rigid drivetrain, as before the key existed. ``dead_zone`` (the actuator's
+dead-zone half-width, command units; ``frictiongym identify --dead-zone`` writes it) makes the
+levels the friction's own, below what the body shows while driven by the zone's width. For
+``coulomb`` ``us_*`` equal ``uc_*`` or are null and ``v0_*`` may be null (no stiction, no
+decay).
 
 **B and viscous.** ``B`` is the *total* linear damping the plant sees: the paper's ``B_e`` of
 Eq. (2), which includes the viscous slope of the friction map (paper §4.1). ``viscous`` is
@@ -75,6 +78,7 @@ REQUIRED_KEYS = (*PARAM_KEYS, "J", "B", "law")
 OPTIONAL_KEYS = (
     "shape",
     "backlash",
+    "dead_zone",
     "device",
     "env_id",
     "units",
@@ -85,7 +89,7 @@ OPTIONAL_KEYS = (
 #: Keys of the ``backlash`` object, in file order.
 BACKLASH_KEYS = ("width", "load_inertia", "load_friction")
 #: Keys an ``uncertainty`` may hold.
-UNCERTAINTY_KEYS = (*PARAM_KEYS, "J", "B", "backlash")
+UNCERTAINTY_KEYS = (*PARAM_KEYS, "J", "B", "backlash", "dead_zone")
 #: Version tag written into every file.
 FORMAT = "frictiongym.params/1"
 #: The name of the file inside a results directory.
@@ -112,6 +116,7 @@ PARAM_LIMITS: dict[str, tuple[float, float]] = {
     **{f"{k}_{d}": (0.0, 1e6) for k in ("us", "uc") for d in ("pos", "neg")},
     **{f"v0_{d}": (1e-9, 1e6) for d in ("pos", "neg")},
     "backlash.width": (0.0, 1e6),
+    "dead_zone": (0.0, 1e6),
 }
 
 
@@ -316,6 +321,10 @@ class DeviceParams:
     backlash : Backlash, optional
         A play between motor and load (None: a rigid drivetrain); it needs a law with the
         event-exact step (``paper`` with a ``linear`` or ``step`` decay, or ``coulomb``).
+    dead_zone : float, optional
+        Half-width ``d`` of the actuator's dead zone, command units (None: the plant's own,
+        none in the presets). The levels are then the friction's own: a zone adds ``d`` to
+        every level the body shows while the command drives it (docs/physics.md).
     source : str, optional
         Where it was read from (for messages; not compared).
     """
@@ -330,6 +339,7 @@ class DeviceParams:
     metadata: Mapping[str, Any] = field(default_factory=dict)
     units: Mapping[str, str] = field(default_factory=dict)
     backlash: Backlash | None = None
+    dead_zone: float | None = None
     source: str | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -366,6 +376,8 @@ class DeviceParams:
                     f"'linear' or 'step', or 'coulomb'), got law {self.law!r} with "
                     f"{self.friction!r}; drop 'backlash' or change the law",
                 )
+        if self.dead_zone is not None:
+            object.__setattr__(self, "dead_zone", _real(where, "dead_zone", self.dead_zone))
         if not all(isinstance(k, str) and isinstance(u, str) for k, u in self.units.items()):
             raise _fail(where, f"'units' must map names to strings, got {dict(self.units)!r}")
         for name in ("uncertainty", "metadata", "units"):  # private copies: callers keep theirs
@@ -387,6 +399,7 @@ class DeviceParams:
         uncertainty: Mapping[str, float] | None = None,
         metadata: Mapping[str, Any] | None = None,
         backlash: Backlash | None = None,
+        dead_zone: float | None = None,
     ) -> DeviceParams:
         """Wrap an identified law and linear plant (what identification calls).
 
@@ -408,19 +421,22 @@ class DeviceParams:
             dict(metadata or {}),
             dict(units),
             backlash,
+            dead_zone,
         )
 
     def plant(self, base: PlantParams) -> PlantParams:
         """Return ``base`` with this inertia and (total) damping; limit, lag, dead time kept.
 
-        With :attr:`backlash`, also its play and shares; without, ``base``'s are kept.
+        With :attr:`backlash`, also its play and shares, and with :attr:`dead_zone` its zone;
+        without, ``base``'s are kept.
         """
+        plant = replace(base, inertia=self.inertia, damping=self.damping)
+        if self.dead_zone is not None:
+            plant = replace(plant, dead_zone=self.dead_zone)
         if self.backlash is None:
-            return replace(base, inertia=self.inertia, damping=self.damping)
+            return plant
         return replace(
-            base,
-            inertia=self.inertia,
-            damping=self.damping,
+            plant,
             backlash=self.backlash.width,
             load_inertia=self.backlash.load_inertia,
             load_friction=self.backlash.load_friction,
@@ -445,6 +461,8 @@ class DeviceParams:
             out["shape"] = f.shape
         if self.backlash is not None:  # absent otherwise: files without a play are unchanged
             out["backlash"] = self.backlash.to_dict()
+        if self.dead_zone is not None:  # likewise
+            out["dead_zone"] = self.dead_zone
         out.update(device=self.device, env_id=self.env_id, units=dict(self.units))
         out.update(uncertainty=dict(self.uncertainty), metadata=_json_value(self.metadata))
         out["format"] = FORMAT
@@ -495,6 +513,9 @@ class DeviceParams:
                 _mapping(source, data, "metadata"),
                 _mapping(source, data, "units"),
                 _backlash(source, data),
+                None
+                if data.get("dead_zone") is None
+                else _real(source, "dead_zone", data["dead_zone"]),
                 source,
             )
         except ParamsFileError:

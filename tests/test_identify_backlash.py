@@ -235,7 +235,7 @@ def test_the_command_writes_a_resolved_play_with_its_assumptions(tmp_path, capsy
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--backlash", "--law", "coulomb"], "--backlash estimates the play with the paper law"),
+        (["--backlash", "--law", "coulomb"], "--backlash is estimated with the paper law"),
         (["--backend", "emulator://rotary", "--true-backlash", "0.01"], "simulator only"),
     ],
 )

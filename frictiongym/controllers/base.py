@@ -56,6 +56,9 @@ class LoopSpec:
         The device's identified friction, the compensator's default model: the env's
         ``params`` file if it was made with one, else the device's paper preset (also when the
         env simulates another law, e.g. ``friction="coulomb"``: a structural mismatch).
+    dead_zone : float
+        The actuator dead zone's half-width that file identified (command units; 0: none), the
+        compensator's default: its levels are then the friction's own, below the zone.
     """
 
     dt: float
@@ -66,6 +69,7 @@ class LoopSpec:
     direction: float = 1.0
     rest_speed: float = 0.0
     friction: FrictionModel | None = None
+    dead_zone: float = 0.0
 
     def __post_init__(self) -> None:
         real_number("LoopSpec.dt", self.dt, "> 0", unit=" s")
@@ -74,6 +78,7 @@ class LoopSpec:
         if self.direction not in (1.0, -1.0):
             raise ValueError(f"LoopSpec.direction must be 1.0 or -1.0, got {self.direction!r}")
         real_number("LoopSpec.rest_speed", self.rest_speed, ">= 0")
+        real_number("LoopSpec.dead_zone", self.dead_zone, ">= 0")
 
     @classmethod
     def from_env(cls, env: Any) -> LoopSpec:
@@ -95,6 +100,7 @@ class LoopSpec:
             ) from None
         names = device.observation_names
         space = getattr(base, "single_action_space", None) or base.action_space
+        params = getattr(base.sim, "params", None)
         return cls(
             dt=float(base.dt),
             limit=float(space.high[0]),
@@ -104,6 +110,7 @@ class LoopSpec:
             direction=device.direction,
             rest_speed=device.rest_speed,
             friction=base.sim.model_friction,
+            dead_zone=(params.dead_zone or 0.0) if params is not None else 0.0,
         )
 
     def split(self, observation: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:

@@ -68,10 +68,12 @@ class FrictionCompensator(Controller):
     scale : float, default 1.0
         Model mismatch in level: every break-away and Coulomb level of ``model`` is
         multiplied by it (1.2: friction over-estimated by 20 %).
-    dead_zone : float, default 0.0
+    dead_zone : float, optional
         The modelled half-width ``d`` of an actuator dead zone, command units (the env's
         ``deadzone=``): the compensated command ``u`` is sent as ``u + d sign(u)``, the dead
-        zone's inverse (Tao and Kokotovic 1996), so that the plant is driven by ``u``. 0: none.
+        zone's inverse (Tao and Kokotovic 1996), so that the plant is driven by ``u``. By
+        default the model file's ``dead_zone`` (a file from ``frictiongym identify
+        --dead-zone``; with no ``model``, the env's file, :attr:`LoopSpec.dead_zone`), else 0.
     """
 
     def __init__(
@@ -83,7 +85,7 @@ class FrictionCompensator(Controller):
         rest_speed: float | None = None,
         smoothing: float | None = None,
         scale: float = 1.0,
-        dead_zone: float = 0.0,
+        dead_zone: float | None = None,
     ) -> None:
         spec = base.spec
         if spec.velocity is None:
@@ -93,10 +95,12 @@ class FrictionCompensator(Controller):
             )
         if mode not in MODES:
             raise ValueError(f"mode must be one of {', '.join(MODES)}; got {mode!r}")
+        zone = 0.0  # the model's dead zone: its levels are the friction's own below it
         if model is None:
-            model = spec.friction
+            model, zone = spec.friction, spec.dead_zone
         elif not isinstance(model, FrictionModel):
-            model = resolve_params(model).friction
+            params = resolve_params(model)
+            model, zone = params.friction, params.dead_zone or 0.0
         if model is None:
             raise ValueError(
                 "no friction model: pass model=..., or build the base controller for a "
@@ -115,7 +119,7 @@ class FrictionCompensator(Controller):
         self.rest_speed = rest
         self.smoothing = smooth
         self.scale = float(scale)
-        self.dead_zone = real_number("dead_zone", dead_zone, ">= 0")
+        self.dead_zone = zone if dead_zone is None else real_number("dead_zone", dead_zone, ">= 0")
 
     @classmethod
     def for_env(  # its base, not a LoopSpec, follows the env

@@ -34,7 +34,7 @@ or within two standard errors of zero, is reported as not resolved, with the bou
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -297,48 +297,100 @@ def estimate_backlash(
         load_inertia=psi,  # PlantParams checks the shares
         load_friction=phi,
     )
-    data = _Data(trace, reading or LinearReading())
+    data = ReversalData(trace, reading or LinearReading())
     if not data.windows:
         raise ValueError("the run holds no reversal of the command: run Runner.reversals")
 
     def simulate(widths: FloatArray) -> FloatArray:
         params = [replace(base, backlash=float(w)) for w in widths]
-        return _replay(data.command, params, law, dt)
+        return replay(data.command, params, law, dt)
 
-    coarse = np.linspace(0.0, plan.max_width, plan.grid)
+    fit = fit_scalar(
+        data, simulate, plan, plan.max_width, "raise ReversalPlan.max_width", device.position_unit
+    )
+    return BacklashEstimate(
+        width=fit.value,
+        stderr=fit.stderr,
+        resolved=not fit.note,
+        bound=fit.bound,
+        upper=fit.upper,
+        per_reversal=fit.per_reversal,
+        directions=tuple(data.directions),
+        load_inertia=psi,
+        load_friction=phi,
+        shares_from="the device preset's" if plan.shares is None else "ReversalPlan.shares",
+        rms=fit.rms,
+        rms_rigid=fit.rms_zero,
+        dead_time=base.dead_time,
+        search=(0.0, plan.max_width),
+        unit=device.position_unit,
+        note=fit.note,
+        trace=trace,
+    )
+
+
+@dataclass(frozen=True)
+class ScalarFit:
+    """One quantity fitted to a reversal run by :func:`fit_scalar`."""
+
+    value: float  #: pooled best fit
+    stderr: float  #: scatter of the per-reversal fits over sqrt(n) (nan: one reversal)
+    per_reversal: tuple[float, ...]  #: each reversal's own fit
+    bound: float  #: smallest value whose effect reaches one sensor step (inf: none)
+    upper: float  #: when not resolved, the value is below this; nan otherwise
+    note: str  #: why the value is not resolved ("" if it is)
+    rms: float  #: residual RMS at ``value``, reading units
+    rms_zero: float  #: residual RMS at 0 (no play, no zone)
+
+
+def fit_scalar(
+    data: ReversalData,
+    simulate: Callable[[FloatArray], FloatArray],
+    plan: ReversalPlan,
+    high: float,
+    end_hint: str,
+    unit: str,
+) -> ScalarFit:
+    """Fit one quantity in ``[0, high]`` whose 0 is the rigid model (a play's width, a zone).
+
+    ``simulate`` maps candidate values to replayed positions ``(samples, values)``. A coarse
+    grid, a fine grid around its best point and a bounded minimisation between the fine
+    grid's neighbours give the pooled fit; each reversal is fitted alone on the grids for
+    the standard error, and the effect of each coarse value on the path gives the
+    resolution bound (the module's description). ``end_hint`` says what a best fit at
+    ``high`` means, ``unit`` is the quantity's.
+    """
+    coarse = np.linspace(0.0, high, plan.grid)
     coarse_positions = simulate(coarse)
-    coarse_costs = data.costs(coarse_positions)  # (windows, widths)
+    coarse_costs = data.costs(coarse_positions)  # (windows, values)
     best = int(np.argmin(coarse_costs.sum(axis=0)))
     step = coarse[1] - coarse[0]
-    fine = np.linspace(max(coarse[best] - step, 0.0), coarse[best] + step, plan.grid)
+    fine = np.linspace(max(coarse[best] - step, 0.0), min(coarse[best] + step, high), plan.grid)
     fine_costs = data.costs(simulate(fine))
-    # Both grids, sorted, each width once (the fine grid's ends are coarse points).
-    widths, first = np.unique(np.concatenate([coarse, fine]), return_index=True)
+    # Both grids, sorted, each value once (the fine grid's ends are coarse points).
+    values, first = np.unique(np.concatenate([coarse, fine]), return_index=True)
     costs = np.concatenate([coarse_costs, fine_costs], axis=1)[:, first]
     # Pooled: a bounded minimisation between the neighbours of the fine grid's best point.
     i = int(np.argmin(fine_costs.sum(axis=0)))
-    low, high = fine[max(i - 1, 0)], fine[min(i + 1, fine.size - 1)]
+    low, top = fine[max(i - 1, 0)], fine[min(i + 1, fine.size - 1)]
     result = minimize_scalar(
         lambda w: float(data.costs(simulate(np.array([w]))).sum()),
-        bounds=(low, high),
+        bounds=(low, top),
         method="bounded",
         options={"xatol": 1e-3 * (fine[1] - fine[0])},
     )
     pooled, misfit = float(fine[i]), float(fine_costs.sum(axis=0)[i])
     if result.fun <= misfit:
         pooled, misfit = float(result.x), float(result.fun)
-    per_reversal = tuple(_parabola_min(widths, c) for c in costs)
+    per_reversal = tuple(_parabola_min(values, c) for c in costs)
     n = len(per_reversal)
     stderr = float(np.std(per_reversal, ddof=1) / math.sqrt(n)) if n > 1 else math.nan
     bound = _resolution_bound(coarse, data.effects(coarse_positions), plan.resolution)
     note, upper = "", math.nan
-    if pooled >= plan.max_width - step:
-        note = (
-            f"the best fit lies at the end of the search range, {plan.max_width:g} "
-            f"{device.position_unit}: raise ReversalPlan.max_width"
-        )
+    if pooled >= high - step:
+        note = f"the best fit lies at the end of the search range, {high:g} {unit}: {end_hint}"
     elif not math.isfinite(bound):
-        note = "no play in the search range moves the load by one sensor step"
+        note = "no value in the search range moves the load by one sensor step"
     elif pooled < bound or (n > 1 and pooled <= 2.0 * stderr):
         note = (
             "its effect on the load's path is below one sensor step"
@@ -347,28 +399,19 @@ def estimate_backlash(
         )
         upper = max(bound, pooled + 2.0 * (stderr if n > 1 else 0.0))
     samples = data.samples
-    return BacklashEstimate(
-        width=pooled,
+    return ScalarFit(
+        value=pooled,
         stderr=stderr,
-        resolved=not note,
+        per_reversal=per_reversal,
         bound=bound,
         upper=upper,
-        per_reversal=per_reversal,
-        directions=tuple(data.directions),
-        load_inertia=psi,
-        load_friction=phi,
-        shares_from="the device preset's" if plan.shares is None else "ReversalPlan.shares",
-        rms=math.sqrt(misfit / samples),
-        rms_rigid=math.sqrt(float(coarse_costs[:, 0].sum()) / samples),
-        dead_time=base.dead_time,
-        search=(0.0, plan.max_width),
-        unit=device.position_unit,
         note=note,
-        trace=trace,
+        rms=math.sqrt(misfit / samples),
+        rms_zero=math.sqrt(float(coarse_costs[:, 0].sum()) / samples),
     )
 
 
-def _replay(command: FloatArray, params: Sequence[PlantParams], law: Any, dt: float) -> FloatArray:
+def replay(command: FloatArray, params: Sequence[PlantParams], law: Any, dt: float) -> FloatArray:
     """Positions ``(samples, plants)`` before each command, every plant from rest at 0."""
     plant = Plant(list(params), law, dt, num_plants=len(params), parallel=False)
     out = np.empty((command.size, len(params)))
@@ -380,7 +423,7 @@ def _replay(command: FloatArray, params: Sequence[PlantParams], law: Any, dt: fl
     return out
 
 
-class _Data:
+class ReversalData:
     """The measured run cut into one window per reversal, and the misfit of simulations."""
 
     def __init__(self, trace: Rollout, reading: Reading) -> None:

@@ -52,6 +52,12 @@ shares of inertia and friction, which are assumed, not measured. A resolved W go
 friction.json as "backlash" (gym.make(ID, params=PATH) then simulates it); one below the
 sensor's resolution is reported as not resolved, with the bound, in the summary and in
 friction.json's metadata.
+
+--dead-zone fits an actuator dead zone (the band of commands the amplifier or motor ignores)
+to the same reversal run: every other experiment drives the body the way it moves, where a
+zone of half-width d only raises each friction level by d; after a reversal the zone weakens
+the braking command instead. A resolved d goes into friction.json as "dead_zone" with each
+level lowered by it (FrictionCompensator(model=PATH) then inverts the zone).
 """
 
 #: What a run may write into --out.
@@ -107,6 +113,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulator only: a play of full width W (position units) in the simulated device "
         "(default: none)",
     )
+    parser.add_argument(
+        "--dead-zone",
+        action="store_true",
+        help="also fit an actuator dead zone to the reversal run (off by default; needs --law "
+        "paper)",
+    )
+    parser.add_argument(
+        "--true-dead-zone",
+        type=float,
+        default=None,
+        metavar="D",
+        help="simulator only: a dead zone of half-width D (command units) in the simulated "
+        "device (default: none)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -149,6 +169,11 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
         true_play = None if truth is None else truth.get("backlash")
         if true_play is not None:
             lines.append(f"Simulated truth: W = {true_play:.6g} {result.backlash.unit}.")
+    if result.dead_zone is not None:
+        lines += ["", f"Reversal test: {result.dead_zone.describe()}."]
+        true_zone = None if truth is None else truth.get("dead_zone")
+        if true_zone is not None:
+            lines.append(f"Simulated truth: d = {true_zone:.6g} {result.dead_zone.unit}.")
     return "\n".join(lines) + "\n"
 
 
@@ -160,23 +185,31 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         kwargs.update(friction=args.friction, sensor_noise=bool(args.noise))
         if args.true_backlash is not None:  # only when given: default runs record no key
             kwargs["backlash"] = args.true_backlash
-    elif args.noise or args.friction != "paper" or args.true_backlash is not None:
+        if args.true_dead_zone is not None:
+            kwargs["deadzone"] = args.true_dead_zone
+    elif (
+        args.noise
+        or args.friction != "paper"
+        or args.true_backlash is not None
+        or args.true_dead_zone is not None
+    ):
         print(
-            "error: --noise, --friction and --true-backlash apply to the simulator only",
+            "error: --noise, --friction, --true-backlash and --true-dead-zone apply to the "
+            "simulator only",
             file=sys.stderr,
         )
         return 2
-    if args.backlash and args.law != "paper":
-        print(
-            f"error: --backlash estimates the play with the paper law; drop --law {args.law} "
-            "or --backlash",
-            file=sys.stderr,
-        )
-        return 2
+    for flag, given in (("--backlash", args.backlash), ("--dead-zone", args.dead_zone)):
+        if given and args.law != "paper":
+            print(
+                f"error: {flag} is estimated with the paper law; drop --law {args.law} or {flag}",
+                file=sys.stderr,
+            )
+            return 2
     try:
         check_seed(args.seed)
         plan = plan_for(args.env)
-        if args.backlash:
+        if args.backlash or args.dead_zone:
             ReversalPlan.for_device(args.env)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -211,7 +244,7 @@ def _identify(
 
     total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
     total += len(plan.relay_levels) + plan.refine
-    total += args.backlash * (1 + (PLAY_ROUNDS if plan.refine else 0))
+    total += args.backlash * (1 + (PLAY_ROUNDS if plan.refine else 0)) + args.dead_zone
     bar = tqdm(total=total, unit="run", desc="identify", leave=False, disable=args.quiet)
 
     def progress(label: str) -> None:
@@ -219,7 +252,14 @@ def _identify(
         bar.update(1)
 
     try:
-        result = identify(env, plan, seed=args.seed, progress=progress, backlash=args.backlash)
+        result = identify(
+            env,
+            plan,
+            seed=args.seed,
+            progress=progress,
+            backlash=args.backlash,
+            dead_zone=args.dead_zone,
+        )
     except IdentificationError as exc:
         print(f"error: identification failed: {exc}", file=sys.stderr)
         return 1
@@ -234,6 +274,8 @@ def _identify(
         true = truth(env.unwrapped.sim.friction, env.unwrapped.sim.plant)
         if result.backlash is not None:
             true["backlash"] = env.unwrapped.sim.plant.backlash
+        if result.dead_zone is not None:
+            true["dead_zone"] = env.unwrapped.sim.plant.dead_zone
     table = summary(result, args.law, true)
     write_text_atomic(out.path / "summary.md", table)
     if not args.no_figures:

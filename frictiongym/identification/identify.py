@@ -40,6 +40,12 @@ from frictiongym.identification.backlash import (
     estimate_backlash,
     reversal_test,
 )
+from frictiongym.identification.dead_zone import (
+    LEVELS,
+    DeadZoneEstimate,
+    estimate_dead_zone,
+    without_zone,
+)
 from frictiongym.identification.experiments import Runner, Span
 from frictiongym.identification.fit import LAWS, LawFit, fit_law, inertia_from_map, rest_slope
 from frictiongym.identification.refine import Reading, ReciprocalReading, Refinement, refine
@@ -176,12 +182,14 @@ class Identification:
     seconds: float
     plan: Plan
     backlash: BacklashEstimate | None = None  #: the reversal test, if it ran
+    dead_zone: DeadZoneEstimate | None = None  #: the dead-zone fit, if it ran
 
     def params(self, law: str = "paper") -> DeviceParams:
         """Return the parameters with ``law`` (``"best"``: lowest AIC) as a file's content.
 
-        A resolved play (:attr:`backlash`) is written with the shares it assumed; it was
-        estimated with the paper's law, so it needs ``law="paper"``.
+        A resolved play (:attr:`backlash`) is written with the shares it assumed, and a
+        resolved dead zone (:attr:`dead_zone`) with the levels lowered by it; both were
+        estimated with the paper's law, so they need ``law="paper"``.
         """
         name = min(self.fits.values(), key=lambda f: f.aic).law if law == "best" else law
         if name not in self.fits:
@@ -189,16 +197,20 @@ class Identification:
         fit = self.fits[name]
         errors = {**fit.stderr, "J": self.inertia[1], "B": self.damping[1]}
         play = None
+        resolved = [e for e in (self.backlash, self.dead_zone) if e is not None and e.resolved]
+        if resolved and name != "paper":
+            what = " and the ".join(
+                "play" if isinstance(e, BacklashEstimate) else "dead zone" for e in resolved
+            )
+            raise ValueError(
+                f"the {what} was estimated with the paper law, not {name!r}: write law "
+                "'paper' with it (or identify without the reversal test)"
+            )
         if self.backlash is not None and self.backlash.resolved:
-            if name != "paper":
-                raise ValueError(
-                    f"the play was estimated with the paper law, not {name!r}: write law "
-                    "'paper' with it (or identify without the reversal test)"
-                )
             estimate = self.backlash
             play = Backlash(estimate.width, estimate.load_inertia, estimate.load_friction)
             errors["backlash"] = estimate.stderr
-        return DeviceParams.from_model(
+        params = DeviceParams.from_model(
             fit.model,
             inertia=self.inertia[0],
             damping=self.damping[0],
@@ -208,6 +220,7 @@ class Identification:
             metadata=self.record(name),
             backlash=play,
         )
+        return params if self.dead_zone is None else self.dead_zone.apply(params)
 
     def record(self, law: str) -> dict[str, Any]:
         """Metadata of the run for the parameter file: experiments, fits, timing."""
@@ -234,6 +247,7 @@ class Identification:
                 k: v for k, v in asdict(self.refinement).items() if k not in ("values", "stderr")
             },
             **({} if self.backlash is None else {"backlash": self.backlash.record()}),
+            **({} if self.dead_zone is None else {"dead_zone": self.dead_zone.record()}),
             "experiments": len(self.traces),
             "env_steps": self.env_steps,
             "seconds": self.seconds,
@@ -254,6 +268,7 @@ def identify(
     laws: tuple[str, ...] = tuple(LAWS),
     progress: Callable[[str], None] | None = None,
     backlash: bool | ReversalPlan = False,
+    dead_zone: bool = False,
 ) -> Identification:
     """Identify the friction map, break-away levels, ``J`` and ``B`` of the device behind ``env``.
 
@@ -274,12 +289,17 @@ def identify(
         Also run a reversal test and estimate a play between motor and load
         (:mod:`~frictiongym.identification.backlash`): ``True`` runs the device's
         (:meth:`ReversalPlan.for_device`). Off by default.
+    dead_zone : bool
+        Also fit an actuator dead zone to the reversal run
+        (:mod:`~frictiongym.identification.dead_zone`; the run is the play's, with the same
+        plan, if ``backlash`` is on). A resolved zone lowers the paper law's levels by its
+        width, and a play is then estimated again with the zone held. Off by default.
     """
     started = time.perf_counter()
     device = devices.device_of(env)
     plan = plan or Plan.for_device(device)
     reversal = None  # checked before any experiment runs
-    if backlash:
+    if backlash or dead_zone:
         if "paper" not in laws:
             raise ValueError("the reversal test replays the paper law: keep 'paper' in laws")
         reversal = (
@@ -382,8 +402,8 @@ def identify(
         inertia = (refinement.values["J"], refinement.stderr["J"])
         damping = (refinement.values["B"], refinement.stderr["B"])
         breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
-    play = None
-    if reversal is not None:
+    play = zone = None
+    if reversal is not None and backlash:
         note("reversal test")
         play, joint = _reversal_test(
             runner,
@@ -395,6 +415,24 @@ def identify(
         )
         if joint is not None:  # the rigid model refitted together with the play
             fits["paper"], refinement = joint
+            inertia = (refinement.values["J"], refinement.stderr["J"])
+            damping = (refinement.values["B"], refinement.stderr["B"])
+            breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
+    if reversal is not None and dead_zone:
+        note("dead zone")
+        zone, play, zone_joint = _dead_zone_fit(
+            runner,
+            reversal,
+            (fits["paper"], inertia[0], damping[0]),
+            breakaway,
+            play,
+            plan,
+            refinement,
+            traces,
+            note,
+        )
+        if zone_joint is not None:  # the rigid model refitted with the zone
+            fits["paper"], refinement = zone_joint
             inertia = (refinement.values["J"], refinement.stderr["J"])
             damping = (refinement.values["B"], refinement.stderr["B"])
             breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
@@ -414,7 +452,93 @@ def identify(
         seconds=time.perf_counter() - started,
         plan=plan,
         backlash=play,
+        dead_zone=zone,
     )
+
+
+def _dead_zone_fit(
+    runner: Runner,
+    reversal: ReversalPlan,
+    rigid_model: tuple[LawFit, float, float],
+    breakaway: dict[str, tuple[float, float]],
+    play: BacklashEstimate | None,
+    plan: Plan,
+    refinement: Refinement | None,
+    traces: list[Rollout],
+    note: Callable[[str], None],
+) -> tuple[DeadZoneEstimate, BacklashEstimate | None, tuple[LawFit, Refinement] | None]:
+    """Fit a dead zone to the reversal run (the play's, or a new one), then the play again.
+
+    ``rigid_model`` is the paper's fit, ``J`` and ``B``; a resolved ``play`` is held during
+    the fit and, if the zone is resolved, estimated again with the zone held (the zone
+    weakens the braking after each reversal, which a play alone would take up). On a plan
+    that refines, the refinement is run again with the zone free first. Returns the zone,
+    the play and, after such a refit, the law and the refinement (levels as the body shows
+    them while driven, raised by the zone as the rigid model's are) that replace the rigid
+    ones.
+    """
+    device = devices.device_of(runner.env)
+    fit, inertia, damping = rigid_model
+    held = None
+    if play is not None and play.resolved:
+        held = Backlash(play.width, play.load_inertia, play.load_friction)
+    rigid = DeviceParams.from_model(
+        fit.model, inertia=inertia, damping=damping, device=device.name, backlash=held
+    )
+    if play is None:
+        limit = 0.95 * runner.spec.limit
+        levels = (breakaway["us_pos"][0], breakaway["us_neg"][0])
+        up, down = (min(reversal.level * level, limit) for level in levels)
+        trace = runner.reversals(up, down, reversal.hold, reversal.reversals, band=reversal.band)
+    else:
+        trace = play.trace
+    dt, reading = runner.spec.dt, plan.reading
+    dead_time = None if refinement is None else refinement.dead_time
+    zone = estimate_dead_zone(trace, rigid, reversal, dt=dt, reading=reading, dead_time=dead_time)
+    joint = None
+    if refinement is not None:
+        # The relay runs brake too, so the rigid refinement took up part of the zone (on the
+        # Altino with a zone of 50 units: the zone fitted 0, J 4.5 % high): refit it with the
+        # zone free (the reversal run added), then the zone again on that rigid model.
+        note("refinement with the dead zone")
+        drivetrain = None if held is None else (held.width, held.load_inertia, held.load_friction)
+        refit, refined = _refined(
+            fit,
+            [*traces, trace],
+            (refinement.values["J"], refinement.stderr["J"]),
+            (refinement.values["B"], refinement.stderr["B"]),
+            runner,
+            plan.reading,
+            drivetrain,
+            refinement,
+            zone=zone.width,
+        )
+        width = refined.values["d"]
+        raised = {k: v + width if k in LEVELS else v for k, v in refined.values.items()}
+        refined = replace(refined, values=raised)
+        refit = replace(
+            refit,
+            model=without_zone(refit.model, -width),
+            values={k: v + width if k in LEVELS else v for k, v in refit.values.items()},
+        )
+        joint = (refit, refined)
+        rigid = DeviceParams.from_model(
+            refit.model, inertia=raised["J"], damping=raised["B"], device=device.name, backlash=held
+        )
+        dead_time = refined.dead_time
+        zone = estimate_dead_zone(
+            trace, rigid, reversal, dt=dt, reading=reading, dead_time=dead_time
+        )
+        zone = replace(zone, refinement_width=width)
+    if play is not None and zone.resolved:
+        zoned = replace(zone.apply(rigid), backlash=None)
+        again = estimate_backlash(
+            trace, zoned, reversal, dt=dt, reading=reading, dead_time=dead_time
+        )
+        play = replace(
+            again, earlier=(*play.earlier, play.width), refinement_width=play.refinement_width
+        )
+    return zone, play, joint if zone.resolved else None
 
 
 def _resolution(reading: Reading, direction: float) -> Callable[[FloatArray], FloatArray]:
@@ -507,16 +631,20 @@ def _refined(
     reading: Reading | None,
     drivetrain: tuple[float, float, float] | None = None,
     previous: Refinement | None = None,
+    zone: float | None = None,
 ) -> tuple[LawFit, Refinement]:
     """Return the paper's law after the output-error fit, and the refinement itself.
 
     With a play (``drivetrain``), its width is fitted too, on the reversal runs as well.
+    With a dead zone (``zone``, its starting half-width), the zone is fitted instead and a
+    play is held; the law's levels are then the friction's own.
     With a ``previous`` refinement, the fit starts from its result alone at its dead time or
     less: a continuation, without the multi-start.
     """
     shape = fit.model.shape if isinstance(fit.model, StictionCoulomb) else "linear"
     start = {"J": inertia[0], "B": damping[0], **fit.values}
-    kinds = ("constant", "ramp", "relay", *(("reversal",) if drivetrain is not None else ()))
+    reversals = drivetrain is not None or zone is not None
+    kinds = ("constant", "ramp", "relay", *(("reversal",) if reversals else ()))
     runs = [t for t in traces if t.settings["kind"] in kinds]
     options: dict[str, Any] = {}
     if previous is not None:
@@ -531,7 +659,9 @@ def _refined(
         reading=reading,
         direction=runner.spec.direction,
         drivetrain=drivetrain,
-        fit_play=drivetrain is not None,
+        fit_play=drivetrain is not None and zone is None,
+        dead_zone=zone,
+        fit_zone=zone is not None,
         **options,
     )
     v = result.values

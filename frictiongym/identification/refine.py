@@ -157,9 +157,11 @@ class _Simulator:
         direction: float,
         join: int,
         drivetrain: tuple[float, float, float] | None = None,
+        zone: tuple[float, bool] = (0.0, False),
     ) -> None:
         self.dt = dt
         self.drivetrain = drivetrain
+        self.zone = zone  # a dead zone's half-width, and whether x carries it last
         self.limit = limit
         self.shape = shape
         self.reading = reading
@@ -209,10 +211,17 @@ class _Simulator:
                 0.0,
                 self.shape,  # type: ignore[arg-type]
             )
-            plant = PlantParams(inertia, damping, self.limit, dead_time=delay * self.dt)
+            width_d, fitted = self.zone
+            plant = PlantParams(
+                inertia,
+                damping,
+                self.limit,
+                dead_time=delay * self.dt,
+                dead_zone=float(x[-1]) if fitted else width_d,
+            )
             if self.drivetrain is not None:
                 width, load_inertia, load_friction = self.drivetrain
-                if x.size > len(NAMES):  # the play is fitted too: its width follows NAMES
+                if x.size > len(NAMES) + fitted:  # the play is fitted: its width follows NAMES
                     width = float(x[len(NAMES)])
                 plant = replace(
                     plant,
@@ -369,6 +378,8 @@ def refine(
     seed: int = 0,
     drivetrain: tuple[float, float, float] | None = None,
     fit_play: bool = False,
+    dead_zone: float | None = None,
+    fit_zone: bool = False,
 ) -> Refinement:
     """Refine ``J``, ``B`` and the friction levels against every sample of ``traces``.
 
@@ -405,6 +416,11 @@ def refine(
     fit_play : bool, default False
         Fit the play's width too (from ``drivetrain``'s, as ``"W"`` in the result); the
         shares stay fixed.
+    dead_zone : float, optional
+        An actuator dead zone's half-width in the simulated plant (the levels are then the
+        friction's own; :mod:`~frictiongym.identification.dead_zone`); none by default.
+    fit_zone : bool, default False
+        Fit the zone's half-width too (from ``dead_zone``, as ``"d"`` in the result).
     """
     if min(candidates, local_fits, polish) < 1:
         raise ValueError(
@@ -415,16 +431,22 @@ def refine(
         raise ValueError("refine needs at least one trace")
     if fit_play and drivetrain is None:
         raise ValueError("fit_play needs a drivetrain: its width starts the fit, its shares stay")
-    names = (*NAMES, "W") if fit_play else NAMES
+    if fit_zone and dead_zone is None:
+        raise ValueError("fit_zone needs a dead_zone: its half-width starts the fit")
+    names = (*NAMES, *(("W",) if fit_play else ()), *(("d",) if fit_zone else ()))
     reading = reading or LinearReading()
+    zone = (dead_zone or 0.0, fit_zone)
     ladder = [
-        _Simulator(traces, dt, limit, shape, reading, direction, j, drivetrain) for j in _JOINS
+        _Simulator(traces, dt, limit, shape, reading, direction, j, drivetrain, zone)
+        for j in _JOINS
     ]
     sim, whole = ladder[0], ladder[-1]
     # Coulomb levels as fractions of break-away, bounded by 1, so every trial law is valid.
     x0 = np.array([start[n] for n in NAMES], dtype=np.float64)
     if drivetrain is not None and fit_play:
         x0 = np.append(x0, drivetrain[0])
+    if dead_zone is not None and fit_zone:
+        x0 = np.append(x0, max(dead_zone, 1e-6))  # the bounds keep it positive
     x0[4] = min(max(start["uc_pos"] / start["us_pos"], 0.05), 0.99)
     x0[5] = min(max(start["uc_neg"] / start["us_neg"], 0.05), 0.99)
     # A kink far beyond the speed scale us/B is a straight branch: no data can place it.

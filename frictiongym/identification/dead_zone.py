@@ -1,0 +1,197 @@
+"""An actuator dead zone, estimated from the reversal test.
+
+**Why the other experiments cannot see it.** A dead zone of half-width ``d`` sends
+``u - d sign(u)`` to the plant (docs/physics.md, "Dead zone"). While the command drives the
+body in the direction it moves, which every ramp, level and step of the identification does,
+that is friction levels raised by ``d``: the rigid identification reports ``u_s + d`` and
+``u_c + d`` in each direction, with ``J``, ``B`` and the decay speeds unchanged.
+
+**What the reversal test adds.** After a reversal the command brakes the body: the zone
+weakens the braking command by ``d`` while friction brakes by its own level, so the body runs
+on by more than raised levels would let it, a difference of ``2 d`` in the braking force. So
+the recorded reversal run (:meth:`~frictiongym.identification.experiments.Runner.reversals`)
+is replayed on plants with candidate zones ``d``, each with the rigid levels lowered by ``d``
+(which leaves every driven experiment as it was), and ``d`` is fitted as the play's width is
+(:func:`~frictiongym.identification.backlash.fit_scalar`): grids, a bounded minimisation, the
+reversals' scatter for the standard error, and a resolution bound of one sensor step.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from frictiongym import devices
+from frictiongym.controllers.rollout import Rollout
+from frictiongym.friction import StictionCoulomb
+from frictiongym.identification.backlash import (
+    FloatArray,
+    ReversalData,
+    ReversalPlan,
+    fit_scalar,
+    replay,
+)
+from frictiongym.identification.refine import LinearReading, Reading
+from frictiongym.params import DeviceParams, device_physics
+
+LEVELS = ("us_pos", "us_neg", "uc_pos", "uc_neg")
+
+
+@dataclass(frozen=True)
+class DeadZoneEstimate:
+    """The dead zone fitted to a reversal run; widths in command units."""
+
+    width: float  #: pooled estimate of the half-width d
+    stderr: float  #: scatter of the per-reversal estimates over sqrt(n) (nan: one reversal)
+    resolved: bool  #: at least ``bound``, two standard errors from zero, inside the search
+    bound: float  #: smallest zone the test resolves: one sensor step of effect (inf: none)
+    upper: float  #: when too small to resolve, the zone is below this; nan otherwise
+    per_reversal: tuple[float, ...]  #: each reversal's own estimate
+    rms: float  #: residual RMS at ``width``, reading units
+    rms_rigid: float  #: residual RMS without a zone
+    search: tuple[float, float]  #: the half-widths searched
+    unit: str  #: command unit
+    play: float  #: the play held during the fit (0: none)
+    trace: Rollout = field(compare=False, repr=False)  #: the reversal run
+    note: str = ""  #: why the number was not resolved
+    #: the half-width the output-error refinement fitted with the rigid model (plans that
+    #: refine; a cross-check from other runs, nan otherwise)
+    refinement_width: float = math.nan
+
+    def describe(self) -> str:
+        """One line: the half-width and its standard error, or the bound."""
+        held = f", with the play of {self.play:.4g} held" if self.play else ""
+        if self.resolved:
+            return (
+                f"dead zone d = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (1 s.e.; "
+                f"half-width), the friction levels lowered by it{held}"
+            )
+        if math.isnan(self.upper):
+            return f"dead zone not resolved: {self.note} (best fit {self.width:.3g}){held}"
+        return (
+            f"dead zone not resolved: d < {self.upper:.3g} {self.unit} (best fit "
+            f"{self.width:.3g}; {self.note}){held}"
+        )
+
+    def record(self) -> dict[str, Any]:
+        """Metadata of the estimate for the parameter file."""
+        return {
+            "resolved": self.resolved,
+            "width": self.width,
+            "stderr": self.stderr,
+            "bound": self.bound,
+            "upper": self.upper,
+            "note": self.note,
+            "per_reversal": list(self.per_reversal),
+            "rms": self.rms,
+            "rms_rigid": self.rms_rigid,
+            "search": list(self.search),
+            "play_held": self.play,
+            "refinement_width": self.refinement_width,
+        }
+
+    def apply(self, params: DeviceParams) -> DeviceParams:
+        """Return ``params`` (the rigid identification) with this zone, if it is resolved.
+
+        The levels become the friction's own (each lowered by ``d``) and the file gains
+        ``dead_zone``: every driven experiment behaves as before, braking as measured.
+        """
+        if not self.resolved:
+            return params
+        return replace(
+            params,
+            friction=without_zone(params.friction, self.width),
+            dead_zone=self.width,
+            uncertainty={
+                **params.uncertainty,
+                **({"dead_zone": self.stderr} if math.isfinite(self.stderr) else {}),
+            },
+        )
+
+
+def without_zone(law: Any, width: float) -> StictionCoulomb:
+    """Return the paper law ``law`` with each break-away and Coulomb level lowered by ``width``."""
+    if not isinstance(law, StictionCoulomb):
+        raise ValueError(f"the dead-zone fit lowers the paper law's levels, got {law!r}")
+    return law.replace(**{k: getattr(law, k) - width for k in LEVELS})  # type: ignore[return-value]
+
+
+def estimate_dead_zone(
+    trace: Rollout,
+    rigid: DeviceParams,
+    plan: ReversalPlan,
+    *,
+    dt: float,
+    reading: Reading | None = None,
+    dead_time: float | None = None,
+) -> DeadZoneEstimate:
+    """Fit a dead zone's half-width to a reversal run (the module's description).
+
+    Parameters
+    ----------
+    trace : Rollout
+        The reversal run (:meth:`Runner.reversals`).
+    rigid : DeviceParams
+        The identification without a zone (the paper law; a ``backlash`` in it is held).
+    plan : ReversalPlan
+        Grid and sensor step; the search runs from 0 to the lower Coulomb level.
+    dt, reading, dead_time
+        As :func:`~frictiongym.identification.backlash.estimate_backlash`.
+
+    Raises
+    ------
+    ValueError
+        If the run holds no reversal, the law is not the paper's with the event-exact step,
+        or ``rigid`` names no device.
+    """
+    if rigid.device is None:
+        raise ValueError("the rigid identification names no device: set DeviceParams.device")
+    if rigid.dead_zone:
+        raise ValueError("the identification already holds a dead zone: give the one without")
+    device = devices.get(rigid.device)
+    _, law, _, base = device_physics(device, dt, params=rigid)
+    if not (isinstance(law, StictionCoulomb) and law.exact):
+        raise ValueError(
+            f"the dead-zone fit replays the paper law with the event-exact step (linear or "
+            f"step decay), got {law!r}"
+        )
+    base = replace(
+        base,
+        end_stop=math.inf,  # the run stays inside its band; offsets place it
+        dead_time=base.dead_time if dead_time is None else round(dead_time / dt) * dt,
+    )
+    data = ReversalData(trace, reading or LinearReading())
+    if not data.windows:
+        raise ValueError("the run holds no reversal of the command: run Runner.reversals")
+    # A zone at least the lower Coulomb level would leave a level negative.
+    high = 0.999 * min(law.uc_pos, law.uc_neg)
+
+    def simulate(widths: FloatArray) -> FloatArray:
+        params = [replace(base, dead_zone=float(d)) for d in widths]
+        laws = [without_zone(law, float(d)) for d in widths]
+        return replay(data.command, params, laws, dt)
+
+    fit = fit_scalar(
+        data,
+        simulate,
+        plan,
+        high,
+        "the zone would reach the lower Coulomb level",
+        device.command_unit,
+    )
+    return DeadZoneEstimate(
+        width=fit.value,
+        stderr=fit.stderr,
+        resolved=not fit.note,
+        bound=fit.bound,
+        upper=fit.upper,
+        per_reversal=fit.per_reversal,
+        rms=fit.rms,
+        rms_rigid=fit.rms_zero,
+        search=(0.0, high),
+        unit=device.command_unit,
+        play=base.backlash,
+        trace=trace,
+        note=fit.note,
+    )
