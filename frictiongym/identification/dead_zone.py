@@ -22,6 +22,9 @@ import math
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+import numpy as np
+from scipy.optimize import minimize
+
 from frictiongym import devices
 from frictiongym.controllers.rollout import Rollout
 from frictiongym.friction import StictionCoulomb
@@ -34,6 +37,7 @@ from frictiongym.identification.backlash import (
 )
 from frictiongym.identification.refine import LinearReading, Reading
 from frictiongym.params import DeviceParams, device_physics
+from frictiongym.plants.plant import PlantParams
 
 LEVELS = ("us_pos", "us_neg", "uc_pos", "uc_neg")
 
@@ -145,22 +149,9 @@ def estimate_dead_zone(
         If the run holds no reversal, the law is not the paper's with the event-exact step,
         or ``rigid`` names no device.
     """
-    if rigid.device is None:
-        raise ValueError("the rigid identification names no device: set DeviceParams.device")
     if rigid.dead_zone:
         raise ValueError("the identification already holds a dead zone: give the one without")
-    device = devices.get(rigid.device)
-    _, law, _, base = device_physics(device, dt, params=rigid)
-    if not (isinstance(law, StictionCoulomb) and law.exact):
-        raise ValueError(
-            f"the dead-zone fit replays the paper law with the event-exact step (linear or "
-            f"step decay), got {law!r}"
-        )
-    base = replace(
-        base,
-        end_stop=math.inf,  # the run stays inside its band; offsets place it
-        dead_time=base.dead_time if dead_time is None else round(dead_time / dt) * dt,
-    )
+    device, law, base = _replayed(rigid, dt, dead_time)
     data = ReversalData(trace, reading or LinearReading())
     if not data.windows:
         raise ValueError("the run holds no reversal of the command: run Runner.reversals")
@@ -195,3 +186,75 @@ def estimate_dead_zone(
         trace=trace,
         note=fit.note,
     )
+
+
+def joint_start(
+    trace: Rollout,
+    rigid: DeviceParams,
+    plan: ReversalPlan,
+    shares: tuple[float, float],
+    *,
+    dt: float,
+    reading: Reading | None = None,
+    dead_time: float | None = None,
+) -> tuple[float, float]:
+    """Return the play's width and the zone's half-width that best fit the run together.
+
+    Both weaken the braking after a reversal (the zone its force, the play its start), so a
+    fit of one with the other absent takes up both, and alternating one-dimensional fits
+    creep along the valley between them. A coarse grid over both (``plan.grid`` squared,
+    capped at 21 a side), a fine grid around its best point and a simplex polish find the
+    valley's minimum; the one-dimensional fits start from it.
+    ``rigid`` is the identification without either, ``shares`` the play's.
+    """
+    _, law, base = _replayed(rigid, dt, dead_time)
+    base = replace(base, load_inertia=shares[0], load_friction=shares[1])
+    data = ReversalData(trace, reading or LinearReading())
+    if not data.windows:
+        raise ValueError("the run holds no reversal of the command: run Runner.reversals")
+    side = min(plan.grid, 21)
+    high = np.array([plan.max_width, 0.999 * min(law.uc_pos, law.uc_neg)])
+
+    def costs(points: FloatArray) -> FloatArray:
+        params = [replace(base, backlash=float(w), dead_zone=float(d)) for w, d in points]
+        laws = [without_zone(law, float(d)) for _, d in points]
+        return data.costs(replay(data.command, params, laws, dt)).sum(axis=0)
+
+    # A coarse grid over both, a fine one around its best point, then a simplex polish.
+    low, top = np.zeros(2), high
+    for _ in range(2):
+        axes = [np.linspace(a, b, side) for a, b in zip(low, top, strict=True)]
+        grid = np.array([(w, d) for w in axes[0] for d in axes[1]])
+        best = grid[int(np.argmin(costs(grid)))]
+        steps = (top - low) / (side - 1)
+        low, top = np.maximum(best - steps, 0.0), np.minimum(best + steps, high)
+    result = minimize(
+        lambda x: float(costs(x[None, :])[0]),
+        best,
+        method="Nelder-Mead",
+        bounds=list(zip(np.zeros(2), high, strict=True)),
+        options={"initial_simplex": np.vstack([best, best + np.diag(steps)])},
+    )
+    start = result.x if result.fun <= float(costs(best[None, :])[0]) else best
+    return float(start[0]), float(start[1])
+
+
+def _replayed(
+    rigid: DeviceParams, dt: float, dead_time: float | None
+) -> tuple[devices.Device, StictionCoulomb, PlantParams]:
+    """Return the device, the paper law and the plant a reversal run is replayed on."""
+    if rigid.device is None:
+        raise ValueError("the rigid identification names no device: set DeviceParams.device")
+    device = devices.get(rigid.device)
+    _, law, _, base = device_physics(device, dt, params=rigid)
+    if not (isinstance(law, StictionCoulomb) and law.exact):
+        raise ValueError(
+            f"the dead-zone fit replays the paper law with the event-exact step (linear or "
+            f"step decay), got {law!r}"
+        )
+    base = replace(
+        base,
+        end_stop=math.inf,  # the run stays inside its band; offsets place it
+        dead_time=base.dead_time if dead_time is None else round(dead_time / dt) * dt,
+    )
+    return device, law, base

@@ -44,6 +44,7 @@ from frictiongym.identification.dead_zone import (
     LEVELS,
     DeadZoneEstimate,
     estimate_dead_zone,
+    joint_start,
     without_zone,
 )
 from frictiongym.identification.experiments import Runner, Span
@@ -469,9 +470,11 @@ def _dead_zone_fit(
 ) -> tuple[DeadZoneEstimate, BacklashEstimate | None, tuple[LawFit, Refinement] | None]:
     """Fit a dead zone to the reversal run (the play's, or a new one), then the play again.
 
-    ``rigid_model`` is the paper's fit, ``J`` and ``B``; a resolved ``play`` is held during
-    the fit and, if the zone is resolved, estimated again with the zone held (the zone
-    weakens the braking after each reversal, which a play alone would take up). On a plan
+    ``rigid_model`` is the paper's fit, ``J`` and ``B``. With a ``play`` estimate, the zone is
+    fitted on its run with the play held at the width where both fit best together
+    (:func:`~frictiongym.identification.dead_zone.joint_start`: both weaken the braking after
+    a reversal, so either alone takes up the other), and the play is then estimated again
+    with the zone held. On a plan
     that refines, the refinement is run again with the zone free first. Returns the zone,
     the play and, after such a refit, the law and the refinement (levels as the body shows
     them while driven, raised by the zone as the rigid model's are) that replace the rigid
@@ -479,21 +482,22 @@ def _dead_zone_fit(
     """
     device = devices.device_of(runner.env)
     fit, inertia, damping = rigid_model
+    rigid = DeviceParams.from_model(fit.model, inertia=inertia, damping=damping, device=device.name)
+    dt, reading = runner.spec.dt, plan.reading
+    dead_time = None if refinement is None else refinement.dead_time
     held = None
-    if play is not None and play.resolved:
-        held = Backlash(play.width, play.load_inertia, play.load_friction)
-    rigid = DeviceParams.from_model(
-        fit.model, inertia=inertia, damping=damping, device=device.name, backlash=held
-    )
     if play is None:
         limit = 0.95 * runner.spec.limit
         levels = (breakaway["us_pos"][0], breakaway["us_neg"][0])
         up, down = (min(reversal.level * level, limit) for level in levels)
         trace = runner.reversals(up, down, reversal.hold, reversal.reversals, band=reversal.band)
-    else:
-        trace = play.trace
-    dt, reading = runner.spec.dt, plan.reading
-    dead_time = None if refinement is None else refinement.dead_time
+    else:  # the play's run; the zone's fit holds the play where both fit best together
+        trace, shares = play.trace, (play.load_inertia, play.load_friction)
+        width, _ = joint_start(
+            trace, rigid, reversal, shares, dt=dt, reading=reading, dead_time=dead_time
+        )
+        held = Backlash(width, *shares) if width > 0.0 else None
+        rigid = replace(rigid, backlash=held)
     zone = estimate_dead_zone(trace, rigid, reversal, dt=dt, reading=reading, dead_time=dead_time)
     joint = None
     if refinement is not None:
