@@ -249,6 +249,38 @@ def test_the_command_refuses_what_the_test_cannot_do(tmp_path, capsys, extra, me
 def test_a_bad_reversal_plan_names_what_is_wrong():
     with pytest.raises(ValueError, match=r"level=0.9 must be > 1.*shares=\(1.0, 0.0\)"):
         replace(ReversalPlan.for_device(ROTARY), level=0.9, shares=(1.0, 0.0))
+    # A coarser grid snapped every reversal's own fit to 0: a standard error of 0.
+    with pytest.raises(ValueError, match=r"grid=3 must be an integer >= 11"):
+        replace(ReversalPlan.for_device(ROTARY), grid=3)
+
+
+def test_a_play_wider_than_the_search_says_so_and_a_wider_search_finds_it(tmp_path, capsys):
+    argv = ["--env", ROTARY, "--backlash", "--true-backlash", "0.3", "--quiet", "--no-figures"]
+    assert tool_main("identify", [*argv, "--out", str(tmp_path / "a")]) == 0
+    summary = (tmp_path / "a" / "summary.md").read_text()
+    assert "at least this wide, and biases the rigid parameters: raise --max-backlash" in summary
+    assert "backlash" not in json.loads((tmp_path / "a" / "friction.json").read_text())
+    wider = [*argv, "--max-backlash", "0.5", "--out", str(tmp_path / "b")]
+    assert tool_main("identify", wider) == 0
+    play = json.loads((tmp_path / "b" / "friction.json").read_text())["backlash"]
+    assert play["width"] == pytest.approx(0.3, rel=0.05)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--backlash", "-1"], "--backlash must be >= 0"),
+        (["--backlash", "nan"], "--backlash must be finite"),
+        (["--backlash", "0.01", "--shares", "1.5,0"], "shares=(1.5, 0.0) must be"),
+        (["--shares", "0.8,0.3"], "give --backlash too"),
+        (["--backlash", "0.01", "--seeds", "x"], "--seeds takes integers"),
+    ],
+)
+def test_validate_names_a_bad_option_in_one_line(capsys, argv, message):
+    from frictiongym.identification.validate import main
+
+    assert main(["--env", ROTARY, *argv]) == 2
+    assert message in capsys.readouterr().err
 
 
 def test_the_reversal_tests_come_from_the_device_descriptions():

@@ -51,6 +51,11 @@ from frictiongym.plants.plant import Plant, PlantParams
 
 FloatArray = npt.NDArray[np.float64]
 
+#: Why a run gives no window to fit.
+NO_WINDOWS = (
+    "the run holds no reversal with a leg of at least three valid samples on each side: run "
+    "Runner.reversals, with a hold of several control periods"
+)
 #: Gauss-Newton iterations of each window's position offset (one is exact for an encoder).
 _OFFSET_ITERATIONS = 4
 _TINY = 1e-300
@@ -102,7 +107,8 @@ class ReversalPlan:
                 ("reversals", self.reversals, "an integer >= 1", self.reversals >= 1),
                 ("max_width", self.max_width, "> 0", self.max_width > 0.0),
                 ("resolution", self.resolution, "> 0", self.resolution > 0.0),
-                ("grid", self.grid, "an integer >= 3", self.grid >= 3),
+                # Fewer points snap each reversal's own fit to the grid: a false scatter.
+                ("grid", self.grid, "an integer >= 11", self.grid >= 11),
             )
             if not good
         ]
@@ -299,14 +305,20 @@ def estimate_backlash(
     )
     data = ReversalData(trace, reading or LinearReading())
     if not data.windows:
-        raise ValueError("the run holds no reversal of the command: run Runner.reversals")
+        raise ValueError(NO_WINDOWS)
 
     def simulate(widths: FloatArray) -> FloatArray:
         params = [replace(base, backlash=float(w)) for w in widths]
         return replay(data.command, params, law, dt)
 
     fit = fit_scalar(
-        data, simulate, plan, plan.max_width, "raise ReversalPlan.max_width", device.position_unit
+        data,
+        simulate,
+        plan,
+        plan.max_width,
+        "the play is at least this wide, and biases the rigid parameters: raise "
+        "--max-backlash (ReversalPlan.max_width)",
+        device.position_unit,
     )
     return BacklashEstimate(
         width=fit.value,
@@ -387,7 +399,7 @@ def fit_scalar(
     stderr = float(np.std(per_reversal, ddof=1) / math.sqrt(n)) if n > 1 else math.nan
     bound = _resolution_bound(coarse, data.effects(coarse_positions), plan.resolution)
     note, upper = "", math.nan
-    if pooled >= high - step:
+    if pooled >= high - (fine[1] - fine[0]):
         note = f"the best fit lies at the end of the search range, {high:g} {unit}: {end_hint}"
     elif not math.isfinite(bound):
         note = "no value in the search range moves the load by one sensor step"

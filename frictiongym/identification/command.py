@@ -10,7 +10,7 @@ from typing import Any
 
 from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
-from frictiongym._validation import check_seed
+from frictiongym._validation import check_seed, real_number
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.backlash import ReversalPlan
 from frictiongym.identification.estimates import IdentificationError
@@ -114,6 +114,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(default: none)",
     )
     parser.add_argument(
+        "--max-backlash",
+        type=float,
+        default=None,
+        metavar="W",
+        help="with --backlash: the widest play searched, position units (default: the "
+        "device's, 0.2 rad on the servo, 1 cm on the Altino)",
+    )
+    parser.add_argument(
         "--dead-zone",
         action="store_true",
         help="also fit an actuator dead zone to the reversal run (off by default; needs --law "
@@ -209,8 +217,14 @@ def run(args: argparse.Namespace, command_line: str) -> int:
     try:
         check_seed(args.seed)
         plan = plan_for(args.env)
+        args.reversal = None
         if args.backlash or args.dead_zone:
-            ReversalPlan.for_device(args.env)
+            args.reversal = ReversalPlan.for_device(args.env)
+        if args.max_backlash is not None:
+            if not args.backlash:
+                raise ValueError("--max-backlash sets the reversal test's search: add --backlash")
+            width = real_number("--max-backlash", args.max_backlash, "> 0")
+            args.reversal = replace(args.reversal, max_width=width)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -244,7 +258,8 @@ def _identify(
 
     total = 2 + 2 * (plan.ramp_repeats + len(plan.levels) + plan.step_repeats)
     total += len(plan.relay_levels) + plan.refine
-    total += args.backlash * (1 + (PLAY_ROUNDS if plan.refine else 0)) + args.dead_zone
+    total += args.backlash * (1 + (PLAY_ROUNDS if plan.refine else 0))
+    total += args.dead_zone * (1 + plan.refine)
     bar = tqdm(total=total, unit="run", desc="identify", leave=False, disable=args.quiet)
 
     def progress(label: str) -> None:
@@ -257,7 +272,7 @@ def _identify(
             plan,
             seed=args.seed,
             progress=progress,
-            backlash=args.backlash,
+            backlash=args.reversal if args.backlash else False,
             dead_zone=args.dead_zone,
         )
     except IdentificationError as exc:

@@ -29,6 +29,7 @@ from frictiongym import devices
 from frictiongym.controllers.rollout import Rollout
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification.backlash import (
+    NO_WINDOWS,
     FloatArray,
     ReversalData,
     ReversalPlan,
@@ -154,7 +155,7 @@ def estimate_dead_zone(
     device, law, base = _replayed(rigid, dt, dead_time)
     data = ReversalData(trace, reading or LinearReading())
     if not data.windows:
-        raise ValueError("the run holds no reversal of the command: run Runner.reversals")
+        raise ValueError(NO_WINDOWS)
     # A zone at least the lower Coulomb level would leave a level negative.
     high = 0.999 * min(law.uc_pos, law.uc_neg)
 
@@ -211,7 +212,7 @@ def joint_start(
     base = replace(base, load_inertia=shares[0], load_friction=shares[1])
     data = ReversalData(trace, reading or LinearReading())
     if not data.windows:
-        raise ValueError("the run holds no reversal of the command: run Runner.reversals")
+        raise ValueError(NO_WINDOWS)
     side = min(plan.grid, 21)
     high = np.array([plan.max_width, 0.999 * min(law.uc_pos, law.uc_neg)])
 

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from frictiongym import devices
+from frictiongym._validation import real_number
 from frictiongym.friction import FrictionModel, StictionCoulomb
 from frictiongym.identification.backlash import ReversalPlan
 from frictiongym.identification.identify import identify, make_env
@@ -140,12 +141,17 @@ def backlash_table(
     return rows
 
 
-def _integers(text: str) -> list[int]:
-    """Parse ``"0,2,5-7"`` into ``[0, 2, 5, 6, 7]``."""
+def _integers(text: str, option: str) -> list[int]:
+    """Parse ``"0,2,5-7"`` into ``[0, 2, 5, 6, 7]``; a bad list names ``option``."""
     out: list[int] = []
     for part in filter(None, text.split(",")):
         first, _, last = part.partition("-")
-        out += list(range(int(first), int(last or first) + 1))
+        try:
+            out += list(range(int(first), int(last or first) + 1))
+        except ValueError:
+            raise ValueError(
+                f"{option} takes integers and ranges such as 0,2,5-7, got {text!r}"
+            ) from None
     return out
 
 
@@ -179,13 +185,20 @@ def main(argv: Sequence[str] | None = None) -> int:
         shares = [float(x) for x in filter(None, args.shares.split(","))]
         if shares and len(shares) != 2:
             raise ValueError(f"--shares takes two fractions PSI,PHI, got {args.shares!r}")
+        if shares and not widths:
+            raise ValueError("--shares applies to the reversal test: give --backlash too")
+        for width in widths:
+            real_number("--backlash", width, ">= 0")
+        if shares:  # checked as the test will take them
+            replace(ReversalPlan.for_device(device), shares=(shares[0], shares[1]))
+        seeds, draws = _integers(args.seeds, "--seeds"), _integers(args.draws, "--draws")
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     if widths:
         started = time.perf_counter()
         assumed = (shares[0], shares[1]) if shares else None
-        rows = backlash_table(args.env, widths, _integers(args.seeds), args.noise, assumed)
+        rows = backlash_table(args.env, widths, seeds, args.noise, assumed)
         print("\n".join(rows))
         print(
             f"{len(rows) - 2} identifications in {time.perf_counter() - started:.0f} s",
@@ -200,13 +213,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("|---|---|" + "---|" * len(KEYS) + "---|")
     worst = dict.fromkeys(KEYS, 0.0)
     runs, good_runs, started = 0, 0, time.perf_counter()
-    for draw in [None, *_integers(args.draws)]:
+    for draw in [None, *draws]:
         if draw is None:
             friction, plant = preset_friction, preset_plant
         else:
             rng = np.random.default_rng(draw)
             friction, plant = draw_device(rng, preset_friction, preset_plant)
-        for seed in _integers(args.seeds):
+        for seed in seeds:
             result = errors(args.env, friction, plant, seed, sensor_noise=args.noise, quantize=True)
             good = all(abs(result[k]) < TOLERANCE[k] for k in KEYS)
             runs, good_runs = runs + 1, good_runs + good
