@@ -187,7 +187,10 @@ class BacklashEstimate:
             f"of the friction ({self.shares_from}, not measured; W depends on them)"
         )
         if self.resolved:
-            return f"play W = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (1 s.e.), {shares}"
+            return (
+                f"play W = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (1 s.e. of the "
+                f"noise, not of the rigid model's errors), {shares}"
+            )
         if math.isnan(self.upper):
             return f"play not resolved: {self.note} (best fit {self.width:.3g}), {shares}"
         return (

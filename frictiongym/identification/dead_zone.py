@@ -69,8 +69,9 @@ class DeadZoneEstimate:
         held = f", with the play of {self.play:.4g} held" if self.play else ""
         if self.resolved:
             return (
-                f"dead zone d = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (1 s.e.; "
-                f"half-width), the friction levels lowered by it{held}"
+                f"dead zone d = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (half-width; "
+                f"1 s.e. of the noise, not of the rigid model's errors), the friction levels "
+                f"lowered by it{held}"
             )
         if math.isnan(self.upper):
             return f"dead zone not resolved: {self.note} (best fit {self.width:.3g}){held}"
