@@ -184,6 +184,9 @@ class Identification:
     plan: Plan
     backlash: BacklashEstimate | None = None  #: the reversal test, if it ran
     dead_zone: DeadZoneEstimate | None = None  #: the dead-zone fit, if it ran
+    #: Recorded data it was fitted to instead of experiments (``identify --from-log``):
+    #: what the data was and what it could not give
+    source: Mapping[str, Any] | None = None
 
     def params(self, law: str = "paper") -> DeviceParams:
         """Return the parameters with ``law`` (``"best"``: lowest AIC) as a file's content.
@@ -249,6 +252,7 @@ class Identification:
             },
             **({} if self.backlash is None else {"backlash": self.backlash.record()}),
             **({} if self.dead_zone is None else {"dead_zone": self.dead_zone.record()}),
+            **({} if self.source is None else {"source": dict(self.source)}),
             "experiments": len(self.traces),
             "env_steps": self.env_steps,
             "seconds": self.seconds,

@@ -1,0 +1,141 @@
+"""``frictiongym identify --from-log``: the laws fitted to a friction map measured elsewhere.
+
+Tolerances, fixed before the runs:
+
+* a map of 28 points drawn from the preset's law with noise (1 mV on the servo, 1 unit on
+  the Altino, a few per cent of the Coulomb levels' spread over the Stribeck drop) gives
+  every friction value within **four of its own standard errors** of the truth (the
+  standard errors are the joint fit's, break-away included); a wrong law or unit misses by
+  tens of them;
+* the servo's map measured by ``identify``'s own constant runs gives the same law as
+  ``identify`` within **0.5 %** (the two differ only in where ``u_s`` comes from: the ramps
+  there, the extrapolation here);
+* a bad file gets a one-line error naming the line and the column, exit status 2, and
+  ``--out`` is not created.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from frictiongym import devices
+from frictiongym.cli import tool_main
+from frictiongym.identification.from_log import LogFileError, identify_map, read_map
+from frictiongym.identification.identify import identify, make_env
+
+ROTARY = "frictiongym/RotaryServo-v1"
+ALTINO = "frictiongym/AltinoDistance-v1"
+FRICTION = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
+
+
+def _write(path: Path, rows: list[tuple[object, ...]], header=("velocity", "force")) -> Path:
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(header)
+        writer.writerows(rows)
+    return path
+
+
+def _synthetic(path: Path, device: devices.Device, top: float, noise: float) -> Path:
+    """A map of the preset's law: 14 speeds per direction from 5 % of v0 to ``top``."""
+    law = device.paper_friction
+    rng = np.random.default_rng(0)
+    v = np.concatenate(
+        [np.geomspace(0.05 * law.v0_pos, top, 14), -np.geomspace(0.05 * law.v0_neg, top, 14)]
+    )
+    u = law.force(v) + device.plant.damping * v + rng.normal(0.0, noise, v.size)
+    return _write(path, list(zip(v, u, strict=True)))
+
+
+@pytest.mark.parametrize(
+    ("device", "top", "noise"), [(devices.ROTARY, 25.0, 1e-3), (devices.ALTINO, 20.0, 1.0)]
+)
+def test_a_map_of_the_law_gives_it_back_within_its_errors(tmp_path, device, top, noise):
+    path = _synthetic(tmp_path / "map.csv", device, top, noise)
+    params = identify_map(read_map(path, device), device).params("paper")
+    law = device.paper_friction
+    for key in FRICTION:
+        error = getattr(params.friction, key) - getattr(law, key)
+        assert abs(error) <= 4.0 * params.uncertainty[key], key
+    b = device.plant.damping + law.viscous
+    assert abs(params.damping - b) <= 4.0 * params.uncertainty["B"]
+    assert params.inertia == device.plant.inertia  # not identified: the preset's
+    assert "J" not in params.uncertainty
+
+
+def test_the_servo_s_own_map_gives_identify_s_law(tmp_path):
+    result = identify(make_env(ROTARY, sensor_noise=True), seed=0)
+    rows = [(p.sign * p.velocity if p.moved else 0.0, p.sign * p.level) for p in result.points]
+    path = _write(tmp_path / "map.csv", rows)
+    from_map = identify_map(read_map(path, devices.ROTARY), devices.ROTARY).params("paper")
+    for key in FRICTION:
+        expected = getattr(result.params("paper").friction, key)
+        assert getattr(from_map.friction, key) == pytest.approx(expected, rel=0.005), key
+
+
+def test_the_command_writes_the_file_and_says_what_it_could_not_identify(tmp_path):
+    path = _synthetic(tmp_path / "map.csv", devices.ROTARY, 25.0, 1e-3)
+    # The same map in degrees per second and millivolts.
+    scaled = [(float(v) * 180.0 / np.pi, float(u) * 1e3) for v, u in _rows(path)]
+    other = _write(tmp_path / "deg.csv", scaled, header=("speed_deg", "cmd_mV"))
+    out = tmp_path / "out"
+    argv = ["--env", ROTARY, "--from-log", str(other), "--velocity-column", "speed_deg"]
+    argv += ["--force-column", "cmd_mV", "--velocity-unit", "deg/s", "--force-unit", "mV"]
+    argv += ["--inertia", "0.0071", "--out", str(out), "--quiet", "--no-figures"]
+    assert tool_main("identify", argv) == 0
+    data = json.loads((out / "friction.json").read_text())
+    direct = identify_map(read_map(path, devices.ROTARY), devices.ROTARY).params("paper")
+    for key in FRICTION:
+        assert data[key] == pytest.approx(getattr(direct.friction, key), rel=1e-6), key
+    assert data["J"] == 0.0071
+    assert "given with --inertia" in data["metadata"]["source"]["not_identified"]["J"]
+    summary = (out / "summary.md").read_text()
+    assert "Not identified: us_pos, us_neg: a map holds no start from rest" in summary
+
+
+def _rows(path: Path) -> list[tuple[float, float]]:
+    with open(path) as handle:
+        return [(float(v), float(u)) for v, u in list(csv.reader(handle))[1:]]
+
+
+@pytest.mark.parametrize(
+    ("content", "extra", "message"),
+    [
+        ("speed,force\n1,0.2\n", [], "no column 'velocity'; its columns are 'speed', 'force'"),
+        ("velocity,force\n1,0.2\n2,abc\n", [], "line 3, column 'force': 'abc' is not a number"),
+        ("velocity,force\n1,0.2\nnan,0.3\n", [], "line 3, column 'velocity': 'nan' is not finite"),
+        ("velocity,force\n1,0.2\n2,0.3,4\n", [], "line 3 has 3 fields, the header 2"),
+        ("velocity,force\n1,-0.2\n", [], "line 2: the force -0.2 opposes the velocity 1"),
+        ("velocity,force\n1,0.2\n2,0.3\n-1,-0.2\n", [], "2 moving points of positive speed"),
+        ("velocity,force\n", [], "the header names the columns but no row follows"),
+        ("", [], "empty; the first line must name the columns"),
+        ("velocity,force\n1,0.2\n", ["--velocity-unit", "cm/s"], "velocity unit 'cm/s'"),
+        ("velocity,force\n1,0.2\n", ["--backlash"], "drop --backlash"),
+        ("velocity,force\n1,0.2\n", ["--inertia", "-1"], "--inertia must be > 0"),
+    ],
+)
+def test_a_bad_file_or_option_gets_one_line_naming_it(tmp_path, capsys, content, extra, message):
+    path = tmp_path / "map.csv"
+    path.write_text(content)
+    argv = ["--env", ROTARY, "--from-log", str(path), *extra, "--out", str(tmp_path / "o")]
+    assert tool_main("identify", [*argv, "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_missing_file_is_named(tmp_path):
+    with pytest.raises(LogFileError, match=r"nowhere\.csv: cannot read it"):
+        read_map(tmp_path / "nowhere.csv", devices.ROTARY)
+
+
+def test_inertia_without_a_log_is_refused(tmp_path, capsys):
+    argv = ["--env", ROTARY, "--inertia", "0.007", "--out", str(tmp_path / "o"), "--quiet"]
+    assert tool_main("identify", argv) == 2
+    assert "--inertia applies to --from-log" in capsys.readouterr().err
