@@ -196,8 +196,8 @@ def identify_map(
     """
     started = time.perf_counter()
     described = devices.get(device)
-    breakaway = _extrapolated_breakaway(points)
-    fits = {law: _breakaway_free(points, fit_law(points, breakaway, law)) for law in laws}
+    breakaway = extrapolated_breakaway(points)
+    fits = {law: breakaway_free(points, fit_law(points, breakaway, law)) for law in laws}
     if "paper" in fits:  # the standard errors of the extrapolation, from the joint fit
         paper = fits["paper"]
         breakaway = {k: (paper.values[k], paper.stderr[k]) for k in ("us_pos", "us_neg")}
@@ -234,7 +234,7 @@ def identify_map(
     )
 
 
-def _extrapolated_breakaway(points: Sequence[SteadyPoint]) -> dict[str, tuple[float, float]]:
+def extrapolated_breakaway(points: Sequence[SteadyPoint]) -> dict[str, tuple[float, float]]:
     """Return the levels ``u_s`` at which the paper law fits the map best (no standard error).
 
     The Coulomb levels are bounded by them, so the search starts at the largest level of the
@@ -254,7 +254,7 @@ def _extrapolated_breakaway(points: Sequence[SteadyPoint]) -> dict[str, tuple[fl
     return {"us_pos": (float(best[0]), math.nan), "us_neg": (float(best[1]), math.nan)}
 
 
-def _breakaway_free(points: Sequence[SteadyPoint], fit: LawFit) -> LawFit:
+def breakaway_free(points: Sequence[SteadyPoint], fit: LawFit) -> LawFit:
     """Refit a law with a Stribeck drop, ``u_s`` free, so its standard errors count it.
 
     With ``u_s`` held at the extrapolation, the other levels' standard errors leave out its

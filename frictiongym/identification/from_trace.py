@@ -1,0 +1,296 @@
+"""Identification from a recorded log of time, command and position (``--from-log``).
+
+The log is a device run's ``steps.csv`` (frictiongym's run log: ``time``, ``applied``,
+``measured``, one run per ``episode``) or any CSV of time, command and position with its
+column names and units given. What the data allows is estimated:
+
+1. **The map and the law from steady segments.** Every stretch of constant command long
+   enough to reach a steady speed gives a map point (:func:`~frictiongym.identification.
+   estimates.steady_velocity`), and the laws are fitted to them with the break-away levels
+   extrapolated, as for a measured map (:mod:`~frictiongym.identification.from_log`).
+2. **J and B from transients**, with the law and the dead time, by the output-error fit of
+   every sample (:func:`~frictiongym.identification.refine.refine`), started from the map's
+   law (or the device preset's when the log holds no steady segment).
+3. **Break-away levels only where the log holds a start from rest** in that direction: a
+   stretch at rest under a command that then moves the body. Without one they are named as
+   not identified (the law's extrapolation is written, as for a map).
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import time
+from collections.abc import Sequence
+
+import numpy as np
+
+from frictiongym import devices
+from frictiongym.controllers.rollout import Rollout
+from frictiongym.friction import StictionCoulomb
+from frictiongym.identification import estimates as est
+from frictiongym.identification.fit import LawFit, fit_law, inertia_from_map
+from frictiongym.identification.from_log import (
+    LogFileError,
+    breakaway_free,
+    extrapolated_breakaway,
+    read_columns,
+)
+from frictiongym.identification.identify import Identification, Plan
+from frictiongym.identification.refine import refine
+
+#: Position and time units a log may be given in, as factors to the device's and to s.
+POSITION_UNITS: dict[str, dict[str, float]] = {
+    "rad": {"rad": 1.0, "deg": math.pi / 180.0},
+    "cm": {"cm": 1.0, "mm": 0.1, "m": 100.0},
+}
+TIME_UNITS = {"s": 1.0, "ms": 1e-3}
+#: Relative spread of the sampling interval a log may have: the fit holds each command for
+#: one interval, so a log sampled unevenly is refused rather than fitted wrongly.
+SAMPLING_TOLERANCE = 0.05
+#: Shortest constant-command stretch that counts as a steady segment, s.
+MIN_SEGMENT = 1.0
+#: Samples and seconds at rest before a command that count its start as one from rest.
+REST_SAMPLES = 5
+REST_WINDOW = 0.05
+#: Columns of frictiongym's own run log.
+RUN_LOG = {"time": "time", "command": "applied", "position": "measured"}
+
+
+def read_trace(
+    path: str | os.PathLike[str],
+    device: devices.Device,
+    *,
+    time_column: str = "time",
+    command: str = "command",
+    position: str = "position",
+    time_unit: str = "s",
+    position_unit: str | None = None,
+    command_scale: float = 1.0,
+) -> tuple[list[Rollout], float]:
+    """Read a log into runs (one per ``episode`` if it has that column) and its period.
+
+    A frictiongym run log (its header holds ``applied`` and ``measured``) is read by its own
+    column names whatever the options say.
+
+    Raises
+    ------
+    LogFileError
+        As :func:`~frictiongym.identification.from_log.read_columns`; also a unit the device
+        does not know, time that does not increase (naming the line), and a sampling interval
+        that varies by more than :data:`SAMPLING_TOLERANCE`.
+    """
+    where = str(path)
+    if time_unit not in TIME_UNITS:
+        raise LogFileError(f"{where}: time unit {time_unit!r} is not one of s, ms")
+    units = POSITION_UNITS.get(device.position_unit, {})
+    name = device.position_unit if position_unit is None else position_unit
+    if name not in units:
+        raise LogFileError(
+            f"{where}: position unit {name!r} is not one of {device.name}'s: use {', '.join(units)}"
+        )
+    names = {"time": time_column, "command": command, "position": position}
+    with open(path, encoding="utf-8-sig", errors="replace") as handle:
+        header = handle.readline()
+    fields = [cell.strip() for cell in header.split(",")]
+    if RUN_LOG["command"] in fields and RUN_LOG["position"] in fields:
+        names = dict(RUN_LOG)
+    wanted = list(names.values()) + (["episode"] if "episode" in fields else [])
+    columns = read_columns(path, wanted)
+    t = columns[names["time"]] * TIME_UNITS[time_unit]
+    u = columns[names["command"]] * command_scale
+    y = columns[names["position"]] * units[name]
+    episode = columns.get("episode", np.zeros(t.size))
+    runs, periods = [], []
+    for value in dict.fromkeys(episode.tolist()):  # in file order
+        rows = np.flatnonzero(episode == value)
+        step = np.diff(t[rows])
+        bad = np.flatnonzero(step <= 0.0)
+        if bad.size:
+            line = int(rows[bad[0] + 1]) + 2
+            raise LogFileError(
+                f"{where}: line {line}, column {names['time']!r}: time {t[rows[bad[0] + 1]]:g} "
+                "does not increase; sort the log by time (or split its runs with an 'episode' "
+                "column)"
+            )
+        if step.size:
+            periods.append(step)
+        runs.append((t[rows], u[rows], y[rows]))
+    if not periods:
+        raise LogFileError(f"{where}: a log needs at least two samples")
+    dt = float(np.median(np.concatenate(periods)))
+    for (times, _, _), step in zip(runs, periods, strict=False):
+        worst = int(np.argmax(np.abs(step - dt)))
+        if abs(step[worst] - dt) > SAMPLING_TOLERANCE * dt:
+            line = int(np.flatnonzero(t == times[worst + 1])[0]) + 2
+            raise LogFileError(
+                f"{where}: line {line}: the sampling interval {step[worst]:g} s differs from "
+                f"the log's {dt:g} s by more than {SAMPLING_TOLERANCE:.0%}; the fit holds each "
+                "command for one interval: resample the log evenly"
+            )
+    rollouts = [
+        Rollout.of_one_run(
+            times - times[0],
+            direction=device.direction,
+            settings={"kind": "log"},
+            measured=position_,
+            command=command_,
+            valid=np.ones(times.size, dtype=bool),
+        )
+        for times, command_, position_ in runs
+    ]
+    return rollouts, dt
+
+
+def identify_trace(
+    runs: Sequence[Rollout],
+    device: str | devices.Device,
+    dt: float,
+    *,
+    source: str = "",
+    max_delay_steps: int = 3,
+) -> Identification:
+    """Identify what the log allows (the module's description)."""
+    started = time.perf_counter()
+    described = devices.get(device)
+    points = [p for run in runs for p in _steady_points(run)]
+    enough = all(sum(p.moved and p.sign == s for p in points) >= 3 for s in (1.0, -1.0))
+    not_identified: dict[str, str] = {}
+    law = described.paper_friction
+    if enough:
+        breakaway = extrapolated_breakaway(points)
+        law_fit = breakaway_free(points, fit_law(points, breakaway, "paper"))
+        start_law = law_fit.model
+        inertia_start = est_inertia = inertia_from_map(points, law_fit, min_transient=0.0)[0]
+        damping_start = law_fit.values["viscous"]
+    else:
+        not_identified["map"] = (
+            "fewer than three steady segments per direction (constant commands held at least "
+            f"{MIN_SEGMENT:g} s): the output-error fit starts from the device preset"
+        )
+        start_law, est_inertia = law, math.nan
+        inertia_start, damping_start = described.plant.inertia, described.plant.damping
+    assert isinstance(start_law, StictionCoulomb)
+    start = {
+        "J": inertia_start if math.isfinite(inertia_start) else described.plant.inertia,
+        "B": damping_start + (0.0 if enough else law.viscous),
+        **{k: float(getattr(start_law, k)) for k in ("us_pos", "us_neg", "uc_pos", "uc_neg")},
+        "v0_pos": float(start_law.v0_pos),
+        "v0_neg": float(start_law.v0_neg),
+    }
+    result = refine(
+        list(runs),
+        start,
+        dt,
+        described.plant.command_limit,
+        start_law.shape,
+        direction=described.direction,
+        max_delay_steps=max_delay_steps,
+        # From the map's law a few candidates suffice (16: 9 s on a 36 s servo log, 128: 133
+        # s, the same result); from the preset, the full multi-start.
+        **({"candidates": 16, "local_fits": 1, "polish": 2} if enough else {}),
+    )
+    v, se = result.values, result.stderr
+    model = StictionCoulomb(
+        v["us_pos"],
+        v["us_neg"],
+        v["uc_pos"],
+        v["uc_neg"],
+        v["v0_pos"],
+        v["v0_neg"],
+        v["B"],
+        start_law.shape,
+    )
+    keys = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
+    stderr = {k: se[k] for k in keys} | {"viscous": se["B"]}
+    starts = {s: _starts_from_rest(runs, s) for s in (1.0, -1.0)}
+    for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
+        if not starts[sign]:
+            not_identified[key] = (
+                f"the log holds no start from rest {'forward' if sign > 0 else 'backward'}: "
+                "the output-error fit's value comes from sliding alone, not a break-away"
+            )
+            stderr[key] = math.nan
+    values = {k: float(getattr(model, k)) for k in (*keys, "viscous")}
+    fit = LawFit("paper", model, values, stderr, math.nan, math.nan, len(points))
+    return Identification(
+        device=described.name,
+        env_id=described.env_id,
+        breakaways=[],
+        points=points,
+        steps=[],
+        fits={"paper": fit},
+        inertia=(v["J"], se["J"]),
+        damping=(v["B"], se["B"]),
+        breakaway={k: (values[k], stderr[k]) for k in ("us_pos", "us_neg")},
+        traces=list(runs),
+        refinement=result,
+        env_steps=sum(run.t.size for run in runs),
+        seconds=time.perf_counter() - started,
+        plan=Plan.for_device(described),
+        source={
+            "kind": "log",
+            "file": source,
+            "points": sum(run.t.size for run in runs),
+            "runs": len(runs),
+            "steady_segments": len(points),
+            "starts_from_rest": {"forward": starts[1.0], "backward": starts[-1.0]},
+            "map_inertia": est_inertia,
+            "not_identified": not_identified,
+        },
+    )
+
+
+def _segments(command: np.ndarray) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` over which the command stays exactly constant."""
+    edges = np.flatnonzero(np.diff(command) != 0.0) + 1
+    bounds = np.concatenate([[0], edges, [command.size]])
+    return [(int(a), int(b)) for a, b in itertools.pairwise(bounds)]
+
+
+def _steady_points(run: Rollout) -> list[est.SteadyPoint]:
+    """Return a map point per constant, nonzero command held at least :data:`MIN_SEGMENT`."""
+    command = run.signal("command")
+    dt = float(run.t[1] - run.t[0]) if run.t.size > 1 else math.inf
+    points = []
+    for a, b in _segments(command):
+        if command[a] == 0.0 or (b - a) * dt < MIN_SEGMENT:
+            continue
+        piece = Rollout.of_one_run(
+            run.t[a:b] - run.t[a],
+            direction=run.direction,
+            settings={"kind": "constant", "level": command[a], "sign": float(np.sign(command[a]))},
+            measured=run.signal("measured")[a:b],
+            command=command[a:b],
+            valid=np.ones(b - a, dtype=bool),
+        )
+        points.append(est.steady_velocity(piece))
+    return points
+
+
+def _starts_from_rest(runs: Sequence[Rollout], sign: float) -> int:
+    """How many constant commands of sign ``sign`` start the body from rest.
+
+    At rest: the last :data:`REST_WINDOW` s before the command spans at most six noise
+    standard deviations (estimated from the second differences, so motion does not count),
+    which a body sliding at 0.18 rad/s with the servo's one count of noise would exceed.
+    Started: it then moves by over twenty of them in that direction.
+    """
+    count = 0
+    for run in runs:
+        y = run.plant_output()
+        command = run.signal("command")
+        dt = float(run.t[1] - run.t[0]) if run.t.size > 1 else math.inf
+        window = max(REST_SAMPLES, round(REST_WINDOW / dt))
+        sigma = (
+            1.4826 * float(np.median(np.abs(np.diff(y, 2)))) / math.sqrt(6.0) if y.size > 2 else 0.0
+        )
+        for a, b in _segments(command):
+            if np.sign(command[a]) != sign or a < window or b - a < REST_SAMPLES:
+                continue
+            before = y[a - window : a + 1]
+            at_rest = float(np.ptp(before)) <= 6.0 * sigma
+            if at_rest and sign * (y[b - 1] - y[a]) > 20.0 * sigma + 1e-12:
+                count += 1
+    return count
