@@ -20,12 +20,14 @@ import csv
 import json
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
 from frictiongym import devices
 from frictiongym.cli import tool_main
 from frictiongym.identification.from_log import LogFileError, identify_map, read_map
+from frictiongym.identification.from_trace import identify_trace, read_trace
 from frictiongym.identification.identify import identify, make_env
 
 ROTARY = "frictiongym/RotaryServo-v1"
@@ -106,7 +108,7 @@ def _rows(path: Path) -> list[tuple[float, float]]:
 @pytest.mark.parametrize(
     ("content", "extra", "message"),
     [
-        ("speed,force\n1,0.2\n", [], "no column 'velocity'; its columns are 'speed', 'force'"),
+        ("speed,force\n1,0.2\n", [], "its columns (force, speed) are neither a map's"),
         ("velocity,force\n1,0.2\n2,abc\n", [], "line 3, column 'force': 'abc' is not a number"),
         ("velocity,force\n1,0.2\nnan,0.3\n", [], "line 3, column 'velocity': 'nan' is not finite"),
         ("velocity,force\n1,0.2\n2,0.3,4\n", [], "line 3 has 3 fields, the header 2"),
@@ -139,3 +141,98 @@ def test_inertia_without_a_log_is_refused(tmp_path, capsys):
     argv = ["--env", ROTARY, "--inertia", "0.007", "--out", str(tmp_path / "o"), "--quiet"]
     assert tool_main("identify", argv) == 2
     assert "--inertia applies to --from-log" in capsys.readouterr().err
+
+
+# --- a log of time, command and position ----------------------------------------------------
+
+
+def _log(path: Path, holds: list[float], rest: float, noise: bool) -> Path:
+    """Drive the simulated servo through ``holds`` (command, 1.2 s each, ``rest`` s of zero
+    before each) and write time, command and the measured angle, as a user's log would be."""
+    env = gym.make(ROTARY, sensor_noise=noise, max_episode_steps=10**6)
+    obs, _ = env.reset(seed=0)
+    dt = devices.ROTARY.dt
+    commands: list[float] = []
+    for level in holds:
+        commands += [0.0] * round(rest / dt) + [level] * round(1.2 / dt)
+    rows = []
+    for k, u in enumerate(commands):
+        rows.append((f"{k * dt:.6f}", u, float(obs[0])))
+        obs, *_ = env.step(np.array([u], dtype=np.float32))
+    return _write(path, rows, header=("time", "command", "position"))
+
+
+def test_a_log_gives_back_the_law_j_and_b(tmp_path):
+    """Four holds per direction from rest, with noise: every value within 1 %."""
+    us = devices.ROTARY.paper_friction.us_pos
+    holds = [s * m * us for m in (1.1, 1.4, 2.0, 3.0) for s in (1.0, -1.0)]
+    path = _log(tmp_path / "log.csv", holds, rest=0.3, noise=True)
+    out = tmp_path / "out"
+    argv = ["--env", ROTARY, "--from-log", str(path), "--out", str(out), "--quiet"]
+    assert tool_main("identify", [*argv, "--no-figures"]) == 0
+    data = json.loads((out / "friction.json").read_text())
+    law = devices.ROTARY.paper_friction
+    for key in FRICTION:
+        assert data[key] == pytest.approx(getattr(law, key), rel=0.01), key
+    assert data["J"] == pytest.approx(devices.ROTARY.plant.inertia, rel=0.01)
+    assert data["B"] == pytest.approx(devices.ROTARY.plant.damping, rel=0.01)
+    source = data["metadata"]["source"]
+    assert source["starts_from_rest"] == {"forward": 4, "backward": 4}
+    assert source["not_identified"] == {}
+
+
+def test_a_log_without_a_start_from_rest_names_the_break_away_unidentified(tmp_path):
+    us = devices.ROTARY.paper_friction.us_pos
+    holds = [s * m * us for m in (1.5, 2.0, 3.0) for s in (1.0, -1.0)]
+    path = _log(tmp_path / "log.csv", holds, rest=0.0, noise=True)  # it reverses, never rests
+    runs, dt = read_trace(path, devices.ROTARY)
+    result = identify_trace(runs, devices.ROTARY, dt)
+    assert set(result.source["not_identified"]) == {"us_pos", "us_neg"}
+    assert "no start from rest forward" in result.source["not_identified"]["us_pos"]
+    params = result.params("paper")
+    assert "us_pos" not in params.uncertainty
+    assert "us_neg" not in params.uncertainty
+    assert "uc_pos" in params.uncertainty
+
+
+@pytest.mark.parametrize(
+    ("rows", "message"),
+    [
+        ([(0.0, 0.1, 0.0), (0.002, 0.1, 0.0), (0.001, 0.1, 0.0)], "line 4, column 'time'"),
+        ([(k * 0.002, 0.1, 0.0) for k in range(5)] + [(0.013, 0.1, 0.0)], "line 7: the sampling"),
+        ([(0.0, 0.1, 0.0), (0.002, 0.1, "nan")], "line 3, column 'position': 'nan' is not finite"),
+    ],
+)
+def test_a_bad_log_names_the_line(tmp_path, capsys, rows, message):
+    path = _write(tmp_path / "log.csv", rows, header=("time", "command", "position"))
+    argv = ["--env", ROTARY, "--from-log", str(path), "--out", str(tmp_path / "o"), "--quiet"]
+    assert tool_main("identify", argv) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_a_file_that_is_neither_a_map_nor_a_log_says_which_columns_it_wants(tmp_path, capsys):
+    path = _write(tmp_path / "x.csv", [(1, 2)], header=("a", "b"))
+    argv = ["--env", ROTARY, "--from-log", str(path), "--out", str(tmp_path / "o"), "--quiet"]
+    assert tool_main("identify", argv) == 2
+    assert "are neither a map's ('velocity', 'force') nor a log's" in capsys.readouterr().err
+
+
+def test_a_run_log_is_read_by_its_own_columns_one_run_per_episode(tmp_path):
+    from frictiongym.hardware.runlog import RESULT_COLUMNS, STEP_COLUMNS
+
+    header = (*STEP_COLUMNS, "obs_angle", "obs_velocity", "obs_reference", *RESULT_COLUMNS)
+    rows = []
+    for episode in (0, 1):
+        for k in range(50):
+            values = dict.fromkeys(header, 0.0)
+            values.update(episode=episode, time=k * 0.002, applied=0.3 * (episode + 1))
+            values["measured"] = 0.01 * k * (episode + 1)
+            values["requested"] = 9.9  # not the applied command: must not be read
+            rows.append(tuple(values[name] for name in header))
+    path = _write(tmp_path / "steps.csv", rows, header=header)
+    runs, dt = read_trace(path, devices.ROTARY)
+    assert dt == pytest.approx(0.002)
+    assert [run.signal("command")[0] for run in runs] == [0.3, 0.6]
+    assert runs[1].plant_output()[10] == pytest.approx(0.2)
+    assert runs[1].t[0] == 0.0

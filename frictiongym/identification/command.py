@@ -16,12 +16,7 @@ from frictiongym.identification.backlash import ReversalPlan
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.figures import plot_map
 from frictiongym.identification.fit import LAWS
-from frictiongym.identification.from_log import (
-    LogFileError,
-    describe_source,
-    identify_map,
-    read_map,
-)
+from frictiongym.identification.from_log import describe_source
 from frictiongym.identification.identify import (
     PLAY_ROUNDS,
     Identification,
@@ -29,6 +24,7 @@ from frictiongym.identification.identify import (
     make_env,
     plan_for,
 )
+from frictiongym.identification.log_command import add_log_arguments, run_from_log
 from frictiongym.identification.validate import KEYS, truth
 from frictiongym.params import save_params
 
@@ -141,36 +137,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="simulator only: a dead zone of half-width D (command units) in the simulated "
         "device (default: none)",
     )
-    logs = parser.add_argument_group(
-        "recorded data",
-        "--from-log FILE fits the laws to a friction map measured elsewhere (a CSV with a "
-        "header: one steady speed and the command that holds it per row, signed) instead of "
-        "running experiments. A map holds no start from rest and no transient, so u_s is the "
-        "law's extrapolation to zero speed and J is --inertia or the device preset's; the "
-        "summary and friction.json's metadata say so.",
-    )
-    logs.add_argument("--from-log", metavar="FILE", default=None, help="the map's CSV file")
-    logs.add_argument(
-        "--velocity-column", default="velocity", help="its speed column (default: velocity)"
-    )
-    logs.add_argument("--force-column", default="force", help="its command column (default: force)")
-    logs.add_argument(
-        "--velocity-unit",
-        default=None,
-        help="unit of the speeds: rad/s, deg/s or rpm (servo); cm/s, mm/s or m/s (Altino); "
-        "default: the device's",
-    )
-    logs.add_argument(
-        "--force-unit", default=None, help="unit of the commands: V or mV (servo), units (Altino)"
-    )
-    logs.add_argument(
-        "--inertia",
-        type=float,
-        default=None,
-        metavar="J",
-        help="J if known, command units per acceleration unit (default: the device preset's, "
-        "reported as not identified)",
-    )
+    add_log_arguments(parser)
     parser.add_argument("--no-figures", action="store_true", help="skip friction_map.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -225,9 +192,9 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
     if args.from_log is not None:
-        return _from_log(args, command_line)
+        return run_from_log(args, command_line, _write)
     if args.inertia is not None:
-        print("error: --inertia applies to --from-log", file=sys.stderr)
+        print("error: --inertia applies to --from-log with a map", file=sys.stderr)
         return 2
     sim = args.backend in ("sim", "sim://")
     kwargs: dict[str, Any] = {"backend": args.backend}
@@ -352,48 +319,3 @@ def _write(
         units = devices.get(result.device).units
         plot_map(result, out.path / "friction_map.png", (units["velocity"], units["force"]))
     print(table)
-
-
-def _from_log(args: argparse.Namespace, command_line: str) -> int:
-    """``--from-log``: fit the laws to a measured map; return the exit status."""
-    experiments = {
-        "--backend": args.backend not in ("sim", "sim://"),
-        "--noise": args.noise,
-        "--friction": args.friction != "paper",
-        "--backlash": args.backlash,
-        "--dead-zone": args.dead_zone,
-        "--true-backlash": args.true_backlash is not None,
-        "--true-dead-zone": args.true_dead_zone is not None,
-        "--max-backlash": args.max_backlash is not None,
-    }
-    given = [flag for flag, on in experiments.items() if on]
-    if given:
-        print(
-            f"error: --from-log fits recorded data and runs no experiment: drop {', '.join(given)}",
-            file=sys.stderr,
-        )
-        return 2
-    try:
-        device = devices.get(args.env)
-        inertia = None if args.inertia is None else real_number("--inertia", args.inertia, "> 0")
-        points = read_map(
-            args.from_log,
-            device,
-            velocity=args.velocity_column,
-            force=args.force_column,
-            velocity_unit=args.velocity_unit,
-            force_unit=args.force_unit,
-        )
-        laws = tuple(LAWS) if args.law in ("best", "paper") else ("paper", args.law)
-        result = identify_map(points, device, inertia=inertia, laws=laws, source=args.from_log)
-    except (LogFileError, ValueError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except IdentificationError as exc:
-        print(f"error: identification failed: {exc}", file=sys.stderr)
-        return 1
-    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
-        _write(result, args, out, {"command": command_line}, None)
-        written = out.commit()
-    print(f"wrote {', '.join(str(p) for p in written)}")
-    return 0

@@ -189,7 +189,9 @@ def identify_trace(
         max_delay_steps=max_delay_steps,
         # From the map's law a few candidates suffice (16: 9 s on a 36 s servo log, 128: 133
         # s, the same result); from the preset, the full multi-start.
-        **({"candidates": 16, "local_fits": 1, "polish": 2} if enough else {}),
+        candidates=16 if enough else 128,
+        local_fits=1 if enough else 2,
+        polish=2 if enough else 3,
     )
     v, se = result.values, result.stderr
     model = StictionCoulomb(
