@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
+import sys
 from pathlib import Path
 
-import gymnasium as gym
 import numpy as np
 import pytest
 
@@ -146,27 +147,22 @@ def test_inertia_without_a_log_is_refused(tmp_path, capsys):
 # --- a log of time, command and position ----------------------------------------------------
 
 
-def _log(path: Path, holds: list[float], rest: float, noise: bool) -> Path:
-    """Drive the simulated servo through ``holds`` (command, 1.2 s each, ``rest`` s of zero
-    before each) and write time, command and the measured angle, as a user's log would be."""
-    env = gym.make(ROTARY, sensor_noise=noise, max_episode_steps=10**6)
-    obs, _ = env.reset(seed=0)
-    dt = devices.ROTARY.dt
-    commands: list[float] = []
-    for level in holds:
-        commands += [0.0] * round(rest / dt) + [level] * round(1.2 / dt)
-    rows = []
-    for k, u in enumerate(commands):
-        rows.append((f"{k * dt:.6f}", u, float(obs[0])))
-        obs, *_ = env.step(np.array([u], dtype=np.float32))
-    return _write(path, rows, header=("time", "command", "position"))
+def _log(path: Path, *options: str) -> Path:
+    """A log of the simulated servo with its encoder noise, by ``scripts/simulated_log.py``."""
+    script = Path(__file__).resolve().parents[1] / "scripts" / "simulated_log.py"
+    done = subprocess.run(
+        [sys.executable, str(script), str(path), "--noise", *options],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert done.returncode == 0, done.stderr
+    return path
 
 
 def test_a_log_gives_back_the_law_j_and_b(tmp_path):
     """Four holds per direction from rest, with noise: every value within 1 %."""
-    us = devices.ROTARY.paper_friction.us_pos
-    holds = [s * m * us for m in (1.1, 1.4, 2.0, 3.0) for s in (1.0, -1.0)]
-    path = _log(tmp_path / "log.csv", holds, rest=0.3, noise=True)
+    path = _log(tmp_path / "log.csv")
     out = tmp_path / "out"
     argv = ["--env", ROTARY, "--from-log", str(path), "--out", str(out), "--quiet"]
     assert tool_main("identify", [*argv, "--no-figures"]) == 0
@@ -182,9 +178,7 @@ def test_a_log_gives_back_the_law_j_and_b(tmp_path):
 
 
 def test_a_log_without_a_start_from_rest_names_the_break_away_unidentified(tmp_path):
-    us = devices.ROTARY.paper_friction.us_pos
-    holds = [s * m * us for m in (1.5, 2.0, 3.0) for s in (1.0, -1.0)]
-    path = _log(tmp_path / "log.csv", holds, rest=0.0, noise=True)  # it reverses, never rests
+    path = _log(tmp_path / "log.csv", "--no-rest")  # it reverses, never rests
     runs, dt = read_trace(path, devices.ROTARY)
     result = identify_trace(runs, devices.ROTARY, dt)
     assert set(result.source["not_identified"]) == {"us_pos", "us_neg"}

@@ -312,5 +312,12 @@ def breakaway_free(points: Sequence[SteadyPoint], fit: LawFit) -> LawFit:
 def describe_source(source: Mapping[str, Any]) -> list[str]:
     """Lines of the summary that say what the data could not give."""
     lines = [f"From {source['kind']} {source['file']} ({source['points']} points)."]
+    if source["kind"] == "log":
+        starts = source["starts_from_rest"]
+        lines.append(
+            f"{source['runs']} run(s), {source['steady_segments']} steady segments, starts "
+            f"from rest: {starts['forward']} forward, {starts['backward']} backward; J, B and "
+            "the law fitted to every sample (output error)."
+        )
     lines += [f"Not identified: {k}: {why}." for k, why in source["not_identified"].items()]
     return lines

@@ -210,8 +210,9 @@ def identify_trace(
     for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
         if not starts[sign]:
             not_identified[key] = (
-                f"the log holds no start from rest {'forward' if sign > 0 else 'backward'}: "
-                "the output-error fit's value comes from sliding alone, not a break-away"
+                f"the log holds no start from rest {'forward' if sign > 0 else 'backward'} "
+                f"(a command after {REST_WINDOW:g} s at rest): the output-error fit's value is "
+                "not a measured break-away"
             )
             stderr[key] = math.nan
     values = {k: float(getattr(model, k)) for k in (*keys, "viscous")}
