@@ -31,8 +31,9 @@ import pytest
 from frictiongym import devices
 from frictiongym.cli import tool_main
 from frictiongym.identification.backlash import BacklashEstimate, ReversalPlan, reversal_test
+from frictiongym.identification.drivetrain import PLAY_ROUNDS
 from frictiongym.identification.experiments import Runner
-from frictiongym.identification.identify import PLAY_ROUNDS, Plan, identify, make_env, plan_for
+from frictiongym.identification.identify import Plan, identify, make_env, plan_for
 from frictiongym.params import Backlash, DeviceParams, ParamsFileError, load_params, save_params
 
 ROTARY = "frictiongym/RotaryServo-v1"

@@ -13,12 +13,12 @@ from frictiongym._io import OutputDir, add_output_arguments, write_text_atomic
 from frictiongym._validation import check_seed, real_number
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.identification.backlash import ReversalPlan
+from frictiongym.identification.drivetrain import PLAY_ROUNDS
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.figures import plot_map
 from frictiongym.identification.fit import LAWS
 from frictiongym.identification.from_log import describe_source
 from frictiongym.identification.identify import (
-    PLAY_ROUNDS,
     Identification,
     identify,
     make_env,
