@@ -85,16 +85,7 @@ def refined_law(
         **options,
     )
     v = result.values
-    model = StictionCoulomb(
-        v["us_pos"],
-        v["us_neg"],
-        v["uc_pos"],
-        v["uc_neg"],
-        v["v0_pos"],
-        v["v0_neg"],
-        v["B"],
-        shape,
-    )
+    model = result.law(shape)
     values = {**{k: v[k] for k in fit.values if k != "viscous"}, "viscous": v["B"]}
     stderr = {k: result.stderr[k] for k in values if k != "viscous"}
     stderr["viscous"] = result.stderr["B"]

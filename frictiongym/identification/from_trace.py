@@ -194,16 +194,7 @@ def identify_trace(
         polish=2 if enough else 3,
     )
     v, se = result.values, result.stderr
-    model = StictionCoulomb(
-        v["us_pos"],
-        v["us_neg"],
-        v["uc_pos"],
-        v["uc_neg"],
-        v["v0_pos"],
-        v["v0_neg"],
-        v["B"],
-        start_law.shape,
-    )
+    model = result.law(start_law.shape)
     keys = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
     stderr = {k: se[k] for k in keys} | {"viscous": se["B"]}
     starts = {s: _starts_from_rest(runs, s) for s in (1.0, -1.0)}

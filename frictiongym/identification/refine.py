@@ -134,6 +134,20 @@ class Refinement:
     starts: int  #: local fits run in the first stage (multi-start)
     evaluations: int  #: simulations of all runs, screening and Jacobians included
 
+    def law(self, shape: str) -> StictionCoulomb:
+        """Return the fitted paper law of decay ``shape``, ``B`` as its viscous slope."""
+        v = self.values
+        return StictionCoulomb(
+            v["us_pos"],
+            v["us_neg"],
+            v["uc_pos"],
+            v["uc_neg"],
+            v["v0_pos"],
+            v["v0_neg"],
+            v["B"],
+            shape,  # type: ignore[arg-type]
+        )
+
 
 def segments(command: FloatArray) -> IntArray:
     """Segment index of each sample: it grows by one where the command reverses its sign."""
