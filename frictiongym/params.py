@@ -378,6 +378,15 @@ class DeviceParams:
                 )
         if self.dead_zone is not None:
             object.__setattr__(self, "dead_zone", _real(where, "dead_zone", self.dead_zone))
+            for device in (d for d in DEVICES if d.name == self.device):
+                limit = device.plant.command_limit
+                if self.dead_zone >= limit:
+                    raise _fail(
+                        where,
+                        f"'dead_zone' = {self.dead_zone:g} reaches {device.name}'s command limit "
+                        f"({limit:g} {device.command_unit}): no command would drive the plant; "
+                        "check the value and its units",
+                    )
         if not all(isinstance(k, str) and isinstance(u, str) for k, u in self.units.items()):
             raise _fail(where, f"'units' must map names to strings, got {dict(self.units)!r}")
         for name in ("uncertainty", "metadata", "units"):  # private copies: callers keep theirs

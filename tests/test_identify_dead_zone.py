@@ -152,7 +152,8 @@ def test_a_play_and_a_zone_are_told_apart(tmp_path):
     [
         (["--dead-zone", "--law", "coulomb"], "--dead-zone is estimated with the paper law"),
         (["--backend", "emulator://rotary", "--true-dead-zone", "0.01"], "simulator only"),
-        (["--true-dead-zone", "-1"], "deadzone"),
+        (["--true-dead-zone", "-1"], "--true-dead-zone must be >= 0"),
+        (["--true-backlash", "nan"], "--true-backlash must be finite"),
     ],
 )
 def test_the_command_refuses_what_it_cannot_do(tmp_path, capsys, extra, message):
@@ -203,3 +204,27 @@ def test_the_altino_zone_is_recovered_through_the_refinement(tmp_path):
     data = json.loads((out / "friction.json").read_text())
     assert abs(data["dead_zone"] - 50.0) <= 3.0 * data["uncertainty"]["dead_zone"]
     assert data["J"] == pytest.approx(devices.ALTINO.plant.inertia, rel=0.01)
+
+
+def test_a_zone_reaching_the_command_limit_is_refused_in_the_file_and_the_compensator(tmp_path):
+    data = _raised(devices.ROTARY, 0.0).to_dict()
+    data["dead_zone"] = 10.0  # the servo's limit, 10 V
+    path = tmp_path / "friction.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(ParamsFileError, match=r"'dead_zone' = 10 reaches RotaryServo's command"):
+        load_params(path)
+    pid = PID.for_env(gym.make(ROTARY), PIDGains(**devices.ROTARY.paper_gains["pid"]))
+    with pytest.raises(ValueError, match=r"dead_zone=10\.0 reaches the command limit 10"):
+        FrictionCompensator(pid, dead_zone=10.0)
+
+
+def test_a_zone_is_applied_once_and_only_to_the_paper_law():
+    estimate = _estimate(ROTARY, 0.05)
+    applied = estimate.apply(_raised(devices.ROTARY, 0.05))
+    with pytest.raises(ValueError, match="already hold a dead zone"):
+        estimate.apply(applied)
+    stribeck = DeviceParams.from_model(
+        devices.ROTARY.paper_friction.replace(shape="exponential"), inertia=0.007, damping=0.04
+    )
+    with pytest.raises(ValueError, match="fitted with the paper law of a linear or step decay"):
+        estimate.apply(stribeck)

@@ -120,6 +120,11 @@ class FrictionCompensator(Controller):
         self.smoothing = smooth
         self.scale = float(scale)
         self.dead_zone = zone if dead_zone is None else real_number("dead_zone", dead_zone, ">= 0")
+        if self.dead_zone >= spec.limit:
+            raise ValueError(
+                f"dead_zone={self.dead_zone!r} reaches the command limit {spec.limit:g}: no "
+                "command would drive the plant; check the value (or the model file's) and units"
+            )
 
     @classmethod
     def for_env(  # its base, not a LoopSpec, follows the env

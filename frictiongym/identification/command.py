@@ -198,6 +198,16 @@ def run(args: argparse.Namespace, command_line: str) -> int:
         return 2
     sim = args.backend in ("sim", "sim://")
     kwargs: dict[str, Any] = {"backend": args.backend}
+    try:  # named by their flags here; the env would name its keywords
+        for flag, value in (
+            ("--true-backlash", args.true_backlash),
+            ("--true-dead-zone", args.true_dead_zone),
+        ):
+            if value is not None:
+                real_number(flag, value, ">= 0")
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if sim:
         kwargs.update(friction=args.friction, sensor_noise=bool(args.noise))
         if args.true_backlash is not None:  # only when given: default runs record no key

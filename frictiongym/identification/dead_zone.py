@@ -66,7 +66,12 @@ class DeadZoneEstimate:
 
     def describe(self) -> str:
         """One line: the half-width and its standard error, or the bound."""
-        held = f", with the play of {self.play:.4g} held" if self.play else ""
+        held = (
+            f", with the play of {self.play:.4g} held (a play and a zone trade off: wide plays "
+            "bias the zone, and its bound holds for this play only; docs/identification.md)"
+            if self.play
+            else ""
+        )
         if self.resolved:
             return (
                 f"dead zone d = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (half-width; "
@@ -105,6 +110,15 @@ class DeadZoneEstimate:
         """
         if not self.resolved:
             return params
+        if params.dead_zone:
+            raise ValueError(
+                "these parameters already hold a dead zone: apply it to the ones without"
+            )
+        if params.law != "paper" or not params.friction.exact:
+            raise ValueError(
+                "the zone was fitted with the paper law of a linear or step decay, not "
+                f"{params.friction!r}"
+            )
         return replace(
             params,
             friction=without_zone(params.friction, self.width),
@@ -209,6 +223,8 @@ def joint_start(
     valley's minimum; the one-dimensional fits start from it.
     ``rigid`` is the identification without either, ``shares`` the play's.
     """
+    if rigid.dead_zone:
+        raise ValueError("the identification already holds a dead zone: give the one without")
     _, law, base = _replayed(rigid, dt, dead_time)
     base = replace(base, load_inertia=shares[0], load_friction=shares[1])
     data = ReversalData(trace, reading or LinearReading())

@@ -214,8 +214,9 @@ def dead_zone_fit(
         # zone free (the reversal run added), then the zone again on that rigid model.
         note("refinement with the dead zone")
         drivetrain = None if held is None else (held.width, held.load_inertia, held.load_friction)
+        lowered = {k: v - zone.width if k in LEVELS else v for k, v in fit.values.items()}
         refit, refined = refined_law(
-            fit,
+            replace(fit, values=lowered),  # the levels below the zone it starts from
             [*traces, trace],
             (refinement.values["J"], refinement.stderr["J"]),
             (refinement.values["B"], refinement.stderr["B"]),

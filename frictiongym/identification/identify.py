@@ -319,7 +319,9 @@ def identify(
         if probe.t[-1] >= plan.probe_duration - 2 * runner.spec.dt:
             raise est.IdentificationError(
                 f"the probe ramp to {plan.probe_to * limit:g} did not move the body in the "
-                f"{'positive' if sign > 0 else 'negative'} direction: raise Plan.probe_to"
+                f"{'positive' if sign > 0 else 'negative'} direction: the body breaks away above "
+                "it (more friction, or a wider dead zone, than the plan was made for); raise "
+                "Plan.probe_to (identify(env, replace(Plan.for_device(...), probe_to=...)))"
             )
         rough[sign] = est.breakaway_level(probe).detected
     # 2. Slow ramps from below break-away.
