@@ -230,3 +230,24 @@ def test_a_run_log_is_read_by_its_own_columns_one_run_per_episode(tmp_path):
     assert [run.signal("command")[0] for run in runs] == [0.3, 0.6]
     assert runs[1].plant_output()[10] == pytest.approx(0.2)
     assert runs[1].t[0] == 0.0
+
+
+def test_line_numbers_count_blank_lines_and_episodes_restart_their_time(tmp_path):
+    # A blank line before the bad row: the message names the file's line, not the row's.
+    path = tmp_path / "map.csv"
+    path.write_text("velocity,force\n1,0.2\n\n2,-0.3\n")
+    with pytest.raises(LogFileError, match=r"line 4: the force -0\.3 opposes"):
+        read_map(path, devices.ROTARY)
+    # Each episode's time starts again; the uneven interval is in the second one, line 9.
+    rows = [(e, k * 0.002, 0.1, 0.0) for e in (0, 1) for k in range(4)]
+    rows[7] = (1, 0.0075, 0.1, 0.0)
+    log = _write(tmp_path / "log.csv", rows, header=("episode", "time", "command", "position"))
+    with pytest.raises(LogFileError, match=r"line 9: the sampling interval 0\.0035"):
+        read_trace(log, devices.ROTARY)
+    # A one-sample episode holds no motion and is left out; a missing file is named.
+    rows = [(0, 0.0, 0.1, 0.0), *[(1, k * 0.002, 0.1, 0.0) for k in range(4)]]
+    log = _write(tmp_path / "one.csv", rows, header=("episode", "time", "command", "position"))
+    runs, dt = read_trace(log, devices.ROTARY)
+    assert (len(runs), dt) == (1, pytest.approx(0.002))
+    with pytest.raises(LogFileError, match=r"nowhere\.csv: cannot read it"):
+        read_trace(tmp_path / "nowhere.csv", devices.ROTARY)

@@ -49,8 +49,13 @@ class LogFileError(ValueError):
     """A recorded-data file that cannot be read or is not what its options say."""
 
 
-def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str, np.ndarray]:
+def read_columns(
+    path: str | os.PathLike[str], names: Sequence[str]
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
     """Read the named columns of a CSV file with a header line, as floats.
+
+    Returns the columns and each row's line in the file (blank lines are skipped), for
+    messages.
 
     Raises
     ------
@@ -78,9 +83,11 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
         )
     index = {name: header.index(name) for name in names}
     values: dict[str, list[float]] = {name: [] for name in names}
+    lines: list[int] = []
     for line, row in enumerate(rows[1:], start=2):
         if not any(cell.strip() for cell in row):
             continue  # a blank line
+        lines.append(line)
         if len(row) != len(header):
             raise LogFileError(
                 f"{where}: line {line} has {len(row)} fields, the header {len(header)}"
@@ -101,7 +108,8 @@ def read_columns(path: str | os.PathLike[str], names: Sequence[str]) -> dict[str
             values[name].append(value)
     if not values[names[0]]:
         raise LogFileError(f"{where}: the header names the columns but no row follows")
-    return {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
+    columns = {name: np.asarray(v, dtype=np.float64) for name, v in values.items()}
+    return columns, np.asarray(lines, dtype=np.int64)
 
 
 def read_map(
@@ -140,12 +148,12 @@ def read_map(
                 f"{', '.join(known) or default}"
             )
         scales.append(known[name])
-    columns = read_columns(path, (velocity, force))
+    columns, lines = read_columns(path, (velocity, force))
     v = columns[velocity] * scales[0]
     u = columns[force] * scales[1]
     opposed = np.flatnonzero((v != 0.0) & (np.sign(u) != np.sign(v)))
     if opposed.size:
-        line = int(opposed[0]) + 2
+        line = int(lines[opposed[0]])
         raise LogFileError(
             f"{where}: line {line}: the force {columns[force][opposed[0]]:g} opposes the "
             f"velocity {columns[velocity][opposed[0]]:g}; a map's force is the command that "

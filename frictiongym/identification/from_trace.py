@@ -91,39 +91,40 @@ def read_trace(
             f"{where}: position unit {name!r} is not one of {device.name}'s: use {', '.join(units)}"
         )
     names = {"time": time_column, "command": command, "position": position}
-    with open(path, encoding="utf-8-sig", errors="replace") as handle:
-        header = handle.readline()
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as handle:
+            header = handle.readline()
+    except OSError as exc:
+        raise LogFileError(f"{where}: cannot read it: {exc}") from None
     fields = [cell.strip() for cell in header.split(",")]
     if RUN_LOG["command"] in fields and RUN_LOG["position"] in fields:
         names = dict(RUN_LOG)
     wanted = list(names.values()) + (["episode"] if "episode" in fields else [])
-    columns = read_columns(path, wanted)
+    columns, lines = read_columns(path, wanted)
     t = columns[names["time"]] * TIME_UNITS[time_unit]
     u = columns[names["command"]] * command_scale
     y = columns[names["position"]] * units[name]
     episode = columns.get("episode", np.zeros(t.size))
-    runs, periods = [], []
+    groups = []
     for value in dict.fromkeys(episode.tolist()):  # in file order
         rows = np.flatnonzero(episode == value)
-        step = np.diff(t[rows])
-        bad = np.flatnonzero(step <= 0.0)
+        bad = np.flatnonzero(np.diff(t[rows]) <= 0.0)
         if bad.size:
-            line = int(rows[bad[0] + 1]) + 2
+            row = rows[bad[0] + 1]
             raise LogFileError(
-                f"{where}: line {line}, column {names['time']!r}: time {t[rows[bad[0] + 1]]:g} "
-                "does not increase; sort the log by time (or split its runs with an 'episode' "
-                "column)"
+                f"{where}: line {lines[row]}, column {names['time']!r}: time {t[row]:g} does "
+                "not increase; sort the log by time (or split its runs with an 'episode' column)"
             )
-        if step.size:
-            periods.append(step)
-        runs.append((t[rows], u[rows], y[rows]))
-    if not periods:
-        raise LogFileError(f"{where}: a log needs at least two samples")
-    dt = float(np.median(np.concatenate(periods)))
-    for (times, _, _), step in zip(runs, periods, strict=False):
+        if rows.size > 1:  # a run of one sample holds no motion
+            groups.append(rows)
+    if not groups:
+        raise LogFileError(f"{where}: a log needs a run of at least two samples")
+    dt = float(np.median(np.concatenate([np.diff(t[rows]) for rows in groups])))
+    for rows in groups:
+        step = np.diff(t[rows])
         worst = int(np.argmax(np.abs(step - dt)))
         if abs(step[worst] - dt) > SAMPLING_TOLERANCE * dt:
-            line = int(np.flatnonzero(t == times[worst + 1])[0]) + 2
+            line = lines[rows[worst + 1]]
             raise LogFileError(
                 f"{where}: line {line}: the sampling interval {step[worst]:g} s differs from "
                 f"the log's {dt:g} s by more than {SAMPLING_TOLERANCE:.0%}; the fit holds each "
@@ -131,14 +132,14 @@ def read_trace(
             )
     rollouts = [
         Rollout.of_one_run(
-            times - times[0],
+            t[rows] - t[rows[0]],
             direction=device.direction,
             settings={"kind": "log"},
-            measured=position_,
-            command=command_,
-            valid=np.ones(times.size, dtype=bool),
+            measured=y[rows],
+            command=u[rows],
+            valid=np.ones(rows.size, dtype=bool),
         )
-        for times, command_, position_ in runs
+        for rows in groups
     ]
     return rollouts, dt
 
