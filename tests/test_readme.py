@@ -29,8 +29,15 @@ def test_the_readme_has_python_examples():
     assert sum(path == README for path, _ in BLOCKS) >= 2
 
 
+#: An example that trains a policy from scratch (the README's PPO, 300 000 steps: 99 s here)
+#: runs in the slow suite: it is the whole default suite's largest item.
+TRAINS = re.compile(r"\.learn\(\s*[0-9_]{6,}")
+
+
 @pytest.mark.parametrize(
-    ("path", "block"), BLOCKS, ids=[f"{p.stem}-block{i}" for i, (p, _) in enumerate(BLOCKS)]
+    ("path", "block"),
+    [pytest.param(p, b, marks=[pytest.mark.slow] if TRAINS.search(b) else []) for p, b in BLOCKS],
+    ids=[f"{p.stem}-block{i}" for i, (p, _) in enumerate(BLOCKS)],
 )
 def test_example_runs(path, block, monkeypatch):
     monkeypatch.chdir(ROOT)  # the docs' examples name files relative to the repository
