@@ -152,7 +152,26 @@ def identify_trace(
     source: str = "",
     max_delay_steps: int = 3,
 ) -> Identification:
-    """Identify what the log allows (the module's description)."""
+    """Identify what the log allows (the module's description).
+
+    Parameters
+    ----------
+    runs : sequence of Rollout
+        The log's runs (:func:`read_trace`), each from rest at its first sample.
+    device : str or Device
+        The device whose units the log is in.
+    dt : float
+        The log's sampling interval, s: each command is held for one.
+    source : str
+        The file, for the metadata.
+    max_delay_steps : int, default 3
+        Dead times of 0 to this many intervals are tried.
+
+    Raises
+    ------
+    IdentificationError
+        If a fit fails (too few moving samples).
+    """
     started = time.perf_counter()
     described = devices.get(device)
     points = [p for run in runs for p in _steady_points(run)]
