@@ -169,8 +169,9 @@ def identify_trace(
 
     Raises
     ------
-    IdentificationError
-        If a fit fails (too few moving samples).
+    ValueError
+        If there is no run. A log with too little excitation is fitted all the same: its
+        standard errors say how poorly (docs/identification.md, "Limits").
     """
     started = time.perf_counter()
     described = devices.get(device)
