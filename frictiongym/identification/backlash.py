@@ -144,33 +144,26 @@ class ReversalPlan:
         return cls(**settings)
 
 
-@dataclass(frozen=True)
-class BacklashEstimate:
-    """The result of a reversal test.
+@dataclass(frozen=True, kw_only=True)
+class ReversalEstimate:
+    """One quantity fitted to a reversal run (:func:`fit_scalar`): a play's, a zone's width.
 
     ``width`` is the best fit whether or not it is resolved; :attr:`value` is it only when
-    it is. Widths are in position units, residuals in reading units.
+    it is. Residuals are in reading units.
     """
 
-    width: float  #: pooled estimate of the play's full width W
+    width: float  #: pooled estimate
     stderr: float  #: scatter of the per-reversal estimates over sqrt(n) (nan: one reversal)
     resolved: bool  #: at least ``bound``, two standard errors from zero, inside the search
-    bound: float  #: smallest play the test resolves: one sensor step of effect (inf: none)
-    upper: float  #: when too small to resolve, the play is below this; nan otherwise
+    bound: float  #: smallest value the test resolves: one sensor step of effect (inf: none)
+    upper: float  #: when too small to resolve, the value is below this; nan otherwise
     per_reversal: tuple[float, ...]  #: each reversal's own estimate
-    directions: tuple[float, ...]  #: sign of the command after each reversal
-    load_inertia: float  #: the assumed load share of J
-    load_friction: float  #: the assumed load share of friction and damping
-    shares_from: str  #: where the shares come from (an assumption either way)
-    rms: float  #: residual RMS at ``width``, reading units
-    rms_rigid: float  #: residual RMS without play
-    dead_time: float  #: of the replayed plant, s
-    search: tuple[float, float]  #: the widths searched
-    unit: str  #: position unit
+    rms: float  #: residual RMS at ``width``
+    rms_rigid: float  #: residual RMS at 0 (no play, no zone)
+    search: tuple[float, float]  #: the values searched
+    unit: str  #: of the width
     trace: Rollout = field(compare=False, repr=False)  #: the reversal run
-    note: str = ""  #: why a number was not resolved
-    #: widths of the earlier rounds, each before the rigid model was refitted with the play
-    earlier: tuple[float, ...] = ()
+    note: str = ""  #: why the number was not resolved
     #: the width the output-error refinement fitted with the rigid model (plans that refine;
     #: a cross-check from other runs, nan otherwise)
     refinement_width: float = math.nan
@@ -180,26 +173,21 @@ class BacklashEstimate:
         """The width if resolved, else None."""
         return self.width if self.resolved else None
 
-    def describe(self) -> str:
-        """One line: the width and its standard error, or the bound, and the assumptions."""
-        shares = (
-            f"assuming the load carries {self.load_inertia:g} of J and {self.load_friction:g} "
-            f"of the friction ({self.shares_from}, not measured; W depends on them)"
-        )
+    def _describe(self, name: str, symbol: str, detail: str, tail: str) -> str:
+        """One line: ``name symbol = width ± s.e. detail``, or why it is not resolved."""
         if self.resolved:
             return (
-                f"play W = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (1 s.e. of the "
-                f"noise, not of the rigid model's errors), {shares}"
+                f"{name} {symbol} = {self.width:.4g} {self.unit} ± {self.stderr:.2g} {detail}{tail}"
             )
         if math.isnan(self.upper):
-            return f"play not resolved: {self.note} (best fit {self.width:.3g}), {shares}"
+            return f"{name} not resolved: {self.note} (best fit {self.width:.3g}){tail}"
         return (
-            f"play not resolved: W < {self.upper:.3g} {self.unit} (best fit {self.width:.3g}; "
-            f"{self.note}), {shares}"
+            f"{name} not resolved: {symbol} < {self.upper:.3g} {self.unit} (best fit "
+            f"{self.width:.3g}; {self.note}){tail}"
         )
 
     def record(self) -> dict[str, Any]:
-        """Metadata of the test for the parameter file."""
+        """Metadata of the estimate for the parameter file."""
         return {
             "resolved": self.resolved,
             "width": self.width,
@@ -207,19 +195,48 @@ class BacklashEstimate:
             "bound": self.bound,
             "upper": self.upper,
             "note": self.note,
+            "per_reversal": list(self.per_reversal),
+            "rms": self.rms,
+            "rms_rigid": self.rms_rigid,
+            "search": list(self.search),
+            "refinement_width": self.refinement_width,
+        }
+
+
+@dataclass(frozen=True, kw_only=True)
+class BacklashEstimate(ReversalEstimate):
+    """The result of a reversal test: the play's full width ``W``, position units."""
+
+    directions: tuple[float, ...]  #: sign of the command after each reversal
+    load_inertia: float  #: the assumed load share of J
+    load_friction: float  #: the assumed load share of friction and damping
+    shares_from: str  #: where the shares come from (an assumption either way)
+    dead_time: float  #: of the replayed plant, s
+    #: widths of the earlier rounds, each before the rigid model was refitted with the play
+    earlier: tuple[float, ...] = ()
+
+    def describe(self) -> str:
+        """One line: the width and its standard error, or the bound, and the assumptions."""
+        shares = (
+            f", assuming the load carries {self.load_inertia:g} of J and "
+            f"{self.load_friction:g} of the friction ({self.shares_from}, not measured; W "
+            "depends on them)"
+        )
+        detail = "(1 s.e. of the noise, not of the rigid model's errors)"
+        return self._describe("play", "W", detail, shares)
+
+    def record(self) -> dict[str, Any]:
+        """Metadata of the test for the parameter file."""
+        return {
+            **super().record(),
             "assumed_shares": {
                 "load_inertia": self.load_inertia,
                 "load_friction": self.load_friction,
                 "source": f"{self.shares_from}, not measured",
             },
-            "per_reversal": list(self.per_reversal),
             "directions": list(self.directions),
-            "rms": self.rms,
-            "rms_rigid": self.rms_rigid,
             "dead_time": self.dead_time,
-            "search": list(self.search),
             "earlier_rounds": list(self.earlier),
-            "refinement_width": self.refinement_width,
             "settings": dict(self.trace.settings),
         }
 
@@ -324,23 +341,12 @@ def estimate_backlash(
         device.position_unit,
     )
     return BacklashEstimate(
-        width=fit.value,
-        stderr=fit.stderr,
-        resolved=not fit.note,
-        bound=fit.bound,
-        upper=fit.upper,
-        per_reversal=fit.per_reversal,
+        **fit.fields(search=(0.0, plan.max_width), unit=device.position_unit, trace=trace),
         directions=tuple(data.directions),
         load_inertia=psi,
         load_friction=phi,
         shares_from="the device preset's" if plan.shares is None else "ReversalPlan.shares",
-        rms=fit.rms,
-        rms_rigid=fit.rms_zero,
         dead_time=base.dead_time,
-        search=(0.0, plan.max_width),
-        unit=device.position_unit,
-        note=fit.note,
-        trace=trace,
     )
 
 
@@ -356,6 +362,21 @@ class ScalarFit:
     note: str  #: why the value is not resolved ("" if it is)
     rms: float  #: residual RMS at ``value``, reading units
     rms_zero: float  #: residual RMS at 0 (no play, no zone)
+
+    def fields(self, **context: Any) -> dict[str, Any]:
+        """Return the :class:`ReversalEstimate` fields of this fit, and ``context``'s."""
+        return {
+            "width": self.value,
+            "stderr": self.stderr,
+            "resolved": not self.note,
+            "bound": self.bound,
+            "upper": self.upper,
+            "per_reversal": self.per_reversal,
+            "rms": self.rms,
+            "rms_rigid": self.rms_zero,
+            "note": self.note,
+            **context,
+        }
 
 
 def fit_scalar(

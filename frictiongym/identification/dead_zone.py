@@ -19,7 +19,7 @@ reversals' scatter for the standard error, and a resolution bound of one sensor 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -32,6 +32,7 @@ from frictiongym.identification.backlash import (
     NO_WINDOWS,
     FloatArray,
     ReversalData,
+    ReversalEstimate,
     ReversalPlan,
     fit_scalar,
     replay,
@@ -43,26 +44,11 @@ from frictiongym.plants.plant import PlantParams
 LEVELS = ("us_pos", "us_neg", "uc_pos", "uc_neg")
 
 
-@dataclass(frozen=True)
-class DeadZoneEstimate:
-    """The dead zone fitted to a reversal run; widths in command units."""
+@dataclass(frozen=True, kw_only=True)
+class DeadZoneEstimate(ReversalEstimate):
+    """The dead zone fitted to a reversal run: its half-width ``d``, command units."""
 
-    width: float  #: pooled estimate of the half-width d
-    stderr: float  #: scatter of the per-reversal estimates over sqrt(n) (nan: one reversal)
-    resolved: bool  #: at least ``bound``, two standard errors from zero, inside the search
-    bound: float  #: smallest zone the test resolves: one sensor step of effect (inf: none)
-    upper: float  #: when too small to resolve, the zone is below this; nan otherwise
-    per_reversal: tuple[float, ...]  #: each reversal's own estimate
-    rms: float  #: residual RMS at ``width``, reading units
-    rms_rigid: float  #: residual RMS without a zone
-    search: tuple[float, float]  #: the half-widths searched
-    unit: str  #: command unit
     play: float  #: the play held during the fit (0: none)
-    trace: Rollout = field(compare=False, repr=False)  #: the reversal run
-    note: str = ""  #: why the number was not resolved
-    #: the half-width the output-error refinement fitted with the rigid model (plans that
-    #: refine; a cross-check from other runs, nan otherwise)
-    refinement_width: float = math.nan
 
     def describe(self) -> str:
         """One line: the half-width and its standard error, or the bound."""
@@ -72,35 +58,15 @@ class DeadZoneEstimate:
             if self.play
             else ""
         )
-        if self.resolved:
-            return (
-                f"dead zone d = {self.width:.4g} {self.unit} ± {self.stderr:.2g} (half-width; "
-                f"1 s.e. of the noise, not of the rigid model's errors), the friction levels "
-                f"lowered by it{held}"
-            )
-        if math.isnan(self.upper):
-            return f"dead zone not resolved: {self.note} (best fit {self.width:.3g}){held}"
-        return (
-            f"dead zone not resolved: d < {self.upper:.3g} {self.unit} (best fit "
-            f"{self.width:.3g}; {self.note}){held}"
+        detail = (
+            "(half-width; 1 s.e. of the noise, not of the rigid model's errors), the friction "
+            "levels lowered by it"
         )
+        return self._describe("dead zone", "d", detail, held)
 
     def record(self) -> dict[str, Any]:
         """Metadata of the estimate for the parameter file."""
-        return {
-            "resolved": self.resolved,
-            "width": self.width,
-            "stderr": self.stderr,
-            "bound": self.bound,
-            "upper": self.upper,
-            "note": self.note,
-            "per_reversal": list(self.per_reversal),
-            "rms": self.rms,
-            "rms_rigid": self.rms_rigid,
-            "search": list(self.search),
-            "play_held": self.play,
-            "refinement_width": self.refinement_width,
-        }
+        return {**super().record(), "play_held": self.play}
 
     def apply(self, params: DeviceParams) -> DeviceParams:
         """Return ``params`` (the rigid identification) with this zone, if it is resolved.
@@ -188,19 +154,8 @@ def estimate_dead_zone(
         device.command_unit,
     )
     return DeadZoneEstimate(
-        width=fit.value,
-        stderr=fit.stderr,
-        resolved=not fit.note,
-        bound=fit.bound,
-        upper=fit.upper,
-        per_reversal=fit.per_reversal,
-        rms=fit.rms,
-        rms_rigid=fit.rms_zero,
-        search=(0.0, high),
-        unit=device.command_unit,
+        **fit.fields(search=(0.0, high), unit=device.command_unit, trace=trace),
         play=base.backlash,
-        trace=trace,
-        note=fit.note,
     )
 
 
