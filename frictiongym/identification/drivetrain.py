@@ -146,8 +146,8 @@ def reversal_rounds(
         fit, refinement = refined_law(
             fit,
             [*traces, play.trace],
-            (refinement.values["J"], refinement.stderr["J"]),
-            (refinement.values["B"], refinement.stderr["B"]),
+            refinement.estimate("J"),
+            refinement.estimate("B"),
             runner,
             reading,
             free,
@@ -218,8 +218,8 @@ def dead_zone_fit(
         refit, refined = refined_law(
             replace(fit, values=lowered),  # the levels below the zone it starts from
             [*traces, trace],
-            (refinement.values["J"], refinement.stderr["J"]),
-            (refinement.values["B"], refinement.stderr["B"]),
+            refinement.estimate("J"),
+            refinement.estimate("B"),
             runner,
             reading,
             drivetrain,

@@ -396,9 +396,8 @@ def identify(
         fits["paper"], refinement = refined_law(
             fits["paper"], traces, inertia, damping, runner, plan.reading
         )
-        inertia = (refinement.values["J"], refinement.stderr["J"])
-        damping = (refinement.values["B"], refinement.stderr["B"])
-        breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
+        inertia, damping = refinement.estimate("J"), refinement.estimate("B")
+        breakaway = {k: refinement.estimate(k) for k in breakaway}
     play = zone = None
     if reversal is not None and backlash:
         note("reversal test")
@@ -412,9 +411,8 @@ def identify(
         )
         if joint is not None:  # the rigid model refitted together with the play
             fits["paper"], refinement = joint
-            inertia = (refinement.values["J"], refinement.stderr["J"])
-            damping = (refinement.values["B"], refinement.stderr["B"])
-            breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
+            inertia, damping = refinement.estimate("J"), refinement.estimate("B")
+            breakaway = {k: refinement.estimate(k) for k in breakaway}
     if reversal is not None and dead_zone:
         note("dead zone")
         zone, play, zone_joint = dead_zone_fit(
@@ -430,9 +428,8 @@ def identify(
         )
         if zone_joint is not None:  # the rigid model refitted with the zone
             fits["paper"], refinement = zone_joint
-            inertia = (refinement.values["J"], refinement.stderr["J"])
-            damping = (refinement.values["B"], refinement.stderr["B"])
-            breakaway = {k: (refinement.values[k], refinement.stderr[k]) for k in breakaway}
+            inertia, damping = refinement.estimate("J"), refinement.estimate("B")
+            breakaway = {k: refinement.estimate(k) for k in breakaway}
     return Identification(
         device=device.name,
         env_id=getattr(getattr(env, "spec", None), "id", None),

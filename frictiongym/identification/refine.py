@@ -134,6 +134,10 @@ class Refinement:
     starts: int  #: local fits run in the first stage (multi-start)
     evaluations: int  #: simulations of all runs, screening and Jacobians included
 
+    def estimate(self, name: str) -> tuple[float, float]:
+        """Return the value of ``name`` and its standard error."""
+        return self.values[name], self.stderr[name]
+
     def law(self, shape: str) -> StictionCoulomb:
         """Return the fitted paper law of decay ``shape``, ``B`` as its viscous slope."""
         v = self.values
