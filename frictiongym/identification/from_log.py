@@ -112,6 +112,27 @@ def read_columns(
     return columns, np.asarray(lines, dtype=np.int64)
 
 
+def unit_scale(
+    where: str, what: str, known: Mapping[str, float], given: str | None, device: str
+) -> float:
+    """Return the factor from unit ``given`` to the device's (its own when None).
+
+    ``known`` maps the units the device's quantity converts from to their factors, its own
+    unit first (a row of :data:`VELOCITY_UNITS`, :data:`FORCE_UNITS`, ...).
+
+    Raises
+    ------
+    LogFileError
+        If ``given`` is not one of them, naming ``what``, the ``device`` and the units.
+    """
+    name = next(iter(known)) if given is None else given
+    if name not in known:
+        raise LogFileError(
+            f"{where}: {what} unit {name!r} is not one of {device}'s: use {', '.join(known)}"
+        )
+    return known[name]
+
+
 def read_map(
     path: str | os.PathLike[str],
     device: devices.Device,
@@ -134,20 +155,12 @@ def read_map(
         command opposes its speed (naming its line), and too few moving points per direction.
     """
     where = str(path)
-    scales = []
-    for given, table, unit, what in (
-        (velocity_unit, VELOCITY_UNITS, device.position_unit, "velocity"),
-        (force_unit, FORCE_UNITS, device.command_unit, "force"),
-    ):
-        known = table.get(unit, {})
-        default = f"{unit}/s" if what == "velocity" else unit
-        name = default if given is None else given
-        if name not in known:
-            raise LogFileError(
-                f"{where}: {what} unit {name!r} is not one of {device.name}'s: use "
-                f"{', '.join(known) or default}"
-            )
-        scales.append(known[name])
+    scales = (
+        unit_scale(
+            where, "velocity", VELOCITY_UNITS[device.position_unit], velocity_unit, device.name
+        ),
+        unit_scale(where, "force", FORCE_UNITS[device.command_unit], force_unit, device.name),
+    )
     columns, lines = read_columns(path, (velocity, force))
     v = columns[velocity] * scales[0]
     u = columns[force] * scales[1]

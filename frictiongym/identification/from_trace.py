@@ -32,10 +32,12 @@ from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.fit import LawFit, fit_law, inertia_from_map
 from frictiongym.identification.from_log import (
+    FORCE_UNITS,
     LogFileError,
     breakaway_free,
     extrapolated_breakaway,
     read_columns,
+    unit_scale,
 )
 from frictiongym.identification.identify import Identification, Plan
 from frictiongym.identification.refine import refine
@@ -67,7 +69,7 @@ def read_trace(
     position: str = "position",
     time_unit: str = "s",
     position_unit: str | None = None,
-    command_scale: float = 1.0,
+    command_unit: str | None = None,
 ) -> tuple[list[Rollout], float]:
     """Read a log into runs (one per ``episode`` if it has that column) and its period.
 
@@ -84,12 +86,12 @@ def read_trace(
     where = str(path)
     if time_unit not in TIME_UNITS:
         raise LogFileError(f"{where}: time unit {time_unit!r} is not one of s, ms")
-    units = POSITION_UNITS.get(device.position_unit, {})
-    name = device.position_unit if position_unit is None else position_unit
-    if name not in units:
-        raise LogFileError(
-            f"{where}: position unit {name!r} is not one of {device.name}'s: use {', '.join(units)}"
-        )
+    position_scale = unit_scale(
+        where, "position", POSITION_UNITS[device.position_unit], position_unit, device.name
+    )
+    command_scale = unit_scale(
+        where, "command", FORCE_UNITS[device.command_unit], command_unit, device.name
+    )
     names = {"time": time_column, "command": command, "position": position}
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as handle:
@@ -103,7 +105,7 @@ def read_trace(
     columns, lines = read_columns(path, wanted)
     t = columns[names["time"]] * TIME_UNITS[time_unit]
     u = columns[names["command"]] * command_scale
-    y = columns[names["position"]] * units[name]
+    y = columns[names["position"]] * position_scale
     episode = columns.get("episode", np.zeros(t.size))
     groups = []
     for value in dict.fromkeys(episode.tolist()):  # in file order

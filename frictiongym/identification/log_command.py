@@ -12,7 +12,7 @@ from frictiongym._io import OutputDir
 from frictiongym._validation import real_number
 from frictiongym.identification.estimates import IdentificationError
 from frictiongym.identification.fit import LAWS
-from frictiongym.identification.from_log import FORCE_UNITS, LogFileError, identify_map, read_map
+from frictiongym.identification.from_log import LogFileError, identify_map, read_map
 from frictiongym.identification.from_trace import RUN_LOG, identify_trace, read_trace
 from frictiongym.identification.identify import Identification
 
@@ -127,15 +127,6 @@ def _fit(args: argparse.Namespace, device: devices.Device) -> Identification:
         raise ValueError(
             f"a log is fitted with the paper law by its output error; drop --law {args.law}"
         )
-    scale = 1.0
-    if args.force_unit is not None:
-        known = FORCE_UNITS.get(device.command_unit, {})
-        if args.force_unit not in known:
-            raise LogFileError(
-                f"{args.from_log}: command unit {args.force_unit!r} is not one of "
-                f"{device.name}'s: use {', '.join(known)}"
-            )
-        scale = known[args.force_unit]
     if not args.quiet:
         print("fitting every sample of the log (a minute for a long one) ...", file=sys.stderr)
     runs, dt = read_trace(
@@ -146,7 +137,7 @@ def _fit(args: argparse.Namespace, device: devices.Device) -> Identification:
         position=args.position_column,
         time_unit=args.time_unit,
         position_unit=args.position_unit,
-        command_scale=scale,
+        command_unit=args.force_unit,
     )
     return identify_trace(runs, device, dt, source=args.from_log)
 
