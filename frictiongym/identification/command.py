@@ -192,7 +192,7 @@ def summary(result: Identification, law: str, truth: dict[str, float] | None) ->
 def run(args: argparse.Namespace, command_line: str) -> int:
     """Run the command; return the exit status."""
     if args.from_log is not None:
-        return run_from_log(args, command_line, _write)
+        return run_from_log(args, command_line, _write, OUTPUTS)
     if args.inertia is not None:
         print("error: --inertia applies to --from-log with a map", file=sys.stderr)
         return 2

@@ -70,8 +70,10 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def run_from_log(args: argparse.Namespace, command_line: str, write: Writer) -> int:
-    """Fit the laws to ``args.from_log`` and write the outputs; return the exit status."""
+def run_from_log(
+    args: argparse.Namespace, command_line: str, write: Writer, outputs: tuple[str, ...]
+) -> int:
+    """Fit the laws to ``args.from_log`` and write ``outputs`` by ``write``; return the status."""
     experiments = {
         "--backend": args.backend not in ("sim", "sim://"),
         "--noise": args.noise,
@@ -98,9 +100,7 @@ def run_from_log(args: argparse.Namespace, command_line: str, write: Writer) -> 
     except IdentificationError as exc:
         print(f"error: identification failed: {exc}", file=sys.stderr)
         return 1
-    with OutputDir(
-        args.out, ("friction.json", "friction_map.png", "summary.md"), overwrite=args.overwrite
-    ) as out:
+    with OutputDir(args.out, outputs, overwrite=args.overwrite) as out:
         write(result, args, out, {"command": command_line}, None)
         written = out.commit()
     print(f"wrote {', '.join(str(p) for p in written)}")
