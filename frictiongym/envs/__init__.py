@@ -1,7 +1,8 @@
 """Gymnasium environments: the QUBE-Servo 2 and the Altino car, each with pluggable friction.
 
 Importing this package (which ``import frictiongym`` does as soon as gymnasium is imported)
-registers ``frictiongym/RotaryServo-v0`` and ``frictiongym/AltinoDistance-v0`` (single env
+registers ``frictiongym/RotaryServo-v0``/``-v1``, ``frictiongym/AltinoDistance-v0``/``-v1`` and
+``frictiongym/Axis-v0`` (any device from its description file, docs/devices.md) (single env
 through ``gym.make``, native vector env through ``gym.make_vec(...,
 vectorization_mode="vector_entry_point")``). The env modules are imported only when an env is
 made.
@@ -16,6 +17,7 @@ import gymnasium as gym
 
 if TYPE_CHECKING:
     from frictiongym.envs.altino import AltinoDistanceEnv, AltinoDistanceVectorEnv
+    from frictiongym.envs.axis import AxisEnv, AxisVectorEnv
     from frictiongym.envs.rotary import RotaryServoEnv, RotaryServoVectorEnv
 
 #: id -> (module, single class, vector class, max_episode_steps, env arguments). The steps
@@ -32,13 +34,21 @@ ENV_IDS: dict[str, tuple[str, str, str, int, dict[str, Any]]] = {
     for version, kwargs in ((0, {"terminal_cost": False}), (1, {}))
 }
 
+#: Any device from its description file: ``gym.make(AXIS_ID, device="my_stage.toml")``. It
+#: registers no episode length: the env truncates at the file's ``episode_steps`` itself.
+AXIS_ID = "frictiongym/Axis-v0"
+
 #: The env classes, imported on first use: class name -> module.
 _LAZY = {name: entry[0] for entry in ENV_IDS.values() for name in entry[1:3]}
+_LAZY |= {"AxisEnv": "frictiongym.envs.axis", "AxisVectorEnv": "frictiongym.envs.axis"}
 
 __all__ = [
+    "AXIS_ID",
     "ENV_IDS",
     "AltinoDistanceEnv",
     "AltinoDistanceVectorEnv",
+    "AxisEnv",
+    "AxisVectorEnv",
     "RotaryServoEnv",
     "RotaryServoVectorEnv",
     "register_envs",
@@ -56,6 +66,12 @@ def register_envs() -> None:
             vector_entry_point=f"{module}:{vector}",
             max_episode_steps=steps,
             kwargs=kwargs,
+        )
+    if AXIS_ID not in gym.registry:
+        gym.register(
+            id=AXIS_ID,
+            entry_point="frictiongym.envs.axis:AxisEnv",
+            vector_entry_point="frictiongym.envs.axis:AxisVectorEnv",
         )
 
 

@@ -16,7 +16,7 @@ import functools
 import inspect
 from collections.abc import Callable
 from dataclasses import replace
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -95,7 +95,7 @@ def _spaces(device: Device, sim: EnvCore) -> tuple[spaces.Space[Any], spaces.Spa
 class FrictionEnv(gym.Env[ObsArray, ActArray]):
     """Base class of the single envs; see :class:`~frictiongym.envs.RotaryServoEnv`."""
 
-    device: ClassVar[Device]
+    device: Device  #: a class attribute of the built-in envs, set per env by the Axis envs
     metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
         "render_modes": ["human", "rgb_array"],
         "render_fps": _RENDER_FPS,

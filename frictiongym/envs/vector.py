@@ -19,7 +19,7 @@ simulation can (see :meth:`FrictionVectorEnv.call`).
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any, ClassVar
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -68,7 +68,7 @@ def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
 class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
     """Base class of the native vector envs; see :class:`~frictiongym.envs.RotaryServoVectorEnv`."""
 
-    device: ClassVar[Device]
+    device: Device  #: a class attribute of the built-in envs, set per env by the Axis envs
     metadata = {  # noqa: RUF012  (gymnasium declares it an instance attribute)
         "render_modes": ["rgb_array"],
         "render_fps": _RENDER_FPS,
