@@ -51,6 +51,9 @@ __all__ = [
     "AxisVectorEnv",
     "RotaryServoEnv",
     "RotaryServoVectorEnv",
+    "env_arguments",
+    "make",
+    "make_vec",
     "register_envs",
 ]
 
@@ -76,6 +79,39 @@ def register_envs() -> None:
 
 
 register_envs()
+
+
+def env_arguments(device: Any, kwargs: dict[str, Any]) -> tuple[str, dict[str, Any]]:
+    """Return the id and arguments that make an env of ``device`` through Gymnasium.
+
+    ``device`` is anything :func:`frictiongym.devices.get` takes: an env id, a device's kind or
+    name, a description file's path or a ``Device``. A built-in device keeps the id given (a
+    v0 id stays v0); any other is made as ``frictiongym/Axis-v0`` with ``device=`` its file (or
+    the ``Device``), and a ``max_episode_steps`` becomes its ``episode_steps``.
+    """
+    from frictiongym import devices
+
+    found = devices.get(device)
+    if found.env_id != AXIS_ID:
+        given = isinstance(device, str) and device.startswith("frictiongym/")
+        return (device if given else found.env_id), kwargs
+    kwargs = {**kwargs, "device": found.source or found}
+    return AXIS_ID, kwargs
+
+
+def make(device: Any, **kwargs: Any) -> Any:
+    """``gym.make`` for any device (see :func:`env_arguments`), e.g. ``make("stage.toml")``."""
+    env_id, kwargs = env_arguments(device, kwargs)
+    if env_id == AXIS_ID and "max_episode_steps" in kwargs:  # gym.make's own would only cut it
+        kwargs["episode_steps"] = kwargs.pop("max_episode_steps")
+    return gym.make(env_id, **kwargs)
+
+
+def make_vec(device: Any, num_envs: int = 1, **kwargs: Any) -> Any:
+    """``gym.make_vec(..., vectorization_mode="vector_entry_point")`` for any device."""
+    env_id, kwargs = env_arguments(device, kwargs)
+    kwargs.setdefault("vectorization_mode", "vector_entry_point")
+    return gym.make_vec(env_id, num_envs=num_envs, **kwargs)
 
 
 def __getattr__(name: str) -> Any:

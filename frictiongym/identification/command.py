@@ -70,9 +70,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument(
         "--env",
+        "--device",
+        dest="env",
         required=True,
-        metavar="ID",
-        help=f"env id of the device: {', '.join(d.env_id for d in devices.DEVICES)}",
+        metavar="ID|FILE",
+        help=f"the device: an env id ({', '.join(d.env_id for d in devices.DEVICES)}) or a "
+        "device description file (.toml or .json, docs/devices.md)",
     )
     add_output_arguments(
         parser, "identify-results", "friction.json, friction_map.png and summary.md"

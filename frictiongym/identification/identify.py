@@ -25,11 +25,10 @@ from collections.abc import Callable, Mapping
 from dataclasses import MISSING, asdict, dataclass, field, fields
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym import devices
+from frictiongym import devices, envs
 from frictiongym.controllers.rollout import Rollout
 from frictiongym.envs import ENV_IDS  # importing the envs registers their ids
 from frictiongym.identification import estimates as est
@@ -462,7 +461,7 @@ def _resolution(reading: Reading, direction: float) -> Callable[[FloatArray], Fl
 def plan_for(env_id: str) -> Plan:
     """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
     if env_id not in ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; choose one of {', '.join(ENV_IDS)}")
+        devices.get(env_id)  # a description file's device, or an error that lists the ids
     return Plan.for_device(env_id)
 
 
@@ -472,4 +471,4 @@ def make_env(env_id: str, plan: Plan | None = None, **kwargs: Any) -> Any:
     Each run ends by its own duration, so the episode limit only has to stay out of the way.
     """
     plan = plan or plan_for(env_id)
-    return gym.make(env_id, max_episode_steps=_NO_EPISODE_LIMIT, **{**plan.env_kwargs, **kwargs})
+    return envs.make(env_id, max_episode_steps=_NO_EPISODE_LIMIT, **{**plan.env_kwargs, **kwargs})
