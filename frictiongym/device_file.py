@@ -249,7 +249,13 @@ def _scalar(
         "(0,1)": 0 < number < 1,
     }[field.rule]
     if not ok:
-        rule = {"inf-ok": "a number or inf", "(0,1)": "between 0 and 1"}.get(field.rule, field.rule)
+        rule = {
+            ">0": "> 0",
+            ">=0": ">= 0",
+            "finite": "a finite number",
+            "inf-ok": "a number or inf",
+            "(0,1)": "between 0 and 1",
+        }[field.rule]
         fail(key, f"{where}: must be {rule}")
     return number
 

@@ -1,0 +1,209 @@
+"""Device description files: the built-in devices are files, any rig is one, bad files are named.
+
+The oracle of "loaded through the same code" is the built-in devices' description before the
+files existed, recorded field by field with types (tests/data/builtin_devices.txt, written at
+b1da488 by the repr below): each field of the loaded device must print the same.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+import frictiongym.envs as envs
+from frictiongym import device_file, devices
+from frictiongym.data import device_path
+from frictiongym.devices import ALTINO, DEVICES, ROTARY, DeviceFileError
+from frictiongym.envs.axis import AxisEnv
+
+REPO = Path(__file__).resolve().parents[1]
+EXAMPLE = REPO / "examples" / "ball_screw" / "ball_screw_stage.toml"
+RECORD = Path(__file__).parent / "data" / "builtin_devices.txt"
+
+
+def typed(value: object) -> str:
+    """A value's repr with the type of every leaf (1 and 1.0 differ)."""
+    if isinstance(value, dict):
+        return "{" + ",".join(f"{k!r}:{typed(x)}" for k, x in value.items()) + "}"
+    if isinstance(value, tuple | list):
+        return type(value).__name__ + "(" + ",".join(typed(x) for x in value) + ")"
+    return f"{type(value).__name__}:{value!r}"
+
+
+def test_the_built_in_devices_are_their_files_field_for_field():
+    lines = [
+        f"{d.name}.{f.name}={typed(getattr(d, f.name))}"
+        for d in (ROTARY, ALTINO)
+        for f in dataclasses.fields(d)
+        if f.name != "source"
+    ]
+    assert lines == RECORD.read_text().splitlines()
+    assert ROTARY.source == str(device_path("rotary"))
+
+
+@pytest.mark.parametrize("device", DEVICES, ids=lambda d: d.kind)
+def test_a_written_description_reads_back_as_the_same_device(device, tmp_path):
+    path = tmp_path / "copy.toml"
+    path.write_text(device_file.dump(device))
+    copy = devices.Device(**device_file.read(path))
+    assert dataclasses.replace(copy, source="") == dataclasses.replace(device, source="")
+
+
+def test_a_json_description_reads_as_the_toml_one(tmp_path):
+    table = device_file.toml_loads(EXAMPLE.read_text())
+    path = tmp_path / "stage.json"
+    path.write_text(json.dumps(table))
+    from_json = devices.Device(**device_file.read(path))
+    from_toml = devices.Device(**device_file.read(EXAMPLE))
+    assert dataclasses.replace(from_json, source="") == dataclasses.replace(from_toml, source="")
+
+
+def test_the_example_makes_single_and_vector_envs_of_its_units():
+    env = gym.make("frictiongym/Axis-v0", device=str(EXAMPLE))
+    assert isinstance(env.unwrapped, AxisEnv)
+    assert env.action_space.high[0] == 24.0
+    obs, _ = env.reset(seed=3)
+    assert obs.tolist() == [0.0, 0.0, 10.0]  # at rest at 0 mm, the 10 mm step
+    steps = 0
+    while True:
+        obs, _reward, terminated, truncated, info = env.step(np.array([1.0], np.float32))
+        steps += 1
+        if terminated or truncated:
+            break
+    assert (steps, terminated, truncated) == (3000, False, True)  # the file's episode_steps
+    assert obs[0] / 0.0025 == pytest.approx(round(obs[0] / 0.0025))  # counts of 5 mm / 2000
+    assert info["position"] > 20.0  # 1 V is three times break-away: it slides
+    vec = envs.make_vec(str(EXAMPLE), num_envs=4)
+    assert vec.unwrapped.max_episode_steps == 3000
+    first, _ = vec.reset(seed=3)
+    np.testing.assert_array_equal(first[0], [0.0, 0.0, 10.0])
+    env.close()
+    vec.close()
+
+
+def test_the_vector_env_steps_as_the_single_env():
+    single = envs.make(str(EXAMPLE), sensor_noise=True)
+    vec = envs.make_vec(str(EXAMPLE), num_envs=2, sensor_noise=True)
+    s_obs, _ = single.reset(seed=5)
+    v_obs, _ = vec.reset(seed=5)
+    for u in (0.2, 0.5, -1.0, 0.0, 2.0):
+        s_obs, s_r, *_ = single.step(np.array([u], np.float32))
+        v_obs, v_r, *_ = vec.step(np.full((2, 1), u, np.float32))
+        np.testing.assert_array_equal(v_obs[0], s_obs)
+        assert v_r[0] == s_r
+
+
+def test_identify_takes_the_description_file_and_writes_its_device(tmp_path):
+    from frictiongym.cli import main
+
+    assert main(["identify", "--device", str(EXAMPLE), "--out", str(tmp_path), "--quiet"]) == 0
+    written = json.loads((tmp_path / "friction.json").read_text())
+    assert (written["device"], written["env_id"]) == ("BallScrewStage", envs.AXIS_ID)
+    truth = devices.load(EXAMPLE)
+    law = written
+    for name in ("us_pos", "us_neg", "uc_pos", "uc_neg"):
+        assert law[name] == pytest.approx(getattr(truth.paper_friction, name), rel=0.01)
+    assert written["J"] == pytest.approx(truth.plant.inertia, rel=0.01)
+    env = envs.make(str(EXAMPLE), params=str(tmp_path / "friction.json"))
+    assert env.unwrapped.sim.plant.inertia == written["J"]
+    env.close()
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"dt": -0.001}, r"stage\.toml: dt: = -0\.001 \(control period, s\): must be > 0"),
+        (
+            {"plant": {"inertia": 0.0, "damping": 0.1, "command_limit": 24.0}},
+            r"plant: plant\.inertia",
+        ),
+        ({"sensor": "laser"}, r"sensor: must be one of encoder, ir"),
+        ({"counts_per_rev": 0}, r"counts_per_rev: must be 1\.\.65535 with sensor = 'encoder'"),
+        ({"limit": "far"}, r"limit: = 'far' \(safety limit.*mm\): must be a number"),
+        ({"bogus": 1}, r"unknown field\(s\) bogus"),
+        ({"friction": {"us_pos": 0.3}}, r"friction: .*missing"),
+        ({"output": "angle"}, r"output: must name the measured output, one of \['position'\]"),
+        (
+            {"gains": {"pid": {"kp": 1.0, "ki": -1.0, "kd": 0.0}}},
+            r"gains\.pid\.ki: = -1\.0: must be a number >= 0",
+        ),
+        ({"references": {"sine": {"amplitude": 1.0, "period": 1.0}}}, r"references\.step: missing"),
+        ({"drawing": "draw_robot"}, r"drawing: = 'draw_robot'"),
+        ({"name": "Rotary Servo"}, r"name: = 'Rotary Servo'.*letters, digits and _"),
+    ],
+)
+def test_a_bad_field_is_named_with_its_unit_and_range(tmp_path, change, message):
+    table = {**device_file.toml_loads(EXAMPLE.read_text()), **change}
+    path = tmp_path / "stage.toml"
+    path.write_text(device_file.render_toml(table))
+    with pytest.raises(DeviceFileError, match=message):
+        devices.load(path)
+
+
+def test_a_missing_field_is_named_with_its_unit(tmp_path):
+    table = device_file.toml_loads(EXAMPLE.read_text())
+    del table["dt"]
+    path = tmp_path / "stage.toml"
+    path.write_text(device_file.render_toml(table))
+    with pytest.raises(
+        DeviceFileError, match=r"stage\.toml: dt: missing: give the control period \(s\)"
+    ):
+        devices.load(path)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("name = ", r"not valid TOML"),
+        ("", r"name: missing"),
+    ],
+)
+def test_a_file_that_is_not_a_description_says_so(tmp_path, text, message):
+    path = tmp_path / "stage.toml"
+    path.write_text(text)
+    with pytest.raises(DeviceFileError, match=message):
+        devices.load(path)
+
+
+def test_a_missing_file_and_a_bad_reference_are_named(tmp_path):
+    with pytest.raises(DeviceFileError, match=r"cannot read device file .*nowhere\.toml"):
+        envs.make(str(tmp_path / "nowhere.toml"))
+    table = device_file.toml_loads(EXAMPLE.read_text())
+    table["references"]["sine"] = {"amplitude": 1.0, "period": -2.0}
+    path = tmp_path / "stage.toml"
+    path.write_text(device_file.render_toml(table))
+    with pytest.raises(DeviceFileError, match=r"stage\.toml: references\.sine: .*period"):
+        gym.make("frictiongym/Axis-v0", device=str(path))
+
+
+def test_a_file_cannot_take_a_built_in_device_s_name(tmp_path):
+    table = {**device_file.toml_loads(EXAMPLE.read_text()), "kind": "rotary"}
+    path = tmp_path / "stage.toml"
+    path.write_text(device_file.render_toml(table))
+    with pytest.raises(DeviceFileError, match="a built-in device's"):
+        devices.load(path)
+    assert devices.load(device_path("rotary")) is ROTARY
+
+
+def test_axis_needs_a_device():
+    with pytest.raises(TypeError, match="needs device="):
+        gym.make("frictiongym/Axis-v0")
+
+
+def test_the_lugre_law_is_built_from_the_friction_when_the_file_gives_none():
+    stage = devices.load(EXAMPLE)
+    law, lugre = stage.paper_friction, stage.lugre_friction
+    assert (lugre.us_pos, lugre.uc_neg) == (law.us_pos, law.uc_neg)
+    # within 1 % of u_c at v0, as the presets
+    assert math.exp(-((law.v0_pos / lugre.vs_pos) ** 2)) == pytest.approx(0.01)
+    assert lugre.sigma1 == pytest.approx(2.0 * math.sqrt(lugre.sigma0 * stage.plant.inertia))
+    env = envs.make(str(EXAMPLE), friction="lugre")
+    env.reset(seed=0)
+    env.step(np.array([0.5], np.float32))
+    env.close()
