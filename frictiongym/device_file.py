@@ -118,7 +118,15 @@ SCALARS: dict[str, Field] = {
 ENCODER_ONLY = ("counts_per_rev", "position_per_rev")
 
 #: Tables of the file whose entries are free mappings (checked by their users' classes).
-MAPPINGS = ("references", "gains", "randomization", "identification", "residual", "training_env")
+MAPPINGS = (
+    "references",
+    "gains",
+    "randomization",
+    "identification",
+    "residual",
+    "training_env",
+    "tuning",
+)
 
 
 def read(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -310,6 +318,11 @@ def _mapping(key: str, data: Mapping[str, Any], fail: Fail) -> Mapping[str, Any]
         fail(key, f"must be a table [{key}]")
     if key == "references" and "step" not in value:
         fail("references.step", "missing: give [references.step] value = the demo set-point")
+    if key == "tuning":
+        allowed: tuple[str, ...] = ("rise_time", "peak_time", "settling_time", "overshoot_pct")
+        allowed = (*allowed, "settling_band", "kp", "ki", "kd")
+        for name in sorted(set(value) - set(allowed)):
+            fail(f"tuning.{name}", f"unknown; [tuning] takes {', '.join(allowed)}")
     if key == "gains" and "pid" not in value:
         fail("gains.pid", "missing: give [gains.pid] kp, ki, kd (the baseline PID)")
     return value

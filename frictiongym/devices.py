@@ -13,7 +13,7 @@ import math
 import os
 import re
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -112,6 +112,9 @@ class Device:
     drawing: str | None = None
     #: The description file it was read from ("" if built in code)
     source: str = ""
+    #: ``frictiongym tune``'s specs and gain bounds: ``StepSpecs`` fields and ``kp``, ``ki``,
+    #: ``kd`` as (low, high); empty: the paper's specs (the servo's own)
+    tuning: Mapping[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         counts = round(self.plant.command_limit * self.command_scale)

@@ -41,7 +41,7 @@ def test_the_built_in_devices_are_their_files_field_for_field():
         f"{d.name}.{f.name}={typed(getattr(d, f.name))}"
         for d in (ROTARY, ALTINO)
         for f in dataclasses.fields(d)
-        if f.name != "source"
+        if f.name not in ("source", "tuning")  # fields the files brought
     ]
     assert lines == RECORD.read_text().splitlines()
     assert ROTARY.source == str(device_path("rotary"))
@@ -207,3 +207,34 @@ def test_the_lugre_law_is_built_from_the_friction_when_the_file_gives_none():
     env.reset(seed=0)
     env.step(np.array([0.5], np.float32))
     env.close()
+
+
+def test_tune_takes_the_device_s_plant_step_and_pid_and_the_specs_given(tmp_path):
+    from frictiongym.cli import main
+
+    out = tmp_path / "tune"
+    args = ["tune", "--device", str(EXAMPLE), "--samples", "2000", "--out", str(out)]
+    assert main([*args, "--settling-time", "0.5", "--kd", "0.0", "0.3", "--quiet"]) == 0
+    record = json.loads((out / "tune.json").read_text())
+    assert record["reference_step"] == 10.0  # mm: the file's demo step
+    assert record["model"]["device"] == "BallScrewStage"
+    assert record["dt"] == 0.001
+    assert record["paper_gains"]["kp"] == 4.8  # the file's PID, evaluated beside
+    assert record["specs"]["settling_time"] == 0.5
+    assert record["bounds"] == {"kp": [0.0, 24.0], "ki": [0.0, 100.0], "kd": [0.0, 0.3]}
+    assert record["n_feasible"] > 0
+    for candidate in record["feasible"]:
+        assert candidate["settling_time"] < 0.5
+
+
+def test_tune_refuses_a_device_it_cannot_step_and_names_a_missing_bound(tmp_path, capsys):
+    from frictiongym.cli import main
+
+    assert main(["tune", "--device", "altino", "--out", str(tmp_path / "a")]) == 2
+    assert "encoder device" in capsys.readouterr().err
+    table = device_file.toml_loads(EXAMPLE.read_text())
+    table["gains"]["pid"]["ki"] = 0.0
+    path = tmp_path / "stage.toml"
+    path.write_text(device_file.render_toml(table))
+    assert main(["tune", "--device", str(path), "--out", str(tmp_path / "b")]) == 2
+    assert "give its bounds (--ki LOW HIGH" in capsys.readouterr().err

@@ -11,12 +11,12 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
+from frictiongym import devices
 from frictiongym._cluster import ClusterError, ordered_map, ray_session
 from frictiongym._io import OutputDir, add_output_arguments, write_json_atomic
 from frictiongym._validation import check_seed
-from frictiongym.devices import ROTARY
 from frictiongym.params import load_params
-from frictiongym.tuning.evaluate import TuningModel
+from frictiongym.tuning.evaluate import PAPER_GAINS, TuningModel
 from frictiongym.tuning.figures import plot_feasible_set
 from frictiongym.tuning.search import (
     DEFAULT_CHUNK,
@@ -27,6 +27,7 @@ from frictiongym.tuning.search import (
     TuneResult,
     random_search,
 )
+from frictiongym.tuning.specs import GainBounds, StepSpecs
 
 DESCRIPTION = f"""\
 The paper's random-search PID tuning for the QUBE-Servo 2 (section 3.1): draw --samples gain
@@ -50,6 +51,11 @@ software version, wall time) and tune.png (the feasible set in the three gain pl
 feasible step responses). {DEFAULT_SAMPLES} samples take about a second on 2 cores. An --out
 holding an earlier run's results is refused unless --overwrite replaces them (both); an error
 or a Ctrl-C leaves --out as it was.
+
+--device FILE tunes another device (an encoder device's description file, docs/devices.md): its
+plant, period and demo step, with the specs and gain bounds of the file's [tuning] table or
+of --rise-time/--peak-time/--settling-time/--overshoot and --kp/--ki/--kd (without either, the
+paper's specs and bounds of 0 to 5 times the file's PID gains); its PID is evaluated beside.
 
 --ray [ADDRESS] runs the chunks of --chunk candidates as Ray tasks: on a local Ray started for
 the command (shut down after), or on the cluster at ADDRESS. The result is the serial run's
@@ -106,10 +112,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--horizon",
         type=float,
-        default=DEFAULT_HORIZON,
+        default=None,
         metavar="SECONDS",
-        help=f"simulated time per candidate, longer than the 1.5 s settling spec (default: "
-        f"{DEFAULT_HORIZON:g})",
+        help=f"simulated time per candidate, longer than the settling spec (default: "
+        f"{DEFAULT_HORIZON:g}, or twice the settling spec if longer)",
     )
     parser.add_argument(
         "--chunk",
@@ -134,36 +140,98 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="run the chunks as Ray tasks: on a local Ray (no ADDRESS) or the cluster at "
         "ADDRESS (HOST:PORT, ray://HOST:PORT or auto); same result as without",
     )
+    parser.add_argument(
+        "--device",
+        default="rotary",
+        metavar="ID|FILE",
+        help="the device: rotary (default, the paper's servo) or a description file",
+    )
+    for name, unit, meaning in SPEC_OPTIONS:
+        parser.add_argument(
+            f"--{name.replace('_', '-').removesuffix('-pct')}",
+            dest=name,
+            type=float,
+            metavar=unit,
+            help=f"{meaning} limit (default: the file's [tuning] or the paper's)",
+        )
+    for gain in ("kp", "ki", "kd"):
+        parser.add_argument(
+            f"--{gain}",
+            nargs=2,
+            type=float,
+            metavar=("LOW", "HIGH"),
+            help=f"bounds of {gain.capitalize()} (default: the file's or the paper's)",
+        )
     parser.add_argument("--no-figures", action="store_true", help="skip tune.png")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
 
 
-def _model(args: argparse.Namespace) -> TuningModel:
-    """Build the model chosen by --model/--params (ValueError with the reason)."""
+#: Spec options: StepSpecs field, metavar, meaning.
+SPEC_OPTIONS = (
+    ("rise_time", "S", "rise-time (10-90 %%)"),
+    ("peak_time", "S", "peak-time"),
+    ("settling_time", "S", "settling-time (2 %% band)"),
+    ("overshoot_pct", "PCT", "overshoot"),
+)
+
+
+def _model(args: argparse.Namespace, device: devices.Device) -> TuningModel:
+    """Build the model chosen by --device/--model/--params (ValueError with the reason)."""
     if args.params is None:
-        return TuningModel.paper(with_friction=args.model == "friction")
+        return TuningModel.for_device(device, with_friction=args.model == "friction")
     params = load_params(args.params)  # ParamsFileError (a ValueError) names the file
-    if params.device not in (None, ROTARY.name):
+    if params.device not in (None, device.name):
         raise ValueError(
-            f"{args.params}: identified on {params.device}; tune works on the QUBE-Servo 2 "
-            "(RotaryServo) only, the paper's specs are for it"
+            f"{args.params}: identified on {params.device}, not on {device.name}; give "
+            "--device the file of that device"
         )
-    return TuningModel.from_params(params, args.model != "nominal", source=str(args.params))
+    model = TuningModel.for_device(device).with_params(params, args.model != "nominal")
+    return dataclasses.replace(model, source=str(args.params))
 
 
-def check_args(args: argparse.Namespace) -> TuningModel:
-    """Validate the options and build the model; raise ValueError saying what to change."""
+def _specs_and_bounds(
+    args: argparse.Namespace, device: devices.Device
+) -> tuple[StepSpecs, GainBounds]:
+    """Return the specs and gain bounds: the options', else the file's, else the defaults."""
+    table = device.tuning
+    specs = {name: table[name] for name, _, _ in SPEC_OPTIONS if name in table}
+    specs |= {n: getattr(args, n) for n, _, _ in SPEC_OPTIONS if getattr(args, n) is not None}
+    bounds = {gain: tuple(table[gain]) for gain in ("kp", "ki", "kd") if gain in table}
+    for gain in ("kp", "ki", "kd"):
+        if getattr(args, gain) is not None:
+            bounds[gain] = tuple(getattr(args, gain))
+    if device.name != devices.ROTARY.name:
+        pid = device.paper_gains["pid"]
+        for gain in ("kp", "ki", "kd"):
+            if gain not in bounds and pid[gain] <= 0:
+                raise ValueError(
+                    f"{device.name}'s PID has {gain} = 0: give its bounds (--{gain} LOW HIGH "
+                    "or the file's [tuning] table)"
+                )
+            bounds.setdefault(gain, (0.0, 5.0 * pid[gain]))
+    try:
+        return StepSpecs(**specs), GainBounds(**bounds)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"the specs or bounds: {error}") from None
+
+
+def check_args(args: argparse.Namespace) -> tuple[TuningModel, StepSpecs, GainBounds]:
+    """Validate the options and build the model, specs and bounds; raise ValueError if not."""
     if args.samples < 1:
         raise ValueError(f"--samples must be at least 1, got {args.samples}")
     check_seed(args.seed)
     if args.chunk < 1:
         raise ValueError(f"--chunk must be at least 1, got {args.chunk}")
-    if not (math.isfinite(args.horizon) and args.horizon > 1.5):
+    device = devices.get(args.device)
+    specs, bounds = _specs_and_bounds(args, device)
+    if args.horizon is None:
+        args.horizon = max(DEFAULT_HORIZON, 2.0 * specs.settling_time)
+    if not (math.isfinite(args.horizon) and args.horizon > specs.settling_time):
         raise ValueError(
-            f"--horizon must be a number of seconds longer than the 1.5 s settling-time spec "
-            f"(so settling can be judged), got {args.horizon}"
+            f"--horizon must be a number of seconds longer than the {specs.settling_time:g} s "
+            f"settling-time spec (so settling can be judged), got {args.horizon}"
         )
-    return dataclasses.replace(_model(args), velocity=args.velocity)
+    return dataclasses.replace(_model(args, device), velocity=args.velocity), specs, bounds
 
 
 def _fmt(value: float | None, spec: str = ".3f") -> str:
@@ -187,14 +255,21 @@ def summary(result: TuneResult) -> str:
         rows.append((f"chosen ({result.rule})", rec["chosen"], "yes"))
     p = rec["paper_gains"]
     verdict = "yes" if p["feasible"] else "no: " + ", ".join(p["failing_specs"])
-    rows.append(("paper", {**p, **p["metrics"]}, verdict))
+    baseline = "paper" if result.model.baseline == PAPER_GAINS else "device's PID"
+    rows.append((baseline, {**p, **p["metrics"]}, verdict))
     for label, c, ok in rows:
         lines.append(
             f"{label:<18}{c['kp']:>9.4g}{c['ki']:>9.4g}{c['kd']:>9.4g}"
             f"{_fmt(c['rise_time']):>8}{_fmt(c['peak_time']):>8}{_fmt(c['settling_time']):>9}"
             f"{c['overshoot_pct']:>7.2f}  {ok}"
         )
-    head = f"{f} of {n} candidates feasible ({100 * f / n:.2f} %; the paper found 328)"
+    paper = (result.model.device, result.specs, result.bounds) == (
+        devices.ROTARY.name,
+        StepSpecs(),
+        GainBounds(),
+    )
+    found = "; the paper found 328" if paper else ""
+    head = f"{f} of {n} candidates feasible ({100 * f / n:.2f} %{found})"
     if rec["chosen"] is None:
         head += "; none to choose: try more --samples"
     return "\n".join([head, *lines])
@@ -217,7 +292,7 @@ def _chunk_map(address: str | None) -> Iterator[tuple[ChunkMap | None, dict[str,
 def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int:
     """Run the tuner for parsed ``args``; return the exit status."""
     try:
-        model = check_args(args)
+        model, specs, bounds = check_args(args)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2
@@ -240,6 +315,8 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym tune") -> int
                     args.samples,
                     args.seed,
                     model,
+                    specs,
+                    bounds,
                     horizon=args.horizon,
                     rule=args.rule,
                     chunk=args.chunk,

@@ -33,12 +33,12 @@ import numpy.typing as npt
 from frictiongym._validation import real_number
 from frictiongym.controllers.base import LoopSpec
 from frictiongym.controllers.pid import PID, PIDGains
-from frictiongym.devices import ROTARY
+from frictiongym.devices import ROTARY, Device
 from frictiongym.friction import FrictionModel, NoFriction
 from frictiongym.metrics import iae, itae
 from frictiongym.metrics.step import StepMetricsBatch, step_metrics_batch, step_progress
 from frictiongym.plants.plant import Plant, PlantParams
-from frictiongym.plants.sensors import FilteredDerivative
+from frictiongym.plants.sensors import SENSOR_ENCODER, FilteredDerivative
 from frictiongym.tuning.specs import StepSpecs
 
 if TYPE_CHECKING:
@@ -49,6 +49,11 @@ BoolArray = npt.NDArray[np.bool_]
 
 #: The reference step: from rest at 0 to 1 (rad for the servo), as in the paper's Fig. 6.
 STEP = 1.0
+
+#: The paper's gains (§3.1), the servo's baseline: evaluated in every run.
+PAPER_GAINS: tuple[float, float, float] = tuple(  # type: ignore[assignment]
+    ROTARY.paper_gains["pid"][k] for k in ("kp", "ki", "kd")
+)
 
 #: Why a candidate was dropped before the horizon (``Evaluation.stop_reason``).
 STOP_REASONS = {0: "none", 1: "rise/peak", 2: "overshoot", 3: "settling"}
@@ -82,6 +87,12 @@ class TuningModel:
         (:class:`~frictiongym.plants.sensors.FilteredDerivative`, what the env observes).
     velocity_cutoff : float, default ``ROTARY.velocity_cutoff``
         ``w`` of the filtered estimate, rad/s (50: Quanser's QUBE models).
+    step : float, default STEP
+        The reference step from rest at 0, position units (the device's demo step).
+    baseline : tuple of float, default PAPER_GAINS
+        ``(kp, ki, kd)`` evaluated beside the search: the paper's, or a device file's PID.
+    device : str, default "RotaryServo"
+        Name of the device (units of reports and figures).
     """
 
     plant: PlantParams = ROTARY.plant
@@ -91,6 +102,9 @@ class TuningModel:
     source: str | None = None
     velocity: Literal["ideal", "filtered"] = "ideal"
     velocity_cutoff: float = cast(float, ROTARY.velocity_cutoff)  # the servo has its filter
+    step: float = STEP
+    baseline: tuple[float, float, float] = PAPER_GAINS
+    device: str = ROTARY.name
 
     def __post_init__(self) -> None:
         real_number("TuningModel.dt", self.dt, "> 0", unit=" s")
@@ -98,6 +112,12 @@ class TuningModel:
             raise ValueError(
                 f"TuningModel.velocity must be 'ideal' or 'filtered', got {self.velocity!r}"
             )
+        if self.velocity == "filtered" and not math.isfinite(self.velocity_cutoff):
+            raise ValueError(
+                f"{self.device} has no velocity filter (its velocity_cutoff): tune with the "
+                "ideal velocity"
+            )
+        real_number("TuningModel.step", self.step, "> 0")
 
     @classmethod
     def paper(cls, with_friction: bool = False) -> TuningModel:
@@ -107,14 +127,42 @@ class TuningModel:
         return cls()
 
     @classmethod
+    def for_device(cls, device: Device, with_friction: bool = False) -> TuningModel:
+        """Return the loop of ``device`` (an encoder device): its plant, period and step.
+
+        The servo's is :meth:`paper`'s model. Raises ValueError for a device whose task is
+        not a step from rest at 0 (the Altino's starts 30 cm from the wall).
+        """
+        if device.sensor != SENSOR_ENCODER:
+            raise ValueError(
+                f"tune simulates a step from rest at 0 of an encoder device; {device.title} "
+                "reads its position otherwise (its task starts away from 0)"
+            )
+        gains = device.paper_gains["pid"]
+        return cls(
+            plant=device.plant,
+            friction=device.paper_friction if with_friction else NoFriction(),
+            dt=device.dt,
+            name="friction" if with_friction else "nominal",
+            velocity_cutoff=device.velocity_cutoff or math.inf,
+            step=float(device.references["step"]["value"]),
+            baseline=(float(gains["kp"]), float(gains["ki"]), float(gains["kd"])),
+            device=device.name,
+        )
+
+    def with_params(self, params: DeviceParams, with_friction: bool = True) -> TuningModel:
+        """Return this loop with ``J``, ``B`` (and friction) of identified ``DeviceParams``."""
+        plant = params.plant(self.plant)
+        friction = params.plant_friction() if with_friction else NoFriction()
+        name = "params" if with_friction else "params-nominal"
+        return dataclasses.replace(self, plant=plant, friction=friction, name=name)
+
+    @classmethod
     def from_params(
         cls, params: DeviceParams, with_friction: bool = True, source: str | None = None
     ) -> TuningModel:
         """Return the servo with ``J``, ``B`` (and friction) of identified ``DeviceParams``."""
-        plant = params.plant(ROTARY.plant)
-        if with_friction:
-            return cls(plant, params.plant_friction(), name="params", source=source)
-        return cls(plant, NoFriction(), name="params-nominal", source=source)
+        return dataclasses.replace(cls().with_params(params, with_friction), source=source)
 
     def replace(self, **changes: Any) -> TuningModel:
         """Return a copy with ``changes`` (``dataclasses.replace``)."""
@@ -132,6 +180,9 @@ class TuningModel:
             "velocity": self.velocity,
             "velocity_cutoff": self.velocity_cutoff if self.velocity == "filtered" else None,
             "source": self.source,
+            "device": self.device,
+            "step": self.step,
+            "baseline": dict(zip(("kp", "ki", "kd"), self.baseline, strict=True)),
         }
 
 
@@ -223,7 +274,7 @@ def simulate(
     plant = Plant(model.plant, model.friction, dt, num_plants=size, parallel=parallel)
     pid = PID(LoopSpec(dt=dt, limit=model.plant.command_limit), PIDGains(*g.T.copy()))
     early_stop = early_stop and plant.delay_steps == 0
-    checks = _Checks(t, specs) if early_stop else None
+    checks = _Checks(t, specs, model.step) if early_stop else None
     tach = (
         None
         if model.velocity == "ideal"
@@ -240,7 +291,7 @@ def simulate(
     rows = [plant.position.copy()]
     for k in range(1, n + 1):
         v = plant.velocity if tach is None else tach.update(plant.position)
-        u = pid.update(STEP, plant.position, v)
+        u = pid.update(model.step, plant.position, v)
         np.maximum(peak_active, np.abs(u), out=peak_active)
         plant.step(u)
         rows.append(plant.position.copy())
@@ -276,14 +327,19 @@ def simulate(
     if active.size:
         y = np.concatenate([*blocks, np.stack(rows)]) if rows else np.concatenate(blocks)
         done = step_metrics_batch(
-            t, y, STEP, y0=0.0, settling_band=specs.settling_band, rise_limits=specs.rise_limits
+            t,
+            y,
+            model.step,
+            y0=0.0,
+            settling_band=specs.settling_band,
+            rise_limits=specs.rise_limits,
         )
         for name, values in columns.items():
             values[active] = getattr(done, name)
         ok = specs.feasible(done)
         feasible[active] = ok
         for j in np.flatnonzero(ok):
-            error = STEP - y[:, j]
+            error = model.step - y[:, j]
             iae_v[active[j]], itae_v[active[j]] = iae(t, error), itae(t, error)
         if traces is not None:
             traces[:, active] = y
@@ -306,8 +362,8 @@ def simulate(
 class _Checks:
     """The early-stop tests at checkpoints, with the running per-candidate statistics."""
 
-    def __init__(self, t: FloatArray, specs: StepSpecs) -> None:
-        self.t, self.specs = t, specs
+    def __init__(self, t: FloatArray, specs: StepSpecs, step: float) -> None:
+        self.t, self.specs, self.step = t, specs, step
         # First sample whose time reaches the peak-time limit: a peak there or later fails.
         self.k_peak = int(np.searchsorted(t - t[0], specs.peak_time, side="left"))
         # First sample i whose settling time t[i + 1] - t[0] reaches the limit (or the last).
@@ -327,7 +383,7 @@ class _Checks:
         """Failure codes (0: none) of the active candidates given samples up to ``k``."""
         s = self.specs
         start = k + 1 - block.shape[0]  # sample index of the block's first row
-        progress = step_progress(block, 0.0, STEP)
+        progress = step_progress(block, 0.0, self.step)
         fail = np.zeros(block.shape[1], dtype=np.int8)
         if self.first:  # the block holds samples 0..k_peak: rise is decided before k_peak
             self.first = False

@@ -10,9 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from frictiongym import devices
 from frictiongym._io import pyplot, save_figure
-from frictiongym.tuning.evaluate import STEP, simulate
-from frictiongym.tuning.search import PAPER_GAINS, RULES, TuneResult
+from frictiongym.tuning.evaluate import PAPER_GAINS, simulate
+from frictiongym.tuning.search import RULES, TuneResult
 
 #: Infeasible samples drawn in the planes at most (a random subset: the grey cloud's density is
 #: all it shows, and 100 000 markers make a slow, heavy PNG).
@@ -20,12 +21,30 @@ MAX_GREY = 4_000
 #: Feasible step responses drawn at most (the best by the rule's score).
 MAX_RESPONSES = 200
 
-_LABELS = {0: "Kp [V/rad]", 1: "Ki [V/(rad·s)]", 2: "Kd [V·s/rad]"}
+
+def _labels(result: TuneResult) -> dict[int, str]:
+    """Axis labels of the three gains, in the device's units."""
+    units = _units(result)
+    c, p = units["force"], units["position"]
+    return {0: f"Kp [{c}/{p}]", 1: f"Ki [{c}/({p}·s)]", 2: f"Kd [{c}·s/{p}]"}
+
+
+def _units(result: TuneResult) -> dict[str, str]:
+    try:
+        device = devices.get(result.model.device)
+    except ValueError:  # a description file not loaded in this process
+        return {"force": "command", "position": "position"}
+    return {"force": device.command_unit, "position": device.position_unit}
+
+
+def _baseline_label(result: TuneResult) -> str:
+    gains = ", ".join(f"{g:g}" for g in result.model.baseline)
+    return f"paper ({gains})" if result.model.baseline == PAPER_GAINS else f"device's PID ({gains})"
 
 
 def _zoom(result: TuneResult, i: int) -> tuple[float, float]:
     """Axis range around the feasible set and the paper's gains along gain ``i``."""
-    values = [*result.gains[result.feasible_indices, i], PAPER_GAINS[i]]
+    values = [*result.gains[result.feasible_indices, i], result.model.baseline[i]]
     lo, hi = min(values), max(values)
     pad = 0.1 * (hi - lo) or 0.05 * float(result.bounds.high[i])
     return max(lo - pad, float(result.bounds.low[i])), min(hi + pad, float(result.bounds.high[i]))
@@ -63,13 +82,13 @@ def _planes(axes: Any, result: TuneResult, pairs: Any, zoom: bool) -> Any:
             c = result.gains[result.chosen]
             ax.plot(c[i], c[j], "*", ms=15, mfc="red", mec="k", label="chosen")
         ax.plot(
-            PAPER_GAINS[i],
-            PAPER_GAINS[j],
+            result.model.baseline[i],
+            result.model.baseline[j],
             "X",
             ms=10,
             mfc="orange",
             mec="k",
-            label="paper (7.8, 1.5, 0.275)",
+            label=_baseline_label(result),
         )
         lo, hi = result.bounds.low, result.bounds.high
         xlim, ylim = ((lo[i], hi[i]), (lo[j], hi[j]))
@@ -78,8 +97,8 @@ def _planes(axes: Any, result: TuneResult, pairs: Any, zoom: bool) -> Any:
         ax.set(
             xlim=xlim,
             ylim=ylim,
-            xlabel=_LABELS[i],
-            ylabel=_LABELS[j],
+            xlabel=_labels(result)[i],
+            ylabel=_labels(result)[j],
             title="zoom on the feasible set" if zoom else "",
         )
     return sc
@@ -89,8 +108,10 @@ def _responses(ax: Any, result: TuneResult) -> None:
     s, good = result.specs, result.feasible_indices
     good = good[np.argsort(result.scores[good])][:MAX_RESPONSES]
     picks = [*good, *([] if result.chosen is None else [result.chosen])]
-    gains = np.vstack([result.gains[picks], [PAPER_GAINS]]) if picks else np.array([PAPER_GAINS])
+    baseline = [result.model.baseline]
+    gains = np.vstack([result.gains[picks], baseline]) if picks else np.array(baseline)
     ev = simulate(gains, result.model, s, result.horizon, early_stop=False, keep_traces=True)
+    step = result.model.step
     t, y = ev.t, ev.traces
     assert y is not None  # keep_traces=True always returns them
     n = len(good)
@@ -99,9 +120,9 @@ def _responses(ax: Any, result: TuneResult) -> None:
         ax.plot([], [], color="tab:blue", lw=0.8, label=f"feasible (best {n} by {result.rule})")
     if result.chosen is not None:
         ax.plot(t, y[:, n], color="red", lw=1.8, label="chosen")
-    ax.plot(t, y[:, -1], color="orange", lw=1.8, ls="--", label="paper's gains")
+    ax.plot(t, y[:, -1], color="orange", lw=1.8, ls="--", label=_baseline_label(result))
     ax.axhline(
-        STEP * (1 + s.overshoot_pct / 100),
+        step * (1 + s.overshoot_pct / 100),
         color="k",
         lw=0.8,
         ls=":",
@@ -117,18 +138,18 @@ def _responses(ax: Any, result: TuneResult) -> None:
     )
     band = f"±{s.settling_band * 100:g} % band (settled by {s.settling_time:g} s)"
     ax.axhspan(
-        STEP * (1 - s.settling_band),
-        STEP * (1 + s.settling_band),
+        step * (1 - s.settling_band),
+        step * (1 + s.settling_band),
         color="0.6",
         alpha=0.3,
         label=band,
     )
     ax.set(
         xlim=(0.0, min(0.5, float(t[-1]))),
-        ylim=(0.0, 1.35),
+        ylim=(0.0, 1.35 * step),
         xlabel="time [s]",
-        ylabel="position [rad]",
-        title="unit-step responses (first 0.5 s)",
+        ylabel=f"position [{_units(result)['position']}]",
+        title=f"{step:g} {_units(result)['position']} step responses (first 0.5 s)",
     )
     ax.legend(fontsize="x-small", loc="lower right")
 

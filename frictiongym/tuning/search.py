@@ -25,7 +25,6 @@ import numpy as np
 import numpy.typing as npt
 
 from frictiongym import __version__
-from frictiongym.devices import ROTARY
 from frictiongym.metrics.step import StepMetricsBatch
 from frictiongym.tuning.evaluate import STOP_REASONS, Evaluation, TuningModel, simulate
 from frictiongym.tuning.specs import SPEC_FIELDS, GainBounds, StepSpecs
@@ -51,9 +50,6 @@ DEFAULT_HORIZON = 3.0
 #: 234 k candidates/s; 4 096 ran at 92 k/s, 65 536 at 261 k/s, all 100 000 at once at 240 k/s
 #: with 118 MB (docs/tuning.md, "Speed").
 DEFAULT_CHUNK = 32_768
-
-#: The paper's gains (§3.1), evaluated in every run.
-PAPER_GAINS = tuple(ROTARY.paper_gains["pid"][k] for k in ("kp", "ki", "kd"))
 
 
 def rule_scores(rule: str, evaluation: Evaluation, specs: StepSpecs) -> FloatArray:
@@ -143,13 +139,13 @@ class TuneResult:
         p = self.paper
         fails = self.specs.failures(p.metrics)
         return {
-            **dict(zip(("kp", "ki", "kd"), PAPER_GAINS, strict=True)),
+            **dict(zip(("kp", "ki", "kd"), self.model.baseline, strict=True)),
             "feasible": bool(p.feasible[0]),
             "failing_specs": [name for name, _, _ in SPEC_FIELDS if fails[name][0]],
             "metrics": {k: _finite(v) for k, v in p.metrics[0].as_dict().items()},
             "margin": _finite(self.specs.margin(p.metrics)[0]),
             "peak_command": _finite(p.peak_command[0]),
-            "within_bounds": bool(self.bounds.contains(PAPER_GAINS)[0]),
+            "within_bounds": bool(self.bounds.contains(self.model.baseline)[0]),
         }
 
     def record(self) -> dict[str, Any]:
@@ -176,7 +172,7 @@ class TuneResult:
             "model": self.model.record(),
             "dt": self.model.dt,
             "horizon": float(ev.t[-1]),
-            "reference_step": 1.0,
+            "reference_step": self.model.step,
             "specs": self.specs.record(),
             "bounds": self.bounds.record(),
             "rule": {"name": self.rule, "description": RULES[self.rule]},
@@ -282,7 +278,7 @@ def random_search(
         if progress is not None:
             progress(part.shape[0])
     evaluation = _concat(parts)
-    paper = simulate([PAPER_GAINS], model, specs, horizon, early_stop=False)
+    paper = simulate([model.baseline], model, specs, horizon, early_stop=False)
     wall = time.perf_counter() - start
     scores = rule_scores(rule, evaluation, specs)
     chosen = int(np.nanargmin(scores)) if evaluation.feasible.any() else None
