@@ -287,7 +287,7 @@ def test_default_model_is_the_specs_friction():
     env = gym.make(SERVO)
     pid = PID.for_env(env, PIDGains(**ROTARY_PAPER_GAINS))
     comp = FrictionCompensator(pid)
-    assert comp.model is ROTARY_PAPER
+    assert comp.model == ROTARY_PAPER  # the device file's law, read as the preset is
     assert comp.rest_speed == pid.spec.rest_speed == 0.1
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import fnmatch
+import functools
 import sys
 import time
 from collections.abc import Sequence
@@ -53,6 +54,10 @@ the nominal plant and on --heldout randomised plants (seeds from --heldout-seed,
 drawn from the training ranges, the same plants for both), and a table of ITAE, SSE,
 terminations and limit cycles of the residual against the compensated PID in results.md.
 It needs Stable-Baselines3 and torch.
+
+--device ID|FILE runs one device's scenarios only: a built-in one (rotary, altino) or any
+device from its description file (docs/devices.md), whose paper group is its PID and its
+compensated PID (the file's gains) on its default step.
 """
 
 
@@ -114,6 +119,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help=f"seed of the first held-out plant (default {HELDOUT_SEED}; keep clear of the "
         "training seeds)",
     )
+    parser.add_argument(
+        "--device",
+        metavar="ID|FILE",
+        help="only this device's scenarios: rotary, altino or a description file (default: "
+        "the two built-in devices)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
     parser.add_argument("--list", action="store_true", help="list the scenarios and exit")
     parser.add_argument("--quiet", action="store_true", help="no progress bar, no summary")
@@ -125,7 +136,8 @@ def select(args: argparse.Namespace) -> list[Scenario]:
         raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
     seeds = tuple(range(args.seeds))
     chosen = []
-    for s in all_scenarios(quick=args.quick) + _residual(args):
+    device = None if args.device is None else devices.get(args.device)
+    for s in all_scenarios(quick=args.quick, device=device) + _residual(args):
         if args.group and s.group not in args.group:
             continue
         if args.scenario and not any(fnmatch.fnmatchcase(s.name, p) for p in args.scenario):
@@ -134,7 +146,7 @@ def select(args: argparse.Namespace) -> list[Scenario]:
             s = dataclasses.replace(s, seeds=seeds)
         chosen.append(s)
     if not chosen:
-        names = ", ".join(s.name for s in all_scenarios(quick=args.quick)[:6])
+        names = ", ".join(s.name for s in all_scenarios(args.quick, device)[:6])
         raise ValueError(
             "no scenario matches --group/--scenario; see `frictiongym benchmark --list` "
             f"(e.g. {names}, ...)"
@@ -148,10 +160,11 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
     if plants < 1:
         raise ValueError(f"--heldout must be at least 1, got {plants}")
     models: dict[str, str] = {}
+    among = devices.DEVICES if args.device is None else (devices.get(args.device),)
     for spec in args.residual:
         device, sep, path = spec.partition("=")
-        if not sep or device not in (d.kind for d in devices.DEVICES) or not path:
-            takes = " or ".join(f"{d.kind}=MODEL" for d in devices.DEVICES)
+        if not sep or device not in (d.kind for d in among) or not path:
+            takes = " or ".join(f"{d.kind}=MODEL" for d in among)
             raise ValueError(f"--residual takes {takes}, got {spec!r}")
         if device in models:
             raise ValueError(f"--residual {device}= given twice; give one model per device")
@@ -200,7 +213,9 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
     from tqdm import tqdm  # only when running: keeps every `frictiongym` start-up lean
 
     start = time.perf_counter()
-    with OutputDir(args.out, OUTPUTS, overwrite=args.overwrite) as out:
+    among = devices.DEVICES if args.device is None else (devices.get(args.device),)
+    outputs = (*OUTPUTS[:3], *figure_names(among))
+    with OutputDir(args.out, outputs, overwrite=args.overwrite) as out:
         with tqdm(
             total=len(scenarios),
             desc="benchmark",
@@ -209,7 +224,8 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
             file=sys.stderr,
         ) as bar:
             results = run_benchmark(scenarios, progress=lambda s: bar.update())
-        write_reports(results, out.path, command, None if args.no_figures else write_figures)
+        figures = functools.partial(write_figures, among=among)
+        write_reports(results, out.path, command, None if args.no_figures else figures)
         written = out.commit()
     if not args.quiet:
         _summary(results)

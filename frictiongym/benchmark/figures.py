@@ -18,6 +18,7 @@ from frictiongym import devices
 from frictiongym._io import pyplot, save_figure
 from frictiongym.benchmark.report import residual_pairs
 from frictiongym.benchmark.run import Result
+from frictiongym.devices import Device
 from frictiongym.friction import FRICTION_NAMES, FrictionModel, friction_from_name
 
 
@@ -44,11 +45,11 @@ def _friction_panel(
     ax.legend(fontsize="small", loc="upper left")
 
 
-def plot_friction_curves(path: Path) -> Path:
+def plot_friction_curves(path: Path, among: Sequence[Device] = devices.DEVICES) -> Path:
     """Steady friction of every law for every device (the paper's Figs. 8(b), 10(b))."""
     plt = pyplot()
-    fig, axes = plt.subplots(1, len(devices.DEVICES), figsize=(5.5 * len(devices.DEVICES), 4.2))
-    for ax, device in zip(axes, devices.DEVICES, strict=True):
+    fig, axes = plt.subplots(1, len(among), figsize=(5.5 * len(among), 4.2), squeeze=False)
+    for ax, device in zip(axes[0], among, strict=True):
         presets = (device.paper_friction, device.lugre_friction)
         laws = {name: friction_from_name(name, *presets) for name in FRICTION_NAMES}
         units = (device.command_unit, device.units["velocity"])
@@ -69,12 +70,10 @@ PAPER_LABELS = {
 }
 
 
-def figure_names() -> list[str]:
-    """Return the file names :func:`write_figures` may write, for the devices there are."""
+def figure_names(among: Sequence[Device] = devices.DEVICES) -> list[str]:
+    """Return the file names :func:`write_figures` may write, for the devices ``among``."""
     shared = ["compensator_mismatch.png", "residual_plants.png", "friction_curves.png"]
-    return [
-        f"{p}{d.kind}_response.png" for d in devices.DEVICES for p in ("", "residual_")
-    ] + shared
+    return [f"{p}{d.kind}_response.png" for d in among for p in ("", "residual_")] + shared
 
 
 def _responses(
@@ -121,7 +120,7 @@ def plot_mismatch(results: Sequence[Result], path: Path) -> Path | None:
     if not runs:
         return None
     plt = pyplot()
-    kinds = [d.kind for d in devices.DEVICES if any(r.scenario.device == d.kind for r in runs)]
+    kinds = list(dict.fromkeys(r.scenario.device for r in runs))  # in the runs' order
     fig, axes = plt.subplots(2, len(kinds), figsize=(5.5 * len(kinds), 6.5), squeeze=False)
     for col, device in enumerate(kinds):
         mine = [r for r in runs if r.scenario.device == device]
@@ -153,7 +152,7 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
         for (device, plants), pairs in residual_pairs(results).items()
         if plants == "heldout"
     }
-    kinds = [d.kind for d in devices.DEVICES if d.kind in heldout]
+    kinds = [kind for kind in dict.fromkeys(r.scenario.device for r in results) if kind in heldout]
     if not kinds:
         return None
     plt = pyplot()
@@ -183,11 +182,13 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
     return save_figure(fig, path, dpi=120)
 
 
-def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
-    """Write every figure the results allow into ``out``; return the paths written."""
+def write_figures(
+    results: Sequence[Result], out: Path, among: Sequence[Device] = devices.DEVICES
+) -> list[Path]:
+    """Write every figure the results of the devices ``among`` allow into ``out``."""
     paper = [r.scenario for r in results if r.scenario.group == "paper"]
     written = []
-    for device in devices.DEVICES:
+    for device in among:
         kind, figures = device.kind, device.figures
         mine = {s.name: PAPER_LABELS.get(s.name, s.description) for s in paper if s.device == kind}
         residual = {
@@ -206,5 +207,5 @@ def write_figures(results: Sequence[Result], out: Path) -> list[Path]:
         ]
     written.append(plot_mismatch(results, out / "compensator_mismatch.png"))
     written.append(plot_residual_plants(results, out / "residual_plants.png"))
-    written.append(plot_friction_curves(out / "friction_curves.png"))
+    written.append(plot_friction_curves(out / "friction_curves.png", among))
     return [p for p in written if p is not None]

@@ -7,9 +7,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-import gymnasium as gym
-
 import frictiongym  # noqa: F401  (registers the env ids)
+from frictiongym import envs
 from frictiongym.benchmark.scenarios import Scenario
 from frictiongym.controllers import Controller, Rollout, rollout
 from frictiongym.metrics import ResponseMetrics
@@ -68,10 +67,9 @@ def run_scenario(
     ``controller`` builds the controller for the vector env instead of
     ``scenario.controller`` (e.g. a residual policy still in training).
     """
-    env = gym.make_vec(
+    env = envs.make_vec(
         scenario.env_id,
         num_envs=len(scenario.seeds),
-        vectorization_mode="vector_entry_point",
         max_episode_steps=scenario.steps,
         **scenario.env_kwargs,
     )

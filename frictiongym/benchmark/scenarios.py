@@ -8,7 +8,7 @@ that differ only in their seed run side by side in one vector env.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -16,7 +16,8 @@ from frictiongym import devices
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains
 from frictiongym.controllers.compensation import MODES, Mode
 from frictiongym.controllers.residual import ResidualController, read_metadata
-from frictiongym.devices import ALTINO, DEVICES, ROTARY
+from frictiongym.devices import ALTINO, DEVICES, ROTARY, Device
+from frictiongym.envs import AXIS_ID
 from frictiongym.friction import FRICTION_NAMES
 
 #: The compensator's model mismatch grid: ±20 % and ±50 % in friction level.
@@ -36,6 +37,8 @@ BACKLASH_WIDTHS = {  # device: (label, width in its position unit)
     "rotary": tuple((f"{degrees:g}deg", math.radians(degrees)) for degrees in (0.5, 1.0, 2.0)),
     "altino": tuple((f"{cm:g}cm", cm) for cm in (0.05, 0.1, 0.2)),
 }
+#: Plays of a described device with an encoder (docs/devices.md), in its encoder counts.
+BACKLASH_COUNTS = (4, 8, 16)
 #: Seeds of the held-out randomised plants of the ``residual`` group: disjoint from training,
 #: whose env copies are seeded ``S + i`` for small ``S`` (``frictiongym train --seed``).
 HELDOUT_SEED = 1000
@@ -173,15 +176,51 @@ def paper_scenarios() -> list[Scenario]:
     ]
 
 
-def _devices() -> Iterator[tuple[str, str, PIDGains, PIDGains]]:
-    """Yield (kind, env id, PID gains, compensated-PID gains) of every device."""
-    for device in DEVICES:
+def env_id_of(device: Device) -> str:
+    """Return the ``env_id`` of ``device``'s scenarios: its env id, or its description file."""
+    return device.source if device.env_id == AXIS_ID and device.source else device.env_id
+
+
+def _devices(among: Sequence[Device] = DEVICES) -> Iterator[tuple[str, str, PIDGains, PIDGains]]:
+    """Yield (kind, env id, PID gains, compensated-PID gains) of every device ``among``."""
+    for device in among:
         gains = device.paper_gains
-        yield device.kind, device.env_id, PIDGains(**gains["pid"]), PIDGains(**gains["compensated"])
+        pid, compensated = PIDGains(**gains["pid"]), PIDGains(**gains["compensated"])
+        yield device.kind, env_id_of(device), pid, compensated
+
+
+def device_scenarios(device: Device) -> list[Scenario]:
+    """Return the paper group of a described device: its PID and compensated PID, its step."""
+    variants: tuple[tuple[str, str, Mode | None, str], ...] = (
+        ("pid", "pid", None, "PID (the file's gains)"),
+        ("compensated", "compensated", "command", "PID + compensator (the file's gains)"),
+    )
+    return [
+        Scenario(
+            f"paper-{device.kind}-{kind}",
+            "paper",
+            env_id_of(device),
+            PIDGains(**device.paper_gains[gains]),
+            mode=mode,
+            description=what,
+        )
+        for kind, gains, mode, what in variants
+    ]
+
+
+def _backlash_widths(device: Device) -> tuple[tuple[str, float], ...]:
+    """Return the plays of ``device``: the built-in ones' (assumed), or a few encoder counts."""
+    if device.kind in BACKLASH_WIDTHS:
+        return BACKLASH_WIDTHS[device.kind]
+    if not device.encoder_step:
+        return ()
+    return tuple((f"{n}counts", n * device.encoder_step) for n in BACKLASH_COUNTS)
 
 
 def mismatch_scenarios(
-    modes: tuple[Mode, ...] = MODES, scales: tuple[float, ...] = MISMATCH_SCALES
+    modes: tuple[Mode, ...] = MODES,
+    scales: tuple[float, ...] = MISMATCH_SCALES,
+    among: Sequence[Device] = DEVICES,
 ) -> list[Scenario]:
     """Return every compensator variant with its model's friction levels scaled (paper friction)."""
     return [
@@ -194,18 +233,23 @@ def mismatch_scenarios(
             scale=scale,
             description=f"{mode} variant, model friction x{scale:g}",
         )
-        for device, env_id, _, gains in _devices()
+        for device, env_id, _, gains in _devices(among)
         for mode in modes
         for scale in scales
     ]
 
 
 def _pid_and_compensated(
-    name: str, group: str, what: str, env_kwargs: dict[str, Any], seeds: tuple[int, ...] = (0,)
+    name: str,
+    group: str,
+    what: str,
+    env_kwargs: dict[str, Any],
+    seeds: tuple[int, ...] = (0,),
+    among: Sequence[Device] = DEVICES,
 ) -> list[Scenario]:
-    """Return the paper's PID and compensated PID on both devices (``name``: a template)."""
+    """Return the PID and compensated PID of each device ``among`` (``name``: a template)."""
     out = []
-    for device, env_id, pid_gains, comp_gains in _devices():
+    for device, env_id, pid_gains, comp_gains in _devices(among):
         variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
             ("pid", pid_gains, None),
             ("compensated", comp_gains, "command"),
@@ -226,36 +270,44 @@ def _pid_and_compensated(
     return out
 
 
-def noise_scenarios(seeds: tuple[int, ...] = NOISE_SEEDS) -> list[Scenario]:
+def noise_scenarios(
+    seeds: tuple[int, ...] = NOISE_SEEDS, among: Sequence[Device] = DEVICES
+) -> list[Scenario]:
     """Return PID and compensated PID with sensor noise off, on (several seeds) and ideal."""
-    return (
-        _pid_and_compensated(
-            "noise-{device}-{kind}-off", "noise", "sensor noise off", {"sensor_noise": False}
-        )
-        + _pid_and_compensated(
-            "noise-{device}-{kind}-on", "noise", "sensor noise on", {"sensor_noise": True}, seeds
-        )
-        + _pid_and_compensated(
-            "noise-{device}-{kind}-ideal",
-            "noise",
-            "ideal sensor: no noise, no quantisation",
-            {"quantize": False},
-        )
+    variants: tuple[tuple[str, str, dict[str, Any], tuple[int, ...]], ...] = (
+        ("off", "sensor noise off", {"sensor_noise": False}, (0,)),
+        ("on", "sensor noise on", {"sensor_noise": True}, seeds),
+        ("ideal", "ideal sensor: no noise, no quantisation", {"quantize": False}, (0,)),
     )
+    return [
+        s
+        for label, what, kwargs, runs in variants
+        for s in _pid_and_compensated(
+            f"noise-{{device}}-{{kind}}-{label}", "noise", what, kwargs, runs, among
+        )
+    ]
 
 
-def friction_scenarios(laws: tuple[str, ...] = FRICTION_NAMES) -> list[Scenario]:
+def friction_scenarios(
+    laws: tuple[str, ...] = FRICTION_NAMES, among: Sequence[Device] = DEVICES
+) -> list[Scenario]:
     """Return PID and compensated PID (paper model) against each friction law of the plant."""
     return [
         s
         for law in laws
         for s in _pid_and_compensated(
-            f"friction-{{device}}-{law}-{{kind}}", "friction", f"{law} law", {"friction": law}
+            f"friction-{{device}}-{law}-{{kind}}",
+            "friction",
+            f"{law} law",
+            {"friction": law},
+            among=among,
         )
     ]
 
 
-def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> list[Scenario]:
+def drivetrain_scenarios(
+    fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS, among: Sequence[Device] = DEVICES
+) -> list[Scenario]:
     """Return PID and compensated PID with an actuator dead zone, then a play, in the plant.
 
     The dead zone's half-width is a fraction of each device's break-away level. The
@@ -263,18 +315,19 @@ def drivetrain_scenarios(fractions: tuple[float, ...] = DEAD_ZONE_FRACTIONS) -> 
     (``compensated-zone``: it sends the zone's inverse). The plays are
     :data:`BACKLASH_WIDTHS`; the compensator models friction only.
     """
-    return _dead_zone_scenarios(fractions) + _backlash_scenarios()
+    return _dead_zone_scenarios(fractions, among) + _backlash_scenarios(among)
 
 
-def _backlash_scenarios() -> list[Scenario]:
+def _backlash_scenarios(among: Sequence[Device]) -> list[Scenario]:
     out = []
-    for device_kind, env_id, pid_gains, comp_gains in _devices():
-        unit = devices.get(env_id).position_unit
+    for device_kind, env_id, pid_gains, comp_gains in _devices(among):
+        described = devices.get(env_id)
+        unit = described.position_unit
         variants: tuple[tuple[str, PIDGains, Mode | None], ...] = (
             ("pid", pid_gains, None),
             ("compensated", comp_gains, "command"),
         )
-        for label, width in BACKLASH_WIDTHS[device_kind]:
+        for label, width in _backlash_widths(described):
             for kind, gains, mode in variants:
                 out.append(
                     Scenario(
@@ -291,9 +344,9 @@ def _backlash_scenarios() -> list[Scenario]:
     return out
 
 
-def _dead_zone_scenarios(fractions: tuple[float, ...]) -> list[Scenario]:
+def _dead_zone_scenarios(fractions: tuple[float, ...], among: Sequence[Device]) -> list[Scenario]:
     out = []
-    for device_kind, env_id, pid_gains, comp_gains in _devices():
+    for device_kind, env_id, pid_gains, comp_gains in _devices(among):
         device = devices.get(env_id)
         breakaway = max(device.paper_friction.breakaway)
         variants: tuple[tuple[str, PIDGains, Mode | None, bool], ...] = (
@@ -338,7 +391,7 @@ def residual_scenarios(
     described = devices.get(device)  # ValueError naming the devices
     if plants < 1:
         raise ValueError(f"the held-out plants must be at least 1, got {plants}")
-    env_id, device = described.env_id, described.kind
+    env_id, device = env_id_of(described), described.kind
     gains = PIDGains(**described.paper_gains["compensated"])
     ranges = randomize or described.randomization
     heldout = {"randomize": {k: tuple(v) for k, v in ranges.items()}}
@@ -388,14 +441,25 @@ def model_scenarios(
     return residual_scenarios(device, model, plants, randomize, first_seed)
 
 
-def all_scenarios(quick: bool = False) -> list[Scenario]:
-    """Return the default benchmark; ``quick``: the paper's scenarios and a small mismatch grid."""
+def all_scenarios(quick: bool = False, device: Device | None = None) -> list[Scenario]:
+    """Return the default benchmark; ``quick``: the paper's scenarios and a small mismatch grid.
+
+    ``device``: only that device's scenarios (a described device's paper group is its PID and
+    compensated PID on its default step, :func:`device_scenarios`).
+    """
+    among = DEVICES if device is None else (device,)
+    if device is None:
+        paper = paper_scenarios()
+    elif device in DEVICES:
+        paper = [s for s in paper_scenarios() if s.device == device.kind]
+    else:
+        paper = device_scenarios(device)
     if quick:
-        return paper_scenarios() + mismatch_scenarios(("command",), (0.5, 1.5))
+        return paper + mismatch_scenarios(("command",), (0.5, 1.5), among)
     return (
-        paper_scenarios()
-        + mismatch_scenarios()
-        + noise_scenarios()
-        + friction_scenarios()
-        + drivetrain_scenarios()
+        paper
+        + mismatch_scenarios(among=among)
+        + noise_scenarios(among=among)
+        + friction_scenarios(among=among)
+        + drivetrain_scenarios(among=among)
     )
