@@ -32,6 +32,8 @@ import numpy as np
 import numpy.typing as npt
 from gymnasium.vector import AutoresetMode, VectorEnv
 
+from frictiongym import envs
+
 try:
     from stable_baselines3.common.vec_env import VecEnv
     from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
@@ -195,12 +197,8 @@ def make_sb3_vec(
     frictiongym.residual.vector_env.make_residual_vec : residual envs on the native vector
         env, for ``FrictionVecEnv(make_residual_vec(env_id, n_envs))``.
     """
-    env = gym.make_vec(
-        env_id,
-        num_envs=n_envs,
-        vectorization_mode="vector_entry_point",
-        autoreset_mode=AutoresetMode.SAME_STEP,
-        **env_kwargs,
+    env = envs.make_vec(
+        env_id, num_envs=n_envs, autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs
     )
     vec = FrictionVecEnv(env)
     if seed is not None:

@@ -192,7 +192,8 @@ def residual_pairs(results: Sequence[Result]) -> dict[tuple[str, str], Pairs]:
     for r in results:
         if r.scenario.group != "residual":
             continue
-        _, device, plants, kind = r.scenario.name.split("-", 3)
+        plants, kind = r.scenario.name.rsplit("-", 2)[1:]  # residual-<device>-<plants>-<kind>
+        device = r.scenario.device
         runs.setdefault((device, plants), {}).setdefault(kind, {})[r.seed] = r
     out: dict[tuple[str, str], Pairs] = {}
     for key, kinds in runs.items():

@@ -86,9 +86,12 @@ def add_training_arguments(parser: argparse.ArgumentParser) -> None:
     """
     parser.add_argument(
         "--env",
+        "--device",
+        dest="env",
         required=True,
-        metavar="ID",
-        help="a frictiongym id: frictiongym/RotaryServo-v1 or frictiongym/AltinoDistance-v1",
+        metavar="ID|FILE",
+        help="a frictiongym id (frictiongym/RotaryServo-v1, frictiongym/AltinoDistance-v1) or "
+        "a device description file (docs/devices.md)",
     )
     parser.add_argument(
         "--algo", choices=("ppo", "sac", "td3"), default="ppo", help="SB3 algorithm (default ppo)"

@@ -24,7 +24,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from frictiongym import __version__, devices
+from frictiongym import __version__, devices, envs
 from frictiongym._io import OutputDir, sigint_held, write_file_atomic, write_json_atomic
 from frictiongym._validation import MAX_SEED
 from frictiongym.controllers.residual import ALGORITHMS, METADATA_ATTRIBUTE, read_metadata
@@ -112,8 +112,13 @@ def check_settings(settings: TrainSettings) -> None:
     if settings.algo not in ALGORITHMS:
         raise TrainingError(f"unknown --algo {settings.algo!r}; use one of {', '.join(ALGORITHMS)}")
     ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
-    if settings.env_id not in ids:
-        raise TrainingError(f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)}")
+    if settings.env_id not in ids or settings.env_id == envs.AXIS_ID:
+        try:  # a device description file
+            devices.get(settings.env_id)
+        except ValueError as error:
+            raise TrainingError(
+                f"--env {settings.env_id!r}: {error}; the ids are {', '.join(ids[:-1])}"
+            ) from None
     if not 0 <= settings.seed <= MAX_SEED:
         raise TrainingError(
             f"--seed must be a whole number from 0 to {MAX_SEED}, got {settings.seed}"
@@ -498,7 +503,7 @@ def _train(
         QUICK_STEPS[algo] if settings.quick else UNBOUNDED if settings.max_time else 200_000
     )
     kwargs = env_kwargs(settings.env_id, settings.randomize)
-    probe = gym.make(settings.env_id, **kwargs)
+    probe = envs.make(settings.env_id, **kwargs)
     device = devices.device_of(probe)
     limit = ResidualConfig.for_env(probe).limit
     config = ResidualConfig.for_env(

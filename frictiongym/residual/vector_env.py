@@ -11,13 +11,13 @@ from __future__ import annotations
 
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, VectorEnv, VectorWrapper
 from gymnasium.vector.utils import batch_space
 
+from frictiongym import envs
 from frictiongym.controllers.base import FloatArray
 from frictiongym.controllers.residual_core import (
     OBSERVATION_BOUND,
@@ -195,12 +195,8 @@ def make_residual_vec(
     **env_kwargs: Any,
 ) -> ResidualVectorEnv:
     """Make ``num_envs`` residual envs of ``env_id`` on its native vector env (SAME_STEP)."""
-    vec = gym.make_vec(
-        env_id,
-        num_envs=num_envs,
-        vectorization_mode="vector_entry_point",
-        autoreset_mode=AutoresetMode.SAME_STEP,
-        **env_kwargs,
+    vec = envs.make_vec(
+        env_id, num_envs=num_envs, autoreset_mode=AutoresetMode.SAME_STEP, **env_kwargs
     )
     return ResidualVectorEnv(
         vec,
