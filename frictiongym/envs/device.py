@@ -97,6 +97,8 @@ class DeviceSession:
         resolved = resolve_backend(backend, device.kind)
         if resolved is None:
             raise ValueError("DeviceSession needs a device backend, not the simulator")
+        if device not in devices.DEVICES:  # a described device: its Hello names no kind
+            resolved.described_kind = device.kind
         self.backend = resolved
         self.info = resolved.open()
         try:

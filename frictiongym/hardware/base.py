@@ -46,12 +46,40 @@ if TYPE_CHECKING:
 #: Device kinds, as the env ids name them.
 KINDS = ("rotary", "altino")
 
+#: What a Hello of ``DeviceKind.AXIS`` names: a device described by a file (docs/devices.md).
+AXIS_KIND = "axis"
+
+
+def kind_code(kind: str) -> int:
+    """Return the wire's ``DeviceKind`` code of a kind: a built-in one's, else ``AXIS``."""
+    return KINDS.index(kind) + 1 if kind in KINDS else len(KINDS) + 1
+
+
+def kind_of_code(code: int, described: str | None) -> str:
+    """Return the device kind of a Hello's code (``described``: the described one expected).
+
+    Raises
+    ------
+    HardwareError
+        A described device's Hello when the host expects none (or an unknown code).
+    """
+    if 1 <= code <= len(KINDS):
+        return KINDS[code - 1]
+    if code == len(KINDS) + 1:
+        if described is None:
+            raise HardwareError(
+                "the device is described by a file (docs/devices.md): open it through the env "
+                "of that file, gym.make('frictiongym/Axis-v0', device=FILE, backend=...)"
+            )
+        return described
+    raise HardwareError(f"the device names an unknown kind {code}")
+
 
 @dataclass(frozen=True)
 class DeviceInfo:
     """What the host knows about an opened device."""
 
-    kind: str  #: one of :data:`KINDS`
+    kind: str  #: one of :data:`KINDS`, or a described device's kind
     rate_hz: float  #: the device's sample rate (it paces the loop)
     command_limit: float  #: largest |command| it applies, physical units (V or motor units)
     counts_per_rev: int  #: encoder counts per revolution (0 without an encoder)
@@ -160,6 +188,9 @@ class Backend(ABC):
     """
 
     info: DeviceInfo | None = None
+    #: The kind of a described device the host expects behind the link (set before ``open``;
+    #: a Hello of ``DeviceKind.AXIS`` is taken to be it)
+    described_kind: str | None = None
     #: Oldest :attr:`Sample.age` a step accepts, s (None: :func:`default_max_sample_age` of
     #: the device's rate); a backend's ``max_age`` setting.
     max_sample_age: float | None = None

@@ -12,6 +12,7 @@ from dataclasses import replace
 from types import FrameType
 from typing import Any
 
+from frictiongym import devices
 from frictiongym._validation import check_seed
 from frictiongym.hardware import protocol
 from frictiongym.hardware.base import KINDS
@@ -36,6 +37,9 @@ The first line of output is the port to connect to. Connect an env to it:
   gym.make("frictiongym/RotaryServo-v1", backend="serial:///dev/pts/7")
   gym.make("frictiongym/AltinoDistance-v1", backend="socket://127.0.0.1:5000")
 (backend URIs: serial://PATH?baud=N, socket://HOST:PORT; a pty ignores the baud rate).
+A device from its description file (--device my_stage.toml, docs/devices.md) is connected to
+through the env of the same file:
+  gym.make("frictiongym/Axis-v0", device="my_stage.toml", backend="serial:///dev/pts/7")
 One host at a time, as on a device: a second one that connects to --tcp is disconnected at
 once (it then says so instead of timing out), and a pty is opened exclusively.
 Unless --quiet, one status line per second goes to stderr. Stop with Ctrl-C, SIGTERM or
@@ -85,7 +89,12 @@ def _mass_range(text: str) -> tuple[float, float]:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
-    parser.add_argument("--device", required=True, choices=KINDS, help="the device to emulate")
+    parser.add_argument(
+        "--device",
+        required=True,
+        metavar="KIND|FILE",
+        help=f"the device to emulate: {', '.join(KINDS)} or a device description file",
+    )
     parser.add_argument(
         "--tcp",
         type=_endpoint,
@@ -182,7 +191,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             freeze_after=args.freeze_after,
         )
         emu = Emulator(
-            args.device,
+            devices.get(args.device).kind,  # a file is read here (a ValueError names the field)
             params=args.params,
             friction=args.friction,
             sensor_noise=bool(args.noise),

@@ -12,6 +12,7 @@ import os
 from collections.abc import Callable
 from typing import Any
 
+from frictiongym import devices
 from frictiongym.hardware.base import KINDS, DeviceInfo
 from frictiongym.hardware.emulator import Emulator
 from frictiongym.hardware.errors import HardwareError
@@ -51,10 +52,11 @@ class EmulatedBackend(SerialBackend):
         max_age: float | None = None,
         **emulator: Any,
     ) -> None:
-        if kind not in KINDS:
-            raise ValueError(f"unknown device kind {kind!r}; emulate one of {list(KINDS)}")
+        kind = devices.get(kind).kind  # a ValueError naming the devices
         super().__init__("(emulator not started)", timeout=timeout, max_age=max_age)
         self.kind = kind
+        if kind not in KINDS:  # a described device: the emulator and the host share its file
+            self.described_kind = kind
         self.lockstep = lockstep
         self.emulator_settings = emulator
         self.emulator: Any = None

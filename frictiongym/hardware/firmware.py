@@ -33,7 +33,7 @@ import numpy as np
 from frictiongym import devices
 from frictiongym.friction import FrictionModel
 from frictiongym.hardware import protocol
-from frictiongym.hardware.base import KINDS
+from frictiongym.hardware.base import kind_code
 from frictiongym.hardware.guard import CarBounds, DistanceGuard
 from frictiongym.params import DeviceParams, device_physics
 from frictiongym.plants.plant import Plant, default_substeps
@@ -124,10 +124,8 @@ class Firmware:
         seed: int = 0,
         car_bounds: CarBounds | None = None,
     ) -> None:
-        if kind not in KINDS:
-            raise ValueError(f"unknown device {kind!r}; emulate one of {list(KINDS)}")
-        self.kind = kind
-        self.device = devices.get(kind)
+        self.device = devices.get(kind)  # a ValueError naming the devices
+        self.kind = kind = self.device.kind
         self.dt = self.device.dt
         self.scale = self.device.command_scale  #: command counts per unit
         self.encoder = self.device.sensor == SENSOR_ENCODER
@@ -159,7 +157,7 @@ class Firmware:
             caps |= protocol.Capability.DISTANCE_LIMIT
         self.hello = protocol.Hello(
             version=protocol.PROTOCOL_VERSION,
-            kind=protocol.DeviceKind(KINDS.index(kind) + 1),
+            kind=protocol.DeviceKind(kind_code(kind)),
             capabilities=protocol.Capability(caps),
             rate_hz=round(1.0 / self.dt),
             counts_per_rev=self.device.counts_per_rev,

@@ -64,6 +64,9 @@ class DeviceKind(enum.IntEnum):
 
     ROTARY = 1  #: QUBE-Servo 2 (through an SPI bridge): encoder counts, command in mV
     ALTINO = 2  #: Altino car: front IR readout, command in motor units
+    #: A device from its description file (docs/devices.md): both ends hold the same file, and
+    #: the wire carries its encoder counts, command scale and limit, not its name
+    AXIS = 3
 
 
 class Flag(enum.IntFlag):

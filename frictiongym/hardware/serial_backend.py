@@ -21,13 +21,14 @@ from typing import Any
 from frictiongym import devices
 from frictiongym._validation import real_number
 from frictiongym.hardware import protocol
-from frictiongym.hardware.base import KINDS, Backend, DeviceInfo, Sample
+from frictiongym.hardware.base import Backend, DeviceInfo, Sample, kind_of_code
 from frictiongym.hardware.echo import EchoTimes
 from frictiongym.hardware.errors import (
     DeviceDisconnectedError,
     DeviceFaultError,
     DeviceNotFoundError,
     DeviceTimeoutError,
+    HardwareError,
     ProtocolError,
     WatchdogTripError,
 )
@@ -161,7 +162,11 @@ class SerialBackend(Backend):
             self._serial.close()
             raise
         self.hello = hello
-        kind = KINDS[hello.kind - 1]
+        try:
+            kind = kind_of_code(hello.kind, self.described_kind)
+        except HardwareError:
+            self._serial.close()
+            raise
         if hello.counts_per_rev:  # the same float as the simulated encoder's step
             self._encoder_step = devices.get(kind).position_per_rev / hello.counts_per_rev
         period = 1.0 / hello.rate_hz

@@ -65,9 +65,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the command's options to ``parser``."""
     parser.add_argument(
         "--env",
+        "--device",
+        dest="env",
         required=True,
-        metavar="ID",
-        help=", ".join(d.env_id for d in devices.DEVICES),
+        metavar="ID|FILE",
+        help=", ".join(d.env_id for d in devices.DEVICES) + " or a device description file",
     )
     parser.add_argument(
         "--backend",

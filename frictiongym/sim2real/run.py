@@ -19,11 +19,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
 import numpy.typing as npt
 
-from frictiongym import devices
+from frictiongym import devices, envs
 from frictiongym._validation import real_number
 from frictiongym.controllers import PID, Controller, FrictionCompensator, PIDGains, Rollout, rollout
 from frictiongym.envs import ENV_IDS
@@ -256,7 +255,7 @@ def run_sim2real(
         Called with a short text before each run, and when a run ends early.
     """
     if env_id not in ENV_IDS:
-        raise ValueError(f"unknown env id {env_id!r}; use one of {sorted(ENV_IDS)}")
+        devices.get(env_id)  # a description file, or a ValueError naming the ids
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     if not (isinstance(repeats, int) and repeats >= 1):
@@ -276,13 +275,11 @@ def run_sim2real(
         models["identified"] = ({"params": params}, f"the identified model ({params})")
     say = progress or (lambda _: None)
     metadata = {"controller": controller, "gains": gains, "tool": "sim2real"}
-    device_env = gym.make(env_id, backend=backend, log=log, run_metadata=metadata, **task)
+    device_env = envs.make(env_id, backend=backend, log=log, run_metadata=metadata, **task)
     try:
         ctrl = build_controller(device_env, controller, gains)
-        n = int(steps or getattr(device_env.spec, "max_episode_steps", 0) or 0)
-        if n < 1:
-            raise ValueError("give steps: the env has no registered episode length")
-        session: Any = device_env.unwrapped.sim  # type: ignore[attr-defined]
+        n = int(steps or devices.get(env_id).episode_steps)  # the registered episode length
+        session: Any = device_env.unwrapped.sim
         limit = float(session.limit)
         runs: list[DeviceRun] = []
         with realtime_priority() as priority:
@@ -315,7 +312,7 @@ def run_sim2real(
     traces = {}
     for name, (kwargs, _) in models.items():
         say(f"simulated model: {name}")
-        sim_env = gym.make(env_id, **{k: v for k, v in task.items() if k != "params"}, **kwargs)
+        sim_env = envs.make(env_id, **{k: v for k, v in task.items() if k != "params"}, **kwargs)
         try:
             traces[name] = rollout(sim_env, ctrl, n)
         finally:
