@@ -32,7 +32,7 @@ def test_the_emulated_device_reads_as_the_simulator():
     on_device = envs.make(EXAMPLE, backend="emulator://ball-screw?lockstep=1", log=False)
     simulated = envs.make(EXAMPLE)
     try:
-        first, _ = on_device.reset(seed=0)
+        on_device.reset(seed=0)
         assert on_device.unwrapped.sim.info.kind == "ball-screw"
         assert on_device.unwrapped.sim.info.counts_per_rev == 2000
         simulated.reset(seed=0)
@@ -88,7 +88,8 @@ def test_emulate_names_a_bad_description(tmp_path, capsys):
     bad.write_text(Path(EXAMPLE).read_text().replace("dt = 0.001", "dt = -1.0"))
     assert main(["emulate", "--device", str(bad), "--duration", "0.1"]) == 2
     err = capsys.readouterr().err
-    assert err.startswith("error: ") and "dt: = -1.0" in err
+    assert err.startswith("error: ")
+    assert "dt: = -1.0" in err
 
 
 def test_benchmark_runs_the_described_device_s_scenarios(tmp_path):
