@@ -238,3 +238,19 @@ def test_tune_refuses_a_device_it_cannot_step_and_names_a_missing_bound(tmp_path
     path.write_text(device_file.render_toml(table))
     assert main(["tune", "--device", str(path), "--out", str(tmp_path / "b")]) == 2
     assert "give its bounds (--ki LOW HIGH" in capsys.readouterr().err
+
+
+def test_the_example_draws_its_carriage_where_it_is():
+    env = envs.make(str(EXAMPLE), render_mode="rgb_array")
+    env.reset(seed=0, options={"position": -100.0})
+    left = env.render()
+    env.reset(seed=0, options={"position": 100.0})
+    right = env.render()
+    env.close()
+    carriage = np.array([196, 78, 82])  # STUCK: at rest after a reset, it holds
+
+    def columns(frame: np.ndarray) -> np.ndarray:
+        return np.flatnonzero((frame == carriage).all(axis=2).any(axis=0))
+
+    columns_left, columns_right = columns(left), columns(right)
+    assert columns_left.mean() < 200 < 400 < columns_right.mean()  # ±100 of ±140 mm

@@ -289,4 +289,7 @@ def _frame(sim: EnvCore, i: int) -> npt.NDArray[np.uint8]:
     x, reference, stuck, steps, command = sim.frame(i)
     draw = getattr(rendering, sim.device.drawing)
     position = sim.device.direction * x + 0.0  # + 0.0: the wall at 0.0, not -0.0
+    if draw is rendering.draw_axis:  # its rail spans the safety limit, in the device's unit
+        unit = sim.device.position_unit
+        draw = functools.partial(draw, span=abs(sim.limit) or 1.0, unit=unit)
     return draw(position, reference, stuck=stuck, time=steps * sim.dt, command=command)

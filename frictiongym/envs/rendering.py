@@ -27,7 +27,7 @@ from gymnasium.error import DependencyNotInstalled
 from frictiongym._validation import real_number
 from frictiongym.envs._font import GLYPH_HEIGHT, text_mask
 
-__all__ = ["CAR_LENGTH_CM", "Window", "draw_altino", "draw_servo"]
+__all__ = ["CAR_LENGTH_CM", "Window", "draw_altino", "draw_axis", "draw_servo"]
 
 Colour = tuple[int, int, int]
 _F = npt.NDArray[np.float32]
@@ -373,6 +373,84 @@ def _altino_base(width: int, height: int, view_cm: float) -> _F:
             _text(canvas, left, ground + 0.08 * h, label, scale)
     canvas.flags.writeable = False
     return canvas
+
+
+def draw_axis(
+    position: float,
+    reference: float,
+    *,
+    stuck: bool = False,
+    span: float = 1.0,
+    unit: str = "",
+    width: int = 600,
+    height: int = 160,
+    time: float | None = None,
+    command: float | None = None,
+) -> npt.NDArray[np.uint8]:
+    """Draw a linear axis from the side: a carriage on a rail over a ruler of ``±span``.
+
+    The frame of a described device whose file names ``drawing = "draw_axis"``; captions
+    give the position and the reference, and the time and command when given.
+
+    Parameters
+    ----------
+    position, reference : float
+        Carriage position and reference, in ``unit``; beyond ``±span`` the carriage is held
+        at the rail's end.
+    stuck : bool
+        Whether the carriage is stuck in stiction; it turns red.
+    span : float
+        Half the rail's drawn length (the env passes its safety limit).
+    unit : str
+        The position's unit, for the captions.
+    width, height : int
+        Frame size in pixels.
+    time : float, optional
+        Time since the episode's start, s.
+    command : float, optional
+        Applied command.
+
+    Returns
+    -------
+    numpy.ndarray
+        ``(height, width, 3)`` uint8 RGB frame.
+    """
+    _check({"width": width, "height": height}, position=position, reference=reference, span=span)
+    if span <= 0:
+        raise ValueError(f"span must be > 0, got {span!r}")
+    canvas = _new_canvas(height, width)
+    w, h = float(width), float(height)
+    margin, rail_y, line = 0.06 * w, 0.62 * h, max(0.01 * h, 1.0)
+    per_unit = (w - 2 * margin) / (2 * span)
+
+    def x_of(value: float) -> float:
+        return margin + (min(max(value, -span), span) + span) * per_unit
+
+    _box(canvas, (margin - 2 * line, rail_y, w - margin + 2 * line, rail_y + 0.05 * h), PANEL)
+    _line(canvas, (margin, rail_y), (w - margin, rail_y), line, INK)
+    scale = _scale_of(h / 80.0)
+    every = 10.0 ** math.floor(math.log10(span))  # 2 to 20 ticks over the rail
+    for k in range(-int(span / every), int(span / every) + 1):
+        x = x_of(k * every)
+        _line(canvas, (x, rail_y + 0.06 * h), (x, rail_y + 0.1 * h), 0.5 * line, INK)
+        if k % 2 == 0 or span / every < 4:
+            label = f"{k * every:g}"
+            _text(canvas, x - 3 * scale * len(label), rail_y + 0.13 * h, label, scale)
+    xr, top = x_of(reference), 0.22 * h
+    _line(canvas, (xr, rail_y), (xr, top), 0.6 * line, TARGET, dash=0.035 * h)
+    _triangle(canvas, (xr, top + 0.06 * h), (xr - 0.04 * h, top), (xr + 0.04 * h, top), TARGET)
+    xc, half = x_of(position), 0.05 * w
+    carriage = (xc - half, rail_y - 0.2 * h, xc + half, rail_y - line)
+    _box(canvas, carriage, STUCK if stuck else MOVING, 0.02 * h)
+    _line(canvas, (xc, carriage[1] + 0.03 * h), (xc, carriage[3] - 0.03 * h), line, INDICATOR)
+    pad, step = 0.03 * h, (GLYPH_HEIGHT + 3) * scale
+    _text(canvas, pad, pad, f"at {position:.3f} {unit}  ref {reference:.3f} {unit}", scale)
+    second = [] if time is None else [f"t {time:.2f} s"]
+    if command is not None:
+        second.append(f"u {command:+.3g}")
+    if second:
+        _text(canvas, pad, pad + step, "  ".join(second), scale)
+    return _to_frame(canvas)
 
 
 class Window:
