@@ -200,6 +200,10 @@ TOOLS = {
         "frictiongym.residual.command",
         "train a residual policy (SAC, TD3, PPO) on top of the compensated PID",
     ),
+    "device": (
+        "frictiongym.device_command",
+        "print a device's description file (show), or check one (check)",
+    ),
     "sweep": (
         "frictiongym.sweep.command",
         "seeds x hyperparameter grids of train as Ray Tune trials, ranked on held-out plants",

@@ -13,6 +13,7 @@ import math
 import os
 import re
 from collections.abc import Mapping
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -171,7 +172,7 @@ def load(path: str | os.PathLike[str]) -> Device:
     device = Device(**device_file.read(path))
     builtin = {d.name: d for d in DEVICES}.get(device.name)
     if builtin is not None or device.kind in {d.kind for d in DEVICES}:
-        if device != builtin:
+        if builtin is None or dataclasses.replace(device, source=builtin.source) != builtin:
             raise device_file.DeviceFileError(
                 f"{path}: name {device.name!r} or kind {device.kind!r} is a built-in device's; "
                 "give your device its own name and kind"

@@ -51,6 +51,7 @@ LAYERS: dict[str, int] = {
     "frictiongym.loops": 4,
     "frictiongym.sb3": 3,
     "frictiongym.zoo": 4,
+    "frictiongym.device_command": 4,
     "frictiongym.cli": 5,
 }
 

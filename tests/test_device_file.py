@@ -189,6 +189,9 @@ def test_a_file_cannot_take_a_built_in_device_s_name(tmp_path):
     with pytest.raises(DeviceFileError, match="a built-in device's"):
         devices.load(path)
     assert devices.load(device_path("rotary")) is ROTARY
+    copy = tmp_path / "rotary.toml"  # an unchanged copy of a built-in file is that device
+    copy.write_text(device_path("rotary").read_text())
+    assert devices.load(copy) is ROTARY
 
 
 def test_axis_needs_a_device():
@@ -254,3 +257,23 @@ def test_the_example_draws_its_carriage_where_it_is():
 
     columns_left, columns_right = columns(left), columns(right)
     assert columns_left.mean() < 200 < 400 < columns_right.mean()  # ±100 of ±140 mm
+
+
+def test_device_show_writes_a_file_that_check_reads(tmp_path, capsys):
+    from frictiongym.cli import main
+
+    assert main(["device", "show", "rotary"]) == 0
+    text = capsys.readouterr().out
+    path = tmp_path / "copy.toml"
+    path.write_text(
+        text.replace('name = "RotaryServo"', 'name = "MyServo"')
+        .replace('kind = "rotary"', 'kind = "my-servo"')
+        .replace('env_id = "frictiongym/RotaryServo-v1"', 'env_id = "frictiongym/Axis-v0"')
+    )
+    assert main(["device", "check", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("MyServo (my-servo): a QUBE-Servo 2, frictiongym/Axis-v0")
+    assert "encoder, 2048 counts per 6.28319 rad" in out
+    path.write_text(text.replace("dt = 0.002", 'dt = "fast"'))
+    assert main(["device", "check", str(path)]) == 2
+    assert "dt: = 'fast' (control period, s): must be a number" in capsys.readouterr().err

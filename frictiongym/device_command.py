@@ -1,0 +1,76 @@
+"""``frictiongym device``: print a device's description file, or check one."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from frictiongym import device_file, devices
+
+DESCRIPTION = """\
+Describe a device in a file (TOML or JSON; docs/devices.md), the input of every tool's
+--device and of gym.make("frictiongym/Axis-v0", device=FILE).
+
+  frictiongym device show rotary > my_stage.toml   a built-in device's file, to start from
+  frictiongym device check my_stage.toml           read it as the tools will; print a summary
+
+check prints the device's units, plant, friction law, sensor, task and what the tools have
+for it (identification plan, reversal test, tuning specs), or one line naming the field
+that is wrong, its unit and what it may be (exit status 2).
+"""
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the command's arguments to ``parser``."""
+    parser.add_argument("action", choices=("show", "check"), help="show a file, or check one")
+    parser.add_argument(
+        "device",
+        metavar="KIND|FILE",
+        help=f"a built-in device ({', '.join(d.kind for d in devices.DEVICES)}) or a file",
+    )
+
+
+def summary(device: devices.Device) -> str:
+    """Return what ``check`` prints of a readable description."""
+    law, plant = device.paper_friction, device.plant
+    units = device.units
+    sensor = (
+        f"encoder, {device.counts_per_rev} counts per {device.position_per_rev:g} "
+        f"{device.position_unit} ({device.encoder_step:.4g} {device.position_unit} per count)"
+        if device.counts_per_rev
+        else "IR readout 0..800, d = 966/(x + 45) (the paper's Eq. (1))"
+    )
+    plan = device.identification
+    identify = f"plan of {len(plan['levels'])} levels" if "levels" in plan else "no plan"
+    identify += ", reversal test" if "reversal" in plan else ""
+    tune = "the file's specs" if device.tuning else "the paper's specs"
+    lines = [
+        f"{device.name} ({device.kind}): {device.title}, {device.env_id}",
+        f"  units: position {device.position_unit}, command {device.command_unit}, "
+        f"period {device.dt * 1e3:g} ms",
+        f"  plant: J {plant.inertia:g} {units['J']}, B {plant.damping:g} {units['B']}, "
+        f"limit ±{plant.command_limit:g} {device.command_unit}",
+        f"  friction: break-away {law.us_pos:g}/{law.us_neg:g}, Coulomb "
+        f"{law.uc_pos:g}/{law.uc_neg:g} {device.command_unit}, viscous {law.viscous:g}",
+        f"  sensor: {sensor}",
+        f"  task: step to {device.references['step']['value']:g} {device.position_unit}, "
+        f"{device.episode_steps} steps, safety limit {device.limit:g} {device.position_unit}",
+        f"  PID: {dict(device.paper_gains['pid'])}",
+        f"  identify: {identify}",
+        f"  tune: {tune}",
+    ]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace, command_line: str = "frictiongym device") -> int:
+    """Run the command; return the exit status."""
+    try:
+        device = devices.get(args.device)
+    except ValueError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    if args.action == "show":
+        sys.stdout.write(device_file.dump(device))
+    else:
+        print(summary(device))
+    return 0
