@@ -217,14 +217,15 @@ def test_tune_takes_the_device_s_plant_step_and_pid_and_the_specs_given(tmp_path
 
     out = tmp_path / "tune"
     args = ["tune", "--device", str(EXAMPLE), "--samples", "2000", "--out", str(out)]
-    assert main([*args, "--settling-time", "0.5", "--kd", "0.0", "0.3", "--quiet"]) == 0
+    assert main([*args, "--settling-time", "0.5", "--kd", "0.0", "0.25", "--quiet"]) == 0
     record = json.loads((out / "tune.json").read_text())
     assert record["reference_step"] == 10.0  # mm: the file's demo step
     assert record["model"]["device"] == "BallScrewStage"
     assert record["dt"] == 0.001
     assert record["paper_gains"]["kp"] == 4.8  # the file's PID, evaluated beside
-    assert record["specs"]["settling_time"] == 0.5
-    assert record["bounds"] == {"kp": [0.0, 24.0], "ki": [0.0, 100.0], "kd": [0.0, 0.3]}
+    assert record["specs"]["settling_time"] == 0.5  # the option's, over the file's 0.2 s
+    assert record["specs"]["overshoot_pct"] == 5.0  # the file's
+    assert record["bounds"] == {"kp": [0.0, 30.0], "ki": [0.0, 100.0], "kd": [0.0, 0.25]}
     assert record["n_feasible"] > 0
     for candidate in record["feasible"]:
         assert candidate["settling_time"] < 0.5
@@ -237,6 +238,7 @@ def test_tune_refuses_a_device_it_cannot_step_and_names_a_missing_bound(tmp_path
     assert "encoder device" in capsys.readouterr().err
     table = device_file.toml_loads(EXAMPLE.read_text())
     table["gains"]["pid"]["ki"] = 0.0
+    del table["tuning"]  # without bounds, tune takes 0 to 5 times the PID's gains
     path = tmp_path / "stage.toml"
     path.write_text(device_file.render_toml(table))
     assert main(["tune", "--device", str(path), "--out", str(tmp_path / "b")]) == 2
