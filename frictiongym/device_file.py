@@ -117,6 +117,66 @@ SCALARS: dict[str, Field] = {
 #: Fields that only an encoder uses (:func:`dump` leaves them out without one).
 ENCODER_ONLY = ("counts_per_rev", "position_per_rev")
 
+#: Keys of the tables read by classes of higher layers (tests/test_device_file.py keeps them
+#: equal to those classes' fields): ``identification`` (``Plan``, identify.py; ``reversal``
+#: holds ``ReversalPlan``'s), ``residual`` (``ResidualConfig`` but device and limit),
+#: ``randomization`` (``DomainRandomization``), ``tuning`` (``StepSpecs``, ``GainBounds``).
+TABLE_KEYS: dict[str, tuple[str, ...]] = {
+    "identification": (
+        "levels",
+        "constant_duration",
+        "ramp_repeats",
+        "ramp_from",
+        "ramp_to",
+        "ramp_duration",
+        "step_levels",
+        "step_time",
+        "step_duration",
+        "step_repeats",
+        "probe_to",
+        "probe_duration",
+        "relay_levels",
+        "relay_band",
+        "relay_duration",
+        "refine",
+        "reading",
+        "span",
+        "ramp_positions",
+        "env_kwargs",
+        "reversal",
+    ),
+    "identification.reversal": (
+        "level",
+        "hold",
+        "reversals",
+        "max_width",
+        "resolution",
+        "band",
+        "grid",
+        "shares",
+    ),
+    "residual": (
+        "scale",
+        "error_scale",
+        "fine_error",
+        "velocity_scale",
+        "reference_scale",
+        "reference_offset",
+    ),
+    "randomization": ("friction", "inertia", "damping", "deadzone", "backlash", "sensor_gain"),
+    "tuning": (
+        "rise_time",
+        "peak_time",
+        "settling_time",
+        "overshoot_pct",
+        "settling_band",
+        "rise_limits",
+        "kp",
+        "ki",
+        "kd",
+    ),
+}
+
 #: Tables of the file whose entries are free mappings (checked by their users' classes).
 MAPPINGS = (
     "references",
@@ -318,14 +378,33 @@ def _mapping(key: str, data: Mapping[str, Any], fail: Fail) -> Mapping[str, Any]
         fail(key, f"must be a table [{key}]")
     if key == "references" and "step" not in value:
         fail("references.step", "missing: give [references.step] value = the demo set-point")
-    if key == "tuning":
-        allowed: tuple[str, ...] = ("rise_time", "peak_time", "settling_time", "overshoot_pct")
-        allowed = (*allowed, "settling_band", "kp", "ki", "kd")
-        for name in sorted(set(value) - set(allowed)):
-            fail(f"tuning.{name}", f"unknown; [tuning] takes {', '.join(allowed)}")
+    for table, keys in TABLE_KEYS.items():
+        head, _, sub = table.partition(".")
+        if head != key:
+            continue
+        entries = value.get(sub, {}) if sub else value
+        if not isinstance(entries, Mapping):
+            fail(table, f"must be a table [{table}]")
+        for name in sorted(set(entries) - set(keys)):
+            fail(f"{table}.{name}", f"unknown; [{table}] takes {', '.join(keys)}")
+        for name, entry in entries.items():
+            if name not in ("env_kwargs", "reversal", "reading", "refine"):
+                _check_numbers(f"{table}.{name}", entry, fail)
+    if key == "randomization":
+        for name, entry in value.items():
+            if not (isinstance(entry, tuple) and len(entry) == 2 and 0 < entry[0] <= entry[1]):
+                fail(f"randomization.{name}", f"= {entry!r}: must be [low, high], 0 < low <= high")
     if key == "gains" and "pid" not in value:
         fail("gains.pid", "missing: give [gains.pid] kp, ki, kd (the baseline PID)")
     return value
+
+
+def _check_numbers(key: str, value: Any, fail: Fail) -> None:
+    """Refuse all but a finite number or an array of them (their classes check the ranges)."""
+    items = value if isinstance(value, tuple) else (value,)
+    for item in items:
+        if not isinstance(item, numbers.Real) or isinstance(item, bool) or not math.isfinite(item):
+            fail(key, f"= {value!r}: must be a finite number or an array of them")
 
 
 def _check_gains(gains: Mapping[str, Any], fail: Fail) -> None:

@@ -279,3 +279,41 @@ def test_device_show_writes_a_file_that_check_reads(tmp_path, capsys):
     path.write_text(text.replace("dt = 0.002", 'dt = "fast"'))
     assert main(["device", "check", str(path)]) == 2
     assert "dt: = 'fast' (control period, s): must be a number" in capsys.readouterr().err
+
+
+def test_the_table_keys_are_the_fields_of_the_classes_that_read_them():
+    from frictiongym.controllers.residual_core import ResidualConfig
+    from frictiongym.identification.backlash import ReversalPlan
+    from frictiongym.identification.identify import Plan
+    from frictiongym.plants.randomization import DomainRandomization
+    from frictiongym.tuning.specs import GainBounds, StepSpecs
+
+    def names(*classes: type) -> set[str]:
+        return {f.name for cls in classes for f in dataclasses.fields(cls)}
+
+    keys = {k: set(v) for k, v in device_file.TABLE_KEYS.items()}
+    assert keys["identification"] == names(Plan) | {"reversal"}
+    assert keys["identification.reversal"] == names(ReversalPlan)
+    assert keys["residual"] == names(ResidualConfig) - {"device", "limit"}
+    assert keys["randomization"] == names(DomainRandomization)
+    assert keys["tuning"] == names(StepSpecs, GainBounds)
+
+
+@pytest.mark.parametrize(
+    ("table", "message"),
+    [
+        ({"identification": {"levels": [1.1], "bogus": 1}}, r"identification\.bogus: unknown"),
+        ({"identification": {"reversal": {"hold": "long"}}}, r"identification\.reversal\.hold"),
+        ({"residual": {"scale": float("nan")}}, r"residual\.scale: = nan"),
+        ({"randomization": {"friction": [1.3, 0.7]}}, r"randomization\.friction: .*low <= high"),
+        ({"randomization": {"mass": [0.9, 1.1]}}, r"randomization\.mass: unknown"),
+        ({"tuning": {"overshoot": 5}}, r"tuning\.overshoot: unknown; \[tuning\] takes"),
+    ],
+)
+def test_a_bad_entry_of_a_tool_s_table_is_named(tmp_path, table, message):
+    path = tmp_path / "stage.toml"
+    path.write_text(
+        device_file.render_toml({**device_file.toml_loads(EXAMPLE.read_text()), **table})
+    )
+    with pytest.raises(DeviceFileError, match=message):
+        devices.load(path)
