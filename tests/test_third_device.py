@@ -19,7 +19,7 @@ from frictiongym import devices
 from frictiongym.benchmark.figures import figure_names, write_figures
 from frictiongym.devices import DEVICES, ROTARY, Device, Figures
 from frictiongym.envs.base import FrictionEnv
-from frictiongym.hardware import base, emulated, firmware, protocol, serial_backend
+from frictiongym.hardware import base, emulated, protocol
 from frictiongym.hardware.emulated import EmulatedBackend
 from frictiongym.hardware.errors import HardwareError
 from frictiongym.hardware.firmware import PLACE_RANGE, Firmware
@@ -64,7 +64,7 @@ class LinearAxisEnv(FrictionEnv):
 def linear(monkeypatch: pytest.MonkeyPatch) -> Device:
     kinds = (*base.KINDS, LINEAR.kind)
     monkeypatch.setattr(devices, "DEVICES", (*DEVICES, LINEAR))
-    for module in (base, firmware, emulated, serial_backend):
+    for module in (base, emulated):  # the others ask base (kind_code, kind_of_code)
         monkeypatch.setattr(module, "KINDS", kinds)
     members = {kind.upper(): code for code, kind in enumerate(kinds, 1)}
     monkeypatch.setattr(protocol, "DeviceKind", enum.IntEnum("DeviceKind", members))

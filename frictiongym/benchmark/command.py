@@ -5,10 +5,10 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import fnmatch
-import functools
 import sys
 import time
 from collections.abc import Sequence
+from functools import partial
 
 from frictiongym import devices
 from frictiongym._io import OutputDir, add_output_arguments
@@ -224,7 +224,7 @@ def run(args: argparse.Namespace, command: str = "frictiongym benchmark") -> int
             file=sys.stderr,
         ) as bar:
             results = run_benchmark(scenarios, progress=lambda s: bar.update())
-        figures = functools.partial(write_figures, among=among)
+        figures = write_figures if args.device is None else partial(write_figures, among=among)
         write_reports(results, out.path, command, None if args.no_figures else figures)
         written = out.commit()
     if not args.quiet:

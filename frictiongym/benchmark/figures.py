@@ -45,8 +45,9 @@ def _friction_panel(
     ax.legend(fontsize="small", loc="upper left")
 
 
-def plot_friction_curves(path: Path, among: Sequence[Device] = devices.DEVICES) -> Path:
+def plot_friction_curves(path: Path, among: Sequence[Device] | None = None) -> Path:
     """Steady friction of every law for every device (the paper's Figs. 8(b), 10(b))."""
+    among = devices.DEVICES if among is None else among
     plt = pyplot()
     fig, axes = plt.subplots(1, len(among), figsize=(5.5 * len(among), 4.2), squeeze=False)
     for ax, device in zip(axes[0], among, strict=True):
@@ -70,8 +71,9 @@ PAPER_LABELS = {
 }
 
 
-def figure_names(among: Sequence[Device] = devices.DEVICES) -> list[str]:
+def figure_names(among: Sequence[Device] | None = None) -> list[str]:
     """Return the file names :func:`write_figures` may write, for the devices ``among``."""
+    among = devices.DEVICES if among is None else among
     shared = ["compensator_mismatch.png", "residual_plants.png", "friction_curves.png"]
     return [f"{p}{d.kind}_response.png" for d in among for p in ("", "residual_")] + shared
 
@@ -183,9 +185,10 @@ def plot_residual_plants(results: Sequence[Result], path: Path) -> Path | None:
 
 
 def write_figures(
-    results: Sequence[Result], out: Path, among: Sequence[Device] = devices.DEVICES
+    results: Sequence[Result], out: Path, among: Sequence[Device] | None = None
 ) -> list[Path]:
-    """Write every figure the results of the devices ``among`` allow into ``out``."""
+    """Write every figure the results of the devices ``among`` (default all) allow into ``out``."""
+    among = devices.DEVICES if among is None else among
     paper = [r.scenario for r in results if r.scenario.group == "paper"]
     written = []
     for device in among:
