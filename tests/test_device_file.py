@@ -317,3 +317,11 @@ def test_a_bad_entry_of_a_tool_s_table_is_named(tmp_path, table, message):
     )
     with pytest.raises(DeviceFileError, match=message):
         devices.load(path)
+
+
+def test_the_docs_list_every_field_and_table():
+    text = (REPO / "docs" / "devices.md").read_text()
+    for key in device_file.SCALARS:
+        assert f"`{key}`" in text, key
+    for table in ("plant", "friction", "lugre", "figures", *device_file.MAPPINGS):
+        assert f"[{table}" in text, table

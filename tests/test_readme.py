@@ -13,7 +13,13 @@ DOCS = (
     README,
     *(
         ROOT / "docs" / name
-        for name in ("controllers.md", "identification.md", "tuning.md", "hardware.md")
+        for name in (
+            "controllers.md",
+            "identification.md",
+            "tuning.md",
+            "hardware.md",
+            "devices.md",
+        )
     ),
     ROOT / "docs" / "residual.md",
     ROOT / "models" / "residual" / "README.md",
