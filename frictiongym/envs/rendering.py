@@ -144,6 +144,18 @@ def _text(canvas: _F, x: float, y: float, text: str, scale: int, align: str = "l
         region[mask[r0 - y0 : r1 - y0, c0 - x0 : c1 - x0]] = INK
 
 
+def _captions(
+    canvas: _F, pad: float, scale: int, first: str, time: float | None, command: str | None
+) -> None:
+    """Write the first caption line, and a second of the time and the command if given."""
+    _text(canvas, pad, pad, first, scale)
+    second = [] if time is None else [f"t {time:.2f} s"]
+    if command is not None:
+        second.append(command)
+    if second:
+        _text(canvas, pad, pad + (GLYPH_HEIGHT + 3) * scale, "  ".join(second), scale)
+
+
 def _scale_of(pixels: float) -> int:
     """Integer size of the captions' pixels: one per ``pixels`` of the frame, at least 1."""
     return max(1, int(pixels))
@@ -331,14 +343,9 @@ def draw_altino(
         ym, hw, x0 = (body[1] + body[3]) / 2, 0.35 * (body[3] - body[1]), 0.4 * cm
         _triangle(canvas, (x0, ym), (x0 + 1.5 * hw, ym - hw), (x0 + 1.5 * hw, ym + hw), INDICATOR)
     scale = _scale_of(h / 100.0)  # 2 on the default 200-pixel-tall frame
-    pad, step = 0.03 * h, (GLYPH_HEIGHT + 3) * scale
     first = f"dist {distance_cm:.2f} cm  target {target_cm:.2f} cm"
-    _text(canvas, pad, pad, first, scale)
-    second = [] if time is None else [f"t {time:.2f} s"]
-    if command is not None:
-        second.append(f"u {command:+.0f}")
-    if second:
-        _text(canvas, pad, pad + step, "  ".join(second), scale)
+    command_text = None if command is None else f"u {command:+.0f}"
+    _captions(canvas, 0.03 * h, scale, first, time, command_text)
     return _to_frame(canvas)
 
 
@@ -443,13 +450,9 @@ def draw_axis(
     carriage = (xc - half, rail_y - 0.2 * h, xc + half, rail_y - line)
     _box(canvas, carriage, STUCK if stuck else MOVING, 0.02 * h)
     _line(canvas, (xc, carriage[1] + 0.03 * h), (xc, carriage[3] - 0.03 * h), line, INDICATOR)
-    pad, step = 0.03 * h, (GLYPH_HEIGHT + 3) * scale
-    _text(canvas, pad, pad, f"at {position:.3f} {unit}  ref {reference:.3f} {unit}", scale)
-    second = [] if time is None else [f"t {time:.2f} s"]
-    if command is not None:
-        second.append(f"u {command:+.3g}")
-    if second:
-        _text(canvas, pad, pad + step, "  ".join(second), scale)
+    first = f"at {position:.3f} {unit}  ref {reference:.3f} {unit}"
+    command_text = None if command is None else f"u {command:+.3g}"
+    _captions(canvas, 0.03 * h, scale, first, time, command_text)
     return _to_frame(canvas)
 
 
