@@ -34,13 +34,35 @@ from frictiongym.identification.estimates import SteadyPoint
 from frictiongym.identification.fit import LAWS, LawFit, fit_law
 from frictiongym.identification.identify import Identification, Plan
 
-#: Velocity units a map may be given in, per position unit, as factors to the device's.
-VELOCITY_UNITS: dict[str, dict[str, float]] = {
-    "rad": {"rad/s": 1.0, "deg/s": math.pi / 180.0, "rpm": 2.0 * math.pi / 60.0},
-    "cm": {"cm/s": 1.0, "mm/s": 0.1, "m/s": 100.0},
-}
-#: Command units a map may be given in, per command unit, as factors to the device's.
-FORCE_UNITS: dict[str, dict[str, float]] = {"V": {"V": 1.0, "mV": 1e-3}, "units": {"units": 1.0}}
+#: Units of one dimension, as factors to the first (SI) one: a log's unit converts to the
+#: device's when both are in one row; a device unit in none converts only from itself.
+UNIT_FAMILIES: tuple[dict[str, float], ...] = (
+    {"m": 1.0, "cm": 1e-2, "mm": 1e-3, "um": 1e-6, "in": 0.0254},
+    {"rad": 1.0, "deg": math.pi / 180.0, "rev": 2.0 * math.pi},
+    {"V": 1.0, "mV": 1e-3},
+    {"A": 1.0, "mA": 1e-3},
+    {"N": 1.0, "kN": 1e3},
+    {"N·m": 1.0, "mN·m": 1e-3},
+)
+
+
+def units_of(unit: str, per_second: bool = False) -> dict[str, float]:
+    """Units that convert to the device's ``unit``, as factors to it, ``unit`` first.
+
+    ``per_second``: the rates of those units (``unit/s``, and ``rpm`` for an angle).
+    """
+    family = next((f for f in UNIT_FAMILIES if unit in f), {unit: 1.0})
+    own = family[unit]
+    factors = {name: value / own for name, value in family.items()}
+    factors = {unit: 1.0, **{k: v for k, v in factors.items() if k != unit}}
+    if not per_second:
+        return factors
+    rates = {f"{name}/s": value for name, value in factors.items()}
+    if "rev" in factors:
+        rates["rpm"] = factors["rev"] / 60.0
+    return rates
+
+
 #: Moving points a law needs in each direction (the paper's law: its three parameters).
 _MIN_POINTS = 3
 
@@ -118,7 +140,7 @@ def unit_scale(
     """Return the factor from unit ``given`` to the device's (its own when None).
 
     ``known`` maps the units the device's quantity converts from to their factors, its own
-    unit first (a row of :data:`VELOCITY_UNITS`, :data:`FORCE_UNITS`, ...).
+    unit first (:func:`units_of`).
 
     Raises
     ------
@@ -146,7 +168,7 @@ def read_map(
 
     Speeds and commands are signed (a negative command holds a negative speed); a speed of 0
     is a command that did not move the body, kept as such (the fits skip it). Units default
-    to the device's; others are converted (:data:`VELOCITY_UNITS`, :data:`FORCE_UNITS`).
+    to the device's; others are converted (:func:`units_of`).
 
     Raises
     ------
@@ -157,9 +179,9 @@ def read_map(
     where = str(path)
     scales = (
         unit_scale(
-            where, "velocity", VELOCITY_UNITS[device.position_unit], velocity_unit, device.name
+            where, "velocity", units_of(device.position_unit, True), velocity_unit, device.name
         ),
-        unit_scale(where, "force", FORCE_UNITS[device.command_unit], force_unit, device.name),
+        unit_scale(where, "force", units_of(device.command_unit), force_unit, device.name),
     )
     columns, lines = read_columns(path, (velocity, force))
     v = columns[velocity] * scales[0]

@@ -32,21 +32,16 @@ from frictiongym.friction import StictionCoulomb
 from frictiongym.identification import estimates as est
 from frictiongym.identification.fit import LawFit, fit_law, inertia_from_map
 from frictiongym.identification.from_log import (
-    FORCE_UNITS,
     LogFileError,
     breakaway_free,
     extrapolated_breakaway,
     read_columns,
     unit_scale,
+    units_of,
 )
 from frictiongym.identification.identify import Identification, Plan
 from frictiongym.identification.refine import refine
 
-#: Position and time units a log may be given in, as factors to the device's and to s.
-POSITION_UNITS: dict[str, dict[str, float]] = {
-    "rad": {"rad": 1.0, "deg": math.pi / 180.0},
-    "cm": {"cm": 1.0, "mm": 0.1, "m": 100.0},
-}
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: Relative spread of the sampling interval a log may have: the fit holds each command for
 #: one interval, so a log sampled unevenly is refused rather than fitted wrongly.
@@ -87,10 +82,10 @@ def read_trace(
     if time_unit not in TIME_UNITS:
         raise LogFileError(f"{where}: time unit {time_unit!r} is not one of s, ms")
     position_scale = unit_scale(
-        where, "position", POSITION_UNITS[device.position_unit], position_unit, device.name
+        where, "position", units_of(device.position_unit), position_unit, device.name
     )
     command_scale = unit_scale(
-        where, "command", FORCE_UNITS[device.command_unit], command_unit, device.name
+        where, "command", units_of(device.command_unit), command_unit, device.name
     )
     names = {"time": time_column, "command": command, "position": position}
     try:
