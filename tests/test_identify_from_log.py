@@ -251,3 +251,44 @@ def test_line_numbers_count_blank_lines_and_episodes_restart_their_time(tmp_path
     assert (len(runs), dt) == (1, pytest.approx(0.002))
     with pytest.raises(LogFileError, match=r"nowhere\.csv: cannot read it"):
         read_trace(tmp_path / "nowhere.csv", devices.ROTARY)
+
+
+# --- the Altino: an IR sensor that reads only near the wall ----------------------------------
+
+
+def test_an_altino_log_gives_back_the_law_j_and_b(tmp_path):
+    """A relay controller's log across 6-16 cm, IR noise on: identify's own 3 % tolerance."""
+    path = _log(tmp_path / "log.csv", "--device", "altino")
+    runs, dt = read_trace(path, devices.ALTINO)
+    result = identify_trace(runs, devices.ALTINO, dt)
+    params = result.params("paper")
+    law = devices.ALTINO.paper_friction
+    for key in (*FRICTION, "viscous"):
+        assert getattr(params.friction, key) == pytest.approx(getattr(law, key), rel=0.03), key
+    assert params.inertia == pytest.approx(devices.ALTINO.plant.inertia, rel=0.03)
+    assert result.source["starts_from_rest"]["forward"] >= 5  # the five rests
+
+
+def test_an_altino_log_s_out_of_range_samples_are_masked(tmp_path):
+    rows = [(k * 0.05, 0.0, 21.4666667) for k in range(20)]  # the readout's 0: out of range
+    rows += [(1.0 + k * 0.05, 0.0, 12.0 + 0.01 * (k % 2)) for k in range(20)]
+    path = _write(tmp_path / "log.csv", rows, header=("time", "command", "position"))
+    runs, _ = read_trace(path, devices.ALTINO)
+    valid = runs[0].signal("valid")
+    assert not valid[:20].any()
+    assert valid[20:].all()
+
+
+def test_an_altino_run_log_reads_the_readout_as_a_distance(tmp_path):
+    from frictiongym.hardware.runlog import RESULT_COLUMNS, STEP_COLUMNS
+
+    names = devices.ALTINO.observation_names
+    header = (*STEP_COLUMNS, *(f"obs_{n}" for n in names), *RESULT_COLUMNS)
+    rows = []
+    for k, readout in enumerate((0.0, 0.0, 100.0, 120.0, 800.0, 140.0)):
+        values = dict.fromkeys(header, 0.0)
+        values.update(episode=0, time=k * 0.05, applied=250.0, measured=readout)
+        rows.append(tuple(values[name] for name in header))
+    runs, _ = read_trace(_write(tmp_path / "steps.csv", rows, header=header), devices.ALTINO)
+    assert runs[0].signal("valid").tolist() == [False, False, True, True, False, True]
+    assert runs[0].signal("measured")[2] == pytest.approx(966.0 / 145.0)  # Eq. (1), cm

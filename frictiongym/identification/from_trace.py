@@ -40,7 +40,8 @@ from frictiongym.identification.from_log import (
     units_of,
 )
 from frictiongym.identification.identify import Identification, Plan
-from frictiongym.identification.refine import refine
+from frictiongym.identification.refine import Reading, refine
+from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET, SENSOR_IR
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
 #: Relative spread of the sampling interval a log may have: the fit holds each command for
@@ -101,6 +102,17 @@ def read_trace(
     t = columns[names["time"]] * TIME_UNITS[time_unit]
     u = columns[names["command"]] * command_scale
     y = columns[names["position"]] * position_scale
+    valid = np.ones(t.size, dtype=bool)
+    if device.sensor == SENSOR_IR:  # a saturated readout says only "out of range": masked
+        if names["position"] == RUN_LOG["position"]:  # the run log holds the readout itself
+            valid = (y > 0.0) & (y < IR_MAX_READOUT)
+            y = IR_NUMERATOR / (y + IR_OFFSET)
+        else:  # a distance: its two ends are the readout's 0 and 800
+            nearest, farthest = (
+                IR_NUMERATOR / (IR_MAX_READOUT + IR_OFFSET),
+                IR_NUMERATOR / IR_OFFSET,
+            )
+            valid = (y > nearest * (1 + 1e-6)) & (y < farthest * (1 - 1e-6))
     episode = columns.get("episode", np.zeros(t.size))
     groups = []
     for value in dict.fromkeys(episode.tolist()):  # in file order
@@ -134,7 +146,7 @@ def read_trace(
             settings={"kind": "log"},
             measured=y[rows],
             command=u[rows],
-            valid=np.ones(rows.size, dtype=bool),
+            valid=valid[rows],
         )
         for rows in groups
     ]
@@ -203,6 +215,7 @@ def identify_trace(
         dt,
         described.plant.command_limit,
         start_law.shape,
+        reading=Plan.for_device(described).reading,  # the IR's residuals in its counts
         direction=described.direction,
         max_delay_steps=max_delay_steps,
         # From the map's law a few candidates suffice (16: 9 s on a 36 s servo log, 128: 133
@@ -215,7 +228,8 @@ def identify_trace(
     model = result.law(start_law.shape)
     keys = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
     stderr = {k: se[k] for k in keys} | {"viscous": se["B"]}
-    starts = {s: _starts_from_rest(runs, s) for s in (1.0, -1.0)}
+    reading = Plan.for_device(described).reading
+    starts = {s: _starts_from_rest(runs, s, reading) for s in (1.0, -1.0)}
     for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
         if not starts[sign]:
             not_identified[key] = (
@@ -266,8 +280,9 @@ def _steady_points(run: Rollout) -> list[est.SteadyPoint]:
     command = run.signal("command")
     dt = float(run.t[1] - run.t[0]) if run.t.size > 1 else math.inf
     points = []
+    valid = run.signal("valid")
     for a, b in _segments(command):
-        if command[a] == 0.0 or (b - a) * dt < MIN_SEGMENT:
+        if command[a] == 0.0 or valid[a:b].sum() * dt < MIN_SEGMENT:  # too short, or unseen
             continue
         piece = Rollout.of_one_run(
             run.t[a:b] - run.t[a],
@@ -275,34 +290,51 @@ def _steady_points(run: Rollout) -> list[est.SteadyPoint]:
             settings={"kind": "constant", "level": command[a], "sign": float(np.sign(command[a]))},
             measured=run.signal("measured")[a:b],
             command=command[a:b],
-            valid=np.ones(b - a, dtype=bool),
+            valid=valid[a:b],
         )
         points.append(est.steady_velocity(piece))
     return points
 
 
-def _starts_from_rest(runs: Sequence[Rollout], sign: float) -> int:
+def _starts_from_rest(runs: Sequence[Rollout], sign: float, reading: Reading | None = None) -> int:
     """How many constant commands of sign ``sign`` start the body from rest.
 
     At rest: the last :data:`REST_WINDOW` s before the command spans at most six noise
-    standard deviations (estimated from the second differences, so motion does not count),
-    which a body sliding at 0.18 rad/s with the servo's one count of noise would exceed.
-    Started: it then moves by over twenty of them in that direction.
+    standard deviations, which a body sliding at 0.18 rad/s with the servo's one count of
+    noise would exceed. Started: it then moves by over twenty of them in that direction. The
+    test is made in the sensor's reading (``reading``: the IR's counts, whose noise is
+    uniform), and the noise is estimated from the quieter half of the second differences: a
+    relay's log accelerates nearly all the time, and the median would count that as noise.
     """
     count = 0
     for run in runs:
         y = run.plant_output()
+        z = run.signal("measured") if reading is None else reading.value(run.signal("measured"))
         command = run.signal("command")
+        valid = run.signal("valid")
         dt = float(run.t[1] - run.t[0]) if run.t.size > 1 else math.inf
         window = max(REST_SAMPLES, round(REST_WINDOW / dt))
-        sigma = (
-            1.4826 * float(np.median(np.abs(np.diff(y, 2)))) / math.sqrt(6.0) if y.size > 2 else 0.0
-        )
+        sigma = _noise_sigma(z, valid)
         for a, b in _segments(command):
             if np.sign(command[a]) != sign or a < window or b - a < REST_SAMPLES:
                 continue
-            before = y[a - window : a + 1]
-            at_rest = float(np.ptp(before)) <= 6.0 * sigma
-            if at_rest and sign * (y[b - 1] - y[a]) > 20.0 * sigma + 1e-12:
+            if not (valid[a - window : a + 1].all() and valid[b - 1]):  # seen out of range
+                continue
+            at_rest = float(np.ptp(z[a - window : a + 1])) <= 6.0 * sigma
+            moved = abs(z[b - 1] - z[a]) > 20.0 * sigma + 1e-12
+            if at_rest and moved and sign * (y[b - 1] - y[a]) > 0.0:
                 count += 1
     return count
+
+
+#: The 25th percentile of ``|N(0, 1)|``: a quantile of the second differences' magnitudes
+#: below which motion seldom reaches.
+_QUARTILE = 0.31863936396437514
+
+
+def _noise_sigma(z: np.ndarray, valid: np.ndarray) -> float:
+    """Noise std of a reading from the lower quartile of its second differences' magnitudes."""
+    second = np.diff(z, 2)[valid[:-2] & valid[1:-1] & valid[2:]]
+    if second.size == 0:
+        return 0.0
+    return float(np.quantile(np.abs(second), 0.25)) / (_QUARTILE * math.sqrt(6.0))
