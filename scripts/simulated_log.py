@@ -43,6 +43,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--noise", action="store_true", help="the sensor's noise on")
     parser.add_argument("--no-rest", action="store_true", help="no zero command between holds")
     parser.add_argument("--seed", type=int, default=0, help="seed of the simulator (default: 0)")
+    parser.add_argument(
+        "--levels",
+        type=lambda text: tuple(float(x) for x in text.split(",")),
+        default=RELAY_MULTIPLES,
+        metavar="M,M,...",
+        help="the IR device's relay levels, multiples of break-away (default: "
+        + ",".join(f"{m:g}" for m in RELAY_MULTIPLES)
+        + ")",
+    )
     args = parser.parse_args(argv)
     device = devices.get(args.device)
     rows = _relay(device, args) if device.counts_per_rev == 0 else _holds(device, args)
@@ -86,7 +95,7 @@ def _relay(device: devices.Device, args: argparse.Namespace) -> list[tuple[float
         obs, *_ = env.step(np.array([u], dtype=np.float32))
 
     toward = device.direction  # a positive command drives toward the wall: the distance falls
-    for multiple in RELAY_MULTIPLES:
+    for multiple in args.levels:
         for _ in range(0 if args.no_rest else round(RELAY_REST / device.dt)):
             hold(0.0)
         for _ in range(RELAY_TRIPS):
