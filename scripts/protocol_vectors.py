@@ -213,7 +213,7 @@ def corrupt_vectors() -> list[dict[str, Any]]:
         ("unknown type with a good CRC", _frame(b"\x42\x01\x02\x03"), "type"),
         ("command one byte short", _frame(command[:-1]), "length"),
         ("state one byte long", _frame(state + b"\x00"), "length"),
-        ("hello of an unknown kind", _frame(hello[:2] + b"\x03" + hello[3:]), "kind"),
+        ("hello of an unknown kind", _frame(hello[:2] + b"\x04" + hello[3:]), "kind"),
         ("longer than any frame", _frame(b"\x81" + bytes(range(1, 40))), "long"),
     ]
     out = []

@@ -727,10 +727,11 @@ def test_cli_help_and_unknown_device(capsys):
     text = tool_parser("emulate").format_help()
     for word in ("--device", "--tcp", "--drop", "--unplug-after", "serial://", "socket://"):
         assert word in text
-    for argv in (["--device", "segway"], ["--device", "rotary", "--tcp", "port"]):
-        with pytest.raises(SystemExit) as exit_:
-            main(argv)
-        assert exit_.value.code == 2
+    with pytest.raises(SystemExit) as exit_:
+        main(["--device", "rotary", "--tcp", "port"])
+    assert exit_.value.code == 2
+    assert main(["--device", "segway"]) == 2  # neither a device nor a description file
+    assert "unknown device 'segway'" in capsys.readouterr().err
     with pytest.raises(SystemExit) as exit_:
         main(["--help"])
     assert exit_.value.code == 0

@@ -88,7 +88,7 @@ def test_other_uris_and_objects():
         ("serial:///dev/x?baud=fast", ValueError, "baud must be an integer, got 'fast'"),
         ("serial:///dev/x?timeout=-1", ValueError, "timeout must be a positive number"),
         ("emulator://rotary?seed=x", ValueError, "seed must be an integer"),
-        ("emulator://segway", ValueError, "unknown device kind"),
+        ("emulator://segway", ValueError, "unknown device 'segway'"),
         ("emulator://rotary?lockstep=maybe", ValueError, "must be 1 or 0"),
         (3.5, TypeError, "URI string or a Backend"),
     ],

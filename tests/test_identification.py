@@ -193,7 +193,7 @@ def test_command_writes_the_file_the_figure_and_the_summary(tmp_path, capsys):
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
-        (["--env", "frictiongym/Nope-v0"], "unknown device 'frictiongym/Nope-v0'"),
+        (["--env", "frictiongym/Nope-v0"], "unknown env id"),
         (["--env", ROTARY, "--backend", "serial:///dev/ttyACM0"], "backend"),
         (["--env", ROTARY, "--backend", "serial:///dev/ttyACM0", "--noise"], "simulator only"),
     ],

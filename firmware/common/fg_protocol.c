@@ -198,7 +198,7 @@ int fg_unpack(const uint8_t *p, size_t len, fg_message *msg)
         msg->u.place.position_bits = get_u32(p + 1);
         break;
     case FG_HELLO:
-        if (p[2] != FG_KIND_ROTARY && p[2] != FG_KIND_ALTINO) {
+        if (p[2] != FG_KIND_ROTARY && p[2] != FG_KIND_ALTINO && p[2] != FG_KIND_AXIS) {
             return FG_ERR_KIND;
         }
         msg->u.hello.version = p[1];

@@ -54,7 +54,8 @@ enum fg_size {
 };
 
 /* Device kinds (Hello.kind). */
-enum fg_kind { FG_KIND_ROTARY = 1, FG_KIND_ALTINO = 2 };
+/* FG_KIND_AXIS: a device described by a file (docs/devices.md); the host holds the file. */
+enum fg_kind { FG_KIND_ROTARY = 1, FG_KIND_ALTINO = 2, FG_KIND_AXIS = 3 };
 
 /* Command.flags bits. */
 enum fg_flag {

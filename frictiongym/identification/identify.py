@@ -461,7 +461,16 @@ def _resolution(reading: Reading, direction: float) -> Callable[[FloatArray], Fl
 def plan_for(env_id: str) -> Plan:
     """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
     if env_id not in ENV_IDS:
-        devices.get(env_id)  # a description file's device, or an error that lists the ids
+        try:  # a device description file, or any spelling of a device
+            devices.get(env_id)
+        except ValueError as error:
+            if isinstance(error, devices.DeviceFileError):
+                raise
+            ids = ", ".join(ENV_IDS)
+            raise ValueError(
+                f"unknown env id {env_id!r}; choose one of {ids} or a device description file "
+                "(.toml or .json, docs/devices.md)"
+            ) from None
     return Plan.for_device(env_id)
 
 

@@ -111,13 +111,16 @@ def check_settings(settings: TrainSettings) -> None:
     """Raise :class:`TrainingError` for settings that cannot work, before anything is built."""
     if settings.algo not in ALGORITHMS:
         raise TrainingError(f"unknown --algo {settings.algo!r}; use one of {', '.join(ALGORITHMS)}")
-    ids = sorted(name for name in gym.registry if name.startswith("frictiongym/"))
-    if settings.env_id not in ids or settings.env_id == envs.AXIS_ID:
+    ids = sorted(n for n in gym.registry if n.startswith("frictiongym/") and n != envs.AXIS_ID)
+    if settings.env_id not in ids:
         try:  # a device description file
             devices.get(settings.env_id)
         except ValueError as error:
+            if isinstance(error, devices.DeviceFileError):
+                raise TrainingError(str(error)) from None
             raise TrainingError(
-                f"--env {settings.env_id!r}: {error}; the ids are {', '.join(ids[:-1])}"
+                f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)} or a device "
+                "description file (.toml or .json, docs/devices.md)"
             ) from None
     if not 0 <= settings.seed <= MAX_SEED:
         raise TrainingError(

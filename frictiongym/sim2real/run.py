@@ -255,7 +255,15 @@ def run_sim2real(
         Called with a short text before each run, and when a run ends early.
     """
     if env_id not in ENV_IDS:
-        devices.get(env_id)  # a description file, or a ValueError naming the ids
+        try:  # a device description file, or any spelling of a device
+            devices.get(env_id)
+        except ValueError as error:
+            if isinstance(error, devices.DeviceFileError):
+                raise
+            raise ValueError(
+                f"unknown env id {env_id!r}; use one of {sorted(ENV_IDS)} or a device "
+                "description file (.toml or .json, docs/devices.md)"
+            ) from None
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     if not (isinstance(repeats, int) and repeats >= 1):
