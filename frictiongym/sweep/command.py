@@ -156,6 +156,8 @@ def plan(args: argparse.Namespace, command_line: str) -> list[Trial]:
             "--overwrite replaces an earlier sweep and --resume continues it: give one of them"
         )
     base = settings_from_args(args, quiet=True, command_line=command_line)
+    if Path(base.env_id).suffix.lower() in (".toml", ".json"):  # a device description file:
+        base.env_id = str(Path(base.env_id).resolve())  # a worker's folder is not this one
     if base.threads is None:
         base.threads = args.cpus_per_trial
     check_grid(args.grid, base)
