@@ -194,7 +194,7 @@ TOOLS = {
     ),
     "emulate": (
         "frictiongym.hardware.command",
-        "emulate a QUBE-Servo 2 or an Altino behind the device protocol (pty or TCP)",
+        "emulate a QUBE-Servo 2, an Altino or a described device behind the protocol",
     ),
     "train": (
         "frictiongym.residual.command",

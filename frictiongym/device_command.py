@@ -3,16 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 
 from frictiongym import device_file, devices
+from frictiongym.device_file import AXIS_ENV_ID
 
 DESCRIPTION = """\
 Describe a device in a file (TOML or JSON; docs/devices.md), the input of every tool's
 --device and of gym.make("frictiongym/Axis-v0", device=FILE).
 
-  frictiongym device show rotary > my_stage.toml   a built-in device's file, to start from
-  frictiongym device check my_stage.toml           read it as the tools will; print a summary
+  frictiongym device show rotary --name MyServo > my_servo.toml   a file to start from
+  frictiongym device check my_servo.toml           read it as the tools will; print a summary
+
+show --name gives the copy its own name (and kind: the name in lower case) and the env id of
+described devices, frictiongym/Axis-v0; without it, the copy is the built-in device itself.
 
 check prints the device's units, plant, friction law, sensor, task and what the tools have
 for it (identification plan, reversal test, tuning specs), or one line naming the field
@@ -27,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "device",
         metavar="KIND|FILE",
         help=f"a built-in device ({', '.join(d.kind for d in devices.DEVICES)}) or a file",
+    )
+    parser.add_argument(
+        "--name", help="show: the copy's own name (letters, digits and _), kind and env id"
     )
 
 
@@ -70,6 +78,14 @@ def run(args: argparse.Namespace, command_line: str = "frictiongym device") -> i
         print(f"error: {error}", file=sys.stderr)
         return 2
     if args.action == "show":
+        if args.name is not None:
+            renamed = {"name": args.name, "kind": args.name.lower(), "env_id": AXIS_ENV_ID}
+            try:
+                device_file.parse({**device_file.toml_loads(device_file.dump(device)), **renamed})
+            except device_file.DeviceFileError as error:
+                print(f"error: --name: {error}", file=sys.stderr)
+                return 2
+            device = dataclasses.replace(device, **renamed)
         sys.stdout.write(device_file.dump(device))
     else:
         print(summary(device))

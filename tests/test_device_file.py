@@ -264,17 +264,13 @@ def test_the_example_draws_its_carriage_where_it_is():
 def test_device_show_writes_a_file_that_check_reads(tmp_path, capsys):
     from frictiongym.cli import main
 
-    assert main(["device", "show", "rotary"]) == 0
+    assert main(["device", "show", "rotary", "--name", "MyServo"]) == 0
     text = capsys.readouterr().out
     path = tmp_path / "copy.toml"
-    path.write_text(
-        text.replace('name = "RotaryServo"', 'name = "MyServo"')
-        .replace('kind = "rotary"', 'kind = "my-servo"')
-        .replace('env_id = "frictiongym/RotaryServo-v1"', 'env_id = "frictiongym/Axis-v0"')
-    )
+    path.write_text(text)
     assert main(["device", "check", str(path)]) == 0
     out = capsys.readouterr().out
-    assert out.startswith("MyServo (my-servo): a QUBE-Servo 2, frictiongym/Axis-v0")
+    assert out.startswith("MyServo (myservo): a QUBE-Servo 2, frictiongym/Axis-v0")
     assert "encoder, 2048 counts per 6.28319 rad" in out
     path.write_text(text.replace("dt = 0.002", 'dt = "fast"'))
     assert main(["device", "check", str(path)]) == 2
