@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+from typing import Any
 
-from frictiongym import device_file, devices
+from frictiongym import device_file, devices, envs
 from frictiongym.device_file import AXIS_ENV_ID
 
 DESCRIPTION = """\
@@ -70,10 +71,47 @@ def summary(device: devices.Device) -> str:
     return "\n".join(lines)
 
 
+def check_for_tools(device: devices.Device) -> None:
+    """Build what each tool builds from ``device`` and the env of its training; raise if not.
+
+    Raises
+    ------
+    ValueError
+        What a tool would raise, prefixed with the file and the table.
+    """
+    from frictiongym.controllers.residual_core import ResidualConfig
+    from frictiongym.identification.backlash import ReversalPlan
+    from frictiongym.identification.identify import Plan
+    from frictiongym.tuning.specs import GainBounds, StepSpecs
+
+    where = device.source or device.name
+    plan = device.identification
+    steps: list[tuple[str, Any]] = [("references", lambda: envs.checked_device(device))]
+    if "levels" in plan:
+        steps.append(("identification", lambda: Plan.for_device(device)))
+    if "reversal" in plan:
+        steps.append(("identification.reversal", lambda: ReversalPlan.for_device(device)))
+    if device.residual:
+        limit = device.plant.command_limit
+        steps.append(("residual", lambda: ResidualConfig(device.name, limit, **device.residual)))
+    specs = {k: v for k, v in device.tuning.items() if k not in ("kp", "ki", "kd")}
+    bounds = {k: tuple(v) for k, v in device.tuning.items() if k in ("kp", "ki", "kd")}
+    steps.append(("tuning", lambda: (StepSpecs(**specs), GainBounds(**bounds))))
+    steps.append(("training_env", lambda: envs.make(device, **device.training_env).close()))
+    for table, build in steps:
+        try:
+            build()
+        except (TypeError, ValueError) as error:
+            message = str(error).removeprefix(f"{where}: ")
+            raise ValueError(f"{where}: [{table}]: {message}") from None
+
+
 def run(args: argparse.Namespace, command_line: str = "frictiongym device") -> int:
     """Run the command; return the exit status."""
     try:
         device = devices.get(args.device)
+        if args.action == "check":
+            check_for_tools(device)
     except ValueError as error:
         print(f"error: {error}", file=sys.stderr)
         return 2

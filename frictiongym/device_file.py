@@ -18,20 +18,33 @@ import math
 import numbers
 import os
 import re
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, NamedTuple, NoReturn
+from typing import Any, NoReturn
 
 from frictiongym.data import TOMLDecodeError, toml_loads
+from frictiongym.device_tables import (
+    DeviceFileError,
+    Fail,
+    Figures,
+    build,
+    check_gains,
+    check_references,
+    check_table,
+    figures,
+)
 from frictiongym.friction import LuGre, StictionCoulomb
 from frictiongym.plants import sensors
 from frictiongym.plants.plant import PlantParams
 
-__all__ = ["DeviceFileError", "Figures", "dump", "parse", "read", "render_toml"]
+__all__ = ["AXIS_ENV_ID", "DeviceFileError", "Figures", "dump", "parse", "read", "render_toml"]
 
 #: The env id of a device described by a file (the built-in ones name their own).
 AXIS_ENV_ID = "frictiongym/Axis-v0"
+
+#: Longest control period a file may give, s (a motion loop slower than this is no loop).
+MAX_PERIOD = 10.0
 
 #: Sensor names of the file -> the kernel's sensor codes.
 SENSORS = {"encoder": sensors.SENSOR_ENCODER, "ir": sensors.SENSOR_IR}
@@ -41,25 +54,6 @@ RENAMED = {"friction": "paper_friction", "lugre": "lugre_friction", "gains": "pa
 
 #: Ratio v0 / v_s of a Gaussian Stribeck curve within 1 % of u_c at v0 (as the presets').
 _GAUSS_V0_OVER_VS = math.sqrt(math.log(100.0))
-
-
-class Figures(NamedTuple):
-    """What the benchmark's figures say of a device (:mod:`frictiongym.benchmark.figures`)."""
-
-    response: str  #: title of its paper scenarios' responses
-    residual: str  #: title of its residual policy's response
-    friction: str  #: title of its friction curves
-    speed: float  #: the friction curves' velocity range, ±
-    zoom: float  #: error axis of the paper responses, ±
-    residual_zoom: float  #: error axis of the residual response, ±
-
-
-#: Raise the file's error for a field: ``fail(key, what is wrong)``.
-Fail = Callable[[str, str], NoReturn]
-
-
-class DeviceFileError(ValueError):
-    """A device description that cannot be used: the message names the file and the field."""
 
 
 @dataclass(frozen=True)
@@ -91,7 +85,7 @@ SCALARS: dict[str, Field] = {
     "title": Field("str", "", "for messages, e.g. 'a ball-screw stage'"),
     "position_unit": Field("str", "", "unit of position, e.g. 'mm'"),
     "command_unit": Field("str", "", "unit of the command, e.g. 'V'"),
-    "dt": Field(">0", "s", "control period"),
+    "dt": Field("period", "s", "control period"),
     "sensor": Field("str", "", "'encoder' or 'ir' (the paper's IR law, Eq. (1))"),
     "counts_per_rev": Field("int>=0", "counts", "encoder counts per revolution", 0),
     "position_per_rev": Field(">0", "{p}", "travel per revolution (a screw's lead)", 2 * math.pi),
@@ -117,65 +111,12 @@ SCALARS: dict[str, Field] = {
 #: Fields that only an encoder uses (:func:`dump` leaves them out without one).
 ENCODER_ONLY = ("counts_per_rev", "position_per_rev")
 
-#: Keys of the tables read by classes of higher layers (tests/test_device_file.py keeps them
-#: equal to those classes' fields): ``identification`` (``Plan``, identify.py; ``reversal``
-#: holds ``ReversalPlan``'s), ``residual`` (``ResidualConfig`` but device and limit),
-#: ``randomization`` (``DomainRandomization``), ``tuning`` (``StepSpecs``, ``GainBounds``).
-TABLE_KEYS: dict[str, tuple[str, ...]] = {
-    "identification": (
-        "levels",
-        "constant_duration",
-        "ramp_repeats",
-        "ramp_from",
-        "ramp_to",
-        "ramp_duration",
-        "step_levels",
-        "step_time",
-        "step_duration",
-        "step_repeats",
-        "probe_to",
-        "probe_duration",
-        "relay_levels",
-        "relay_band",
-        "relay_duration",
-        "refine",
-        "reading",
-        "span",
-        "ramp_positions",
-        "env_kwargs",
-        "reversal",
-    ),
-    "identification.reversal": (
-        "level",
-        "hold",
-        "reversals",
-        "max_width",
-        "resolution",
-        "band",
-        "grid",
-        "shares",
-    ),
-    "residual": (
-        "scale",
-        "error_scale",
-        "fine_error",
-        "velocity_scale",
-        "reference_scale",
-        "reference_offset",
-    ),
-    "randomization": ("friction", "inertia", "damping", "deadzone", "backlash", "sensor_gain"),
-    "tuning": (
-        "rise_time",
-        "peak_time",
-        "settling_time",
-        "overshoot_pct",
-        "settling_band",
-        "rise_limits",
-        "kp",
-        "ki",
-        "kd",
-    ),
-}
+#: Keys of ``[randomization]``: ``DomainRandomization``'s fields.
+RANDOMIZATION_KEYS = ("friction", "inertia", "damping", "deadzone", "backlash", "sensor_gain")
+#: The ranges of a file without ``[randomization]``: the built-in devices' shared ones.
+DEFAULT_RANDOMIZATION = {"friction": (0.7, 1.3), "inertia": (0.8, 1.2), "damping": (0.8, 1.2)}
+#: Drawings that assume units: a disk in rad (``draw_servo``), a car's IR in cm.
+DRAWING_NEEDS = {"draw_servo": ("encoder", "rad"), "draw_altino": ("ir", "cm")}
 
 #: Tables of the file whose entries are free mappings (checked by their users' classes).
 MAPPINGS = (
@@ -199,19 +140,38 @@ def read(path: str | os.PathLike[str]) -> dict[str, Any]:
         the message names the file, the field, its unit and the allowed values.
     """
     file = Path(path)
+    json_file = file.suffix.lower() == ".json"
     try:
         text = file.read_text(encoding="utf-8")
     except OSError as error:
         reason = error.strerror or error
         raise DeviceFileError(f"cannot read device file {file}: {reason}") from None
+    except UnicodeDecodeError as error:
+        raise DeviceFileError(
+            f"{file}: not UTF-8 text (byte {error.start}); save it as UTF-8"
+        ) from None
     try:
-        data = json.loads(text) if file.suffix.lower() == ".json" else toml_loads(text)
-    except (TOMLDecodeError, json.JSONDecodeError) as error:
-        kind = "JSON" if file.suffix.lower() == ".json" else "TOML"
+        data = json.loads(text, object_pairs_hook=_no_repeats) if json_file else toml_loads(text)
+    except (TOMLDecodeError, json.JSONDecodeError, RecursionError) as error:
+        kind = "JSON" if json_file else "TOML"
         raise DeviceFileError(f"{file}: not valid {kind}: {error}") from None
+    except _RepeatedKey as error:
+        raise DeviceFileError(f"{file}: key {error} given twice") from None
     if not isinstance(data, dict):
         raise DeviceFileError(f"{file}: a device description is a table of fields")
     return parse(data, str(file))
+
+
+class _RepeatedKey(Exception):
+    """A JSON object with a key twice (JSON keeps the last; TOML refuses it)."""
+
+
+def _no_repeats(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    table = dict(pairs)
+    if len(table) < len(pairs):
+        keys = [k for k, _ in pairs]
+        raise _RepeatedKey(repr(next(k for k in keys if keys.count(k) > 1)))
+    return table
 
 
 def parse(data: Mapping[str, Any], source: str = "device description") -> dict[str, Any]:
@@ -229,39 +189,20 @@ def parse(data: Mapping[str, Any], source: str = "device description") -> dict[s
     values: dict[str, Any] = {}
     for key, field in SCALARS.items():
         values[key] = _scalar(key, field, data, values, fail)
-    if values["drawing"] and values["drawing"] not in DRAWINGS:
-        fail("drawing", f"= {values['drawing']!r}: must be one of {', '.join(DRAWINGS)}")
-    if values["sensor"] not in SENSORS:
-        fail("sensor", f"must be one of {', '.join(SENSORS)}")
-    encoder = values["sensor"] == "encoder"
-    if encoder != (0 < values["counts_per_rev"] <= 0xFFFF):
-        fail("counts_per_rev", "must be 1..65535 with sensor = 'encoder' and 0 with 'ir'")
-    reading = (sensors.IR_NUMERATOR, sensors.IR_OFFSET, sensors.IR_MAX_READOUT)
-    plan = data.get("identification", {})
-    if not encoder and isinstance(plan, Mapping) and plan.get("reading", reading) != reading:
-        fail(
-            "identification.reading",
-            f"must be the env's IR law {list(reading)} (the paper's Eq. (1)): other readout "
-            "curves are not supported",
-        )
-    names = data.get("observation_names", _observation_names(values))
-    size = 3 if encoder else 4
-    if not (len(names) == size and all(isinstance(n, str) and n for n in names)):
-        fail("observation_names", f"must be {size} names with sensor = {values['sensor']!r}")
-    if values["output"] not in names[: size - 2]:
-        fail("output", f"must name the measured output, one of {list(names[: size - 2])}")
-    values["observation_names"] = names
-    values["plant"] = _build(PlantParams, "plant", data, fail, values)
-    values["paper_friction"] = _build(StictionCoulomb, "friction", data, fail, values)
-    lugre = data.get("lugre", _default_lugre(values["paper_friction"], values))
-    values["lugre_friction"] = _build(LuGre, "lugre", {"lugre": lugre}, fail, values)
+    _check_sensor(data, values, fail)
+    values["plant"] = build(PlantParams, "plant", data.get("plant"), fail)
+    _check_task(values, fail)
+    values["paper_friction"] = build(StictionCoulomb, "friction", data.get("friction"), fail)
+    if "lugre" in data:
+        values["lugre_friction"] = build(LuGre, "lugre", data["lugre"], fail)
+    else:
+        values["lugre_friction"] = _default_lugre(values, fail)
     for key in MAPPINGS:
         values[RENAMED.get(key, key)] = _mapping(key, data, fail)
-    _check_gains(values["paper_gains"], fail)
     gains = values["paper_gains"]
     if "compensated" not in gains:  # the compensated loop keeps the PID's gains
         values["paper_gains"] = {**gains, "compensated": gains["pid"]}
-    values["figures"] = _figures(data.get("figures", {}), values, fail)
+    values["figures"] = figures(data.get("figures", {}), values, fail)
     values["sensor"] = SENSORS[values["sensor"]]
     values["drawing"] = values["drawing"] or None
     values["source"] = source
@@ -283,15 +224,15 @@ def _failer(source: str, data: Mapping[str, Any]) -> Fail:
 def _scalar(
     key: str, field: Field, data: Mapping[str, Any], values: Mapping[str, Any], fail: Fail
 ) -> Any:
-    unit = f" {field.unit}" if field.unit else ""
+    unit = f", {field.unit}" if field.unit else ""
     if key not in data:
         if field.default is None:
             if key == "velocity_cutoff":
                 return None
-            fail(key, f"missing: give the {field.meaning}{f' ({field.unit})' if unit else ''}")
+            fail(key, f"missing: give {key} ({field.meaning}{unit})")
         return field.default(values) if callable(field.default) else field.default
     value = data[key]
-    where = f"= {value!r} ({field.meaning}{',' + unit if unit else ''})"
+    where = f"= {value!r} ({field.meaning}{unit})"
     if field.rule in ("str", "name", "kind"):
         if not (isinstance(value, str) and value):
             fail(key, f"{where}: must be a non-empty string")
@@ -315,6 +256,7 @@ def _scalar(
         "finite": math.isfinite(number),
         "inf-ok": not math.isnan(number),
         "(0,1)": 0 < number < 1,
+        "period": 0 < number <= MAX_PERIOD,
     }[field.rule]
     if not ok:
         rule = {
@@ -323,9 +265,80 @@ def _scalar(
             "finite": "a finite number",
             "inf-ok": "a number or inf",
             "(0,1)": "between 0 and 1",
+            "period": f"> 0 and at most {MAX_PERIOD:g} s",
         }[field.rule]
         fail(key, f"{where}: must be {rule}")
     return number
+
+
+def _check_sensor(data: Mapping[str, Any], values: dict[str, Any], fail: Fail) -> None:
+    """Check the sensor and its observation, and that the drawing fits them."""
+    if values["sensor"] not in SENSORS:
+        fail("sensor", f"= {values['sensor']!r}: must be one of {', '.join(SENSORS)}")
+    encoder = values["sensor"] == "encoder"
+    if encoder != (0 < values["counts_per_rev"] <= 0xFFFF):
+        fail("counts_per_rev", "must be 1..65535 with sensor = 'encoder' and 0 with 'ir'")
+    if not encoder and "position_per_rev" in data:
+        fail("position_per_rev", "is an encoder's: omit it with sensor = 'ir'")
+    reading = (sensors.IR_NUMERATOR, sensors.IR_OFFSET, sensors.IR_MAX_READOUT)
+    plan = data.get("identification", {})
+    if not encoder and isinstance(plan, Mapping) and plan.get("reading", reading) != reading:
+        fail(
+            "identification.reading",
+            f"must be the env's IR law {list(reading)} (the paper's Eq. (1)): other readout "
+            "curves are not supported",
+        )
+    names = data.get("observation_names", _observation_names(values))
+    size = 3 if encoder else 4
+    if not (
+        isinstance(names, tuple)
+        and len(names) == size
+        and all(isinstance(n, str) and n for n in names)
+        and len(set(names)) == size
+    ):
+        fail(
+            "observation_names",
+            f"= {names!r}: must be an array of {size} distinct names with sensor = "
+            f"{values['sensor']!r}",
+        )
+    if values["output"] not in names[: size - 2]:
+        fail("output", f"must name the measured output, one of {list(names[: size - 2])}")
+    values["observation_names"] = names
+    if values["drawing"] and values["drawing"] not in DRAWINGS:
+        fail("drawing", f"= {values['drawing']!r}: must be one of {', '.join(DRAWINGS)}")
+    needs = DRAWING_NEEDS.get(values["drawing"])
+    if needs is not None and (values["sensor"], values["position_unit"]) != needs:
+        what = "a disk, in rad" if needs[0] == "encoder" else "a car by its IR, in cm"
+        fail("drawing", f"{values['drawing']} draws {what}: use draw_axis, which draws any unit")
+
+
+def _check_task(values: Mapping[str, Any], fail: Fail) -> None:
+    """Check what the plant and the task must agree on: periods, start, limit, end stop."""
+    plant, dt = values["plant"], values["dt"]
+    try:
+        plant.delay_steps(dt)
+    except ValueError:
+        fail(
+            "plant.dead_time",
+            f"= {plant.dead_time!r}: must be a whole number of control periods dt = {dt!r} s",
+        )
+    if plant.jitter >= dt:
+        fail("plant.jitter", f"= {plant.jitter!r}: must be below the control period {dt!r} s")
+    start, limit, stop = values["start"], values["limit"], values["end_stop"]
+    if values["sensor"] == "encoder":
+        if limit <= 0.0 or abs(start) >= limit:
+            fail(
+                "limit",
+                f"= {limit!r}: the safety limit ±limit must hold the start {start!r} {{p}} "
+                "(an episode ends beyond it)",
+            )
+        if start >= stop:
+            fail("end_stop", f"= {stop!r}: the end stop must lie ahead of the start {start!r}")
+    else:  # IR: the distance to a wall; the limit is the least distance
+        if not 0.0 <= limit < start:
+            fail("limit", f"= {limit!r}: the least distance must be >= 0 and below the start")
+        if -start >= stop:
+            fail("end_stop", f"= {stop!r}: the wall (plant position) must lie ahead of -start")
 
 
 def _observation_names(values: Mapping[str, Any]) -> tuple[str, ...]:
@@ -334,32 +347,14 @@ def _observation_names(values: Mapping[str, Any]) -> tuple[str, ...]:
     return ("readout", values["output"], "velocity", "reference")
 
 
-def _build(cls: type, key: str, data: Mapping[str, Any], fail: Fail, values: Mapping) -> Any:
-    table = data.get(key)
-    if not isinstance(table, Mapping):
-        fail(key, f"missing table [{key}] of {cls.__name__} fields (docs/devices.md)")
-    names = {f.name for f in fields(cls) if f.init}
-    unknown = sorted(set(table) - names)
-    if unknown:
-        fail(f"{key}.{unknown[0]}", f"unknown; [{key}] takes {', '.join(sorted(names))}")
-    if key == "plant" and "end_stop" in table:
-        fail("plant.end_stop", "set the device's end_stop instead (the envs place it)")
-    try:
-        return cls(**table)
-    except TypeError as error:
-        fail(key, f"{error} (units: docs/devices.md)")
-    except ValueError as error:
-        fail(key, str(error).replace(f"{cls.__name__}.", f"{key}."))
-
-
-def _default_lugre(law: StictionCoulomb, values: Mapping[str, Any]) -> dict[str, float]:
+def _default_lugre(values: Mapping[str, Any], fail: Fail) -> LuGre:
     """Return the LuGre version of the device's law, built as the presets are (docs/devices.md)."""
-    inertia = values.get("plant", PlantParams(1.0, 0.0, 1.0)).inertia
+    law, inertia = values["paper_friction"], values["plant"].inertia
     resolution = values["position_per_rev"] / max(values["counts_per_rev"], 1)
     # Pre-sliding deflection at break-away of half the sensor's resolution; a critically
     # damped bristle mode.
     sigma0 = max(law.us_pos, law.us_neg) / (0.5 * resolution)
-    return {
+    table = {
         "us_pos": law.us_pos,
         "us_neg": law.us_neg,
         "uc_pos": law.uc_pos,
@@ -371,71 +366,32 @@ def _default_lugre(law: StictionCoulomb, values: Mapping[str, Any]) -> dict[str,
         "viscous": law.viscous,
     }
 
+    def built_from(key: str, rule: str) -> NoReturn:
+        fail("lugre", f"built from [friction] and [plant], {key}: {rule}; give [lugre] yourself")
+
+    lugre: LuGre = build(LuGre, "lugre", table, built_from)
+    return lugre
+
 
 def _mapping(key: str, data: Mapping[str, Any], fail: Fail) -> Mapping[str, Any]:
+    if key == "randomization" and key not in data:
+        return dict(DEFAULT_RANDOMIZATION)
     value = data.get(key, {})
     if not isinstance(value, Mapping):
-        fail(key, f"must be a table [{key}]")
-    if key == "references" and "step" not in value:
-        fail("references.step", "missing: give [references.step] value = the demo set-point")
-    for table, keys in TABLE_KEYS.items():
-        head, _, sub = table.partition(".")
-        if head != key:
-            continue
-        entries = value.get(sub, {}) if sub else value
-        if not isinstance(entries, Mapping):
-            fail(table, f"must be a table [{table}]")
-        for name in sorted(set(entries) - set(keys)):
-            fail(f"{table}.{name}", f"unknown; [{table}] takes {', '.join(keys)}")
-        for name, entry in entries.items():
-            if name not in ("env_kwargs", "reversal", "reading", "refine"):
-                _check_numbers(f"{table}.{name}", entry, fail)
+        fail(key, f"= {value!r}: must be a table [{key}]")
+    if key in ("identification", "residual", "tuning"):
+        return check_table(key, value, fail) if key in data else {}
+    if key == "references":
+        check_references(value, fail)
     if key == "randomization":
         for name, entry in value.items():
+            if name not in RANDOMIZATION_KEYS:
+                fail(f"randomization.{name}", f"unknown; use {', '.join(RANDOMIZATION_KEYS)}")
             if not (isinstance(entry, tuple) and len(entry) == 2 and 0 < entry[0] <= entry[1]):
                 fail(f"randomization.{name}", f"= {entry!r}: must be [low, high], 0 < low <= high")
-    if key == "gains" and "pid" not in value:
-        fail("gains.pid", "missing: give [gains.pid] kp, ki, kd (the baseline PID)")
+    if key == "gains":
+        check_gains(value, fail)
     return value
-
-
-def _check_numbers(key: str, value: Any, fail: Fail) -> None:
-    """Refuse all but a finite number or an array of them (their classes check the ranges)."""
-    items = value if isinstance(value, tuple) else (value,)
-    for item in items:
-        if not isinstance(item, numbers.Real) or isinstance(item, bool) or not math.isfinite(item):
-            fail(key, f"= {value!r}: must be a finite number or an array of them")
-
-
-def _check_gains(gains: Mapping[str, Any], fail: Fail) -> None:
-    for name, gain in gains.items():
-        if not isinstance(gain, Mapping) or set(gain) != {"kp", "ki", "kd"}:
-            fail(f"gains.{name}", "must be a table of kp, ki and kd")
-        for term, value in gain.items():
-            if not (isinstance(value, numbers.Real) and math.isfinite(value) and float(value) >= 0):
-                fail(f"gains.{name}.{term}", f"= {value!r}: must be a number >= 0")
-
-
-def _figures(table: Mapping[str, Any], values: Mapping[str, Any], fail: Fail) -> Any:
-    law = values["paper_friction"]
-    title = values["title"]
-    defaults = {
-        "response": f"{title[0].upper()}{title[1:]}, step response",
-        "residual": f"{title[0].upper()}{title[1:]}, step response: residual policy",
-        "friction": title,
-        "speed": 2.0 * max(law.v0_pos, law.v0_neg),
-        "zoom": 0.03 * abs(values["references"]["step"].get("value", 1.0)),
-        "residual_zoom": 0.02 * abs(values["references"]["step"].get("value", 1.0)),
-    }
-    unknown = sorted(set(table) - set(defaults))
-    if unknown:
-        fail(f"figures.{unknown[0]}", f"unknown; [figures] takes {', '.join(defaults)}")
-    merged = {**defaults, **table}
-    for key in ("speed", "zoom", "residual_zoom"):
-        value = merged[key]
-        if not (isinstance(value, numbers.Real) and math.isfinite(value) and float(value) > 0):
-            fail(f"figures.{key}", f"= {value!r}: must be a number > 0")
-    return Figures(**merged)
 
 
 def _tuples(value: Any) -> Any:

@@ -35,6 +35,7 @@ __all__ = [
     "device_of",
     "get",
     "load",
+    "register",
 ]
 
 DeviceFileError = device_file.DeviceFileError
@@ -120,9 +121,10 @@ class Device:
     def __post_init__(self) -> None:
         counts = round(self.plant.command_limit * self.command_scale)
         if not 0 < counts <= INT16_MAX:
+            change = "lower" if counts > INT16_MAX else "raise"
             raise ValueError(
                 f"{self.name}: plant.command_limit * command_scale = {counts} counts must fit "
-                f"the wire format's int16 commands (1..{INT16_MAX}): lower command_scale"
+                f"the wire format's int16 commands (1..{INT16_MAX}): {change} command_scale"
             )
         if (self.sensor == sensors.SENSOR_ENCODER) != (0 < self.counts_per_rev <= 0xFFFF):
             raise ValueError(
@@ -169,7 +171,12 @@ def load(path: str | os.PathLike[str]) -> Device:
     DeviceFileError
         The file cannot be read or a field is missing or out of range (the message names it).
     """
-    device = Device(**device_file.read(path))
+    try:
+        device = Device(**device_file.read(path))
+    except device_file.DeviceFileError:
+        raise
+    except ValueError as error:  # what the Device checks across fields (the wire's limits)
+        raise device_file.DeviceFileError(f"{path}: {error}") from None
     builtin = {d.name: d for d in DEVICES}.get(device.name)
     if builtin is not None or device.kind in {d.kind for d in DEVICES}:
         if builtin is None or dataclasses.replace(device, source=builtin.source) != builtin:
@@ -178,6 +185,36 @@ def load(path: str | os.PathLike[str]) -> Device:
                 "give your device its own name and kind"
             )
         return builtin
+    if device.env_id != device_file.AXIS_ENV_ID:
+        raise device_file.DeviceFileError(
+            f"{path}: env_id: = {device.env_id!r}: a described device's env is "
+            f"{device_file.AXIS_ENV_ID}; omit env_id"
+        )
+    return register(device)
+
+
+def register(device: Device) -> Device:
+    """Make a described device known to :func:`get` in this process, by name and kind.
+
+    A device of the same name or kind read from the same file replaces the earlier one (the
+    file was edited); from another file, or built in code, it is refused.
+
+    Raises
+    ------
+    DeviceFileError
+        If another device of this process has the name or the kind.
+    """
+    for other in (*DEVICES, *_LOADED.values()):
+        clash = other.name == device.name or other.kind == device.kind
+        if not clash or other == device or (device.source and other.source == device.source):
+            continue
+        raise device_file.DeviceFileError(
+            f"{device.source or device.name}: name {device.name!r} or kind {device.kind!r} is "
+            f"also that of {other.source or other.name}, loaded in this process; give each "
+            "device its own name and kind"
+        )
+    for other in [d for d in _LOADED.values() if d.source and d.source == device.source]:
+        del _LOADED[other.name]  # the same file, edited
     _LOADED[device.name] = device
     return device
 
@@ -203,7 +240,8 @@ FILE_SUFFIXES = (".toml", ".json")
 def get(spelling: str | os.PathLike[str] | Device) -> Device:
     """Return the device ``spelling`` names: kind, name, env id (any version) or file path.
 
-    A path (``.toml`` or ``.json``) is read with :func:`load`.
+    A path (``.toml`` or ``.json``, or an existing file of no known name) is read with
+    :func:`load`.
 
     Raises
     ------
@@ -214,8 +252,9 @@ def get(spelling: str | os.PathLike[str] | Device) -> Device:
     """
     if isinstance(spelling, Device):
         return spelling
-    if isinstance(spelling, os.PathLike) or Path(str(spelling)).suffix.lower() in FILE_SUFFIXES:
-        return load(spelling)
+    path = Path(os.fspath(spelling)) if isinstance(spelling, str | os.PathLike) else None
+    if path is not None and path.suffix.lower() in FILE_SUFFIXES:
+        return load(path if isinstance(spelling, os.PathLike) else str(spelling))
     for device in (*DEVICES, *_LOADED.values()):
         if spelling in (device.kind, device.name):
             return device
@@ -223,6 +262,8 @@ def get(spelling: str | os.PathLike[str] | Device) -> Device:
             return device
         if re.fullmatch(rf"frictiongym/{device.name}-v\d+", str(spelling)):
             return device  # another version of its env: the same device, another reward
+    if path is not None and path.is_file():  # a description file named otherwise
+        return load(path if isinstance(spelling, os.PathLike) else str(spelling))
     names = ", ".join(f"{d.kind}, {d.name}, {d.env_id}" for d in DEVICES)
     raise ValueError(
         f"unknown device {spelling!r}; use one of {names}, or the path of a device "

@@ -37,6 +37,7 @@ LAYERS: dict[str, int] = {
     "frictiongym.data": 0,
     "frictiongym.plants": 1,
     "frictiongym.params": 1,
+    "frictiongym.device_tables": 1,
     "frictiongym.device_file": 1,
     "frictiongym.devices": 1,
     "frictiongym.envs": 2,

@@ -27,6 +27,15 @@ EXAMPLE = REPO / "examples" / "ball_screw" / "ball_screw_stage.toml"
 RECORD = Path(__file__).parent / "data" / "builtin_devices.txt"
 
 
+def variant(tmp_path: Path, name: str, **changes: object) -> Path:
+    """A copy of the example with ``changes``, as another device ``name`` (its own kind)."""
+    table = {**device_file.toml_loads(EXAMPLE.read_text()), **changes}
+    table.update(name=name, kind=name.lower())
+    path = tmp_path / f"{name}.toml"
+    path.write_text(device_file.render_toml(table))
+    return path
+
+
 def typed(value: object) -> str:
     """A value's repr with the type of every leaf (1 and 1.0 differ)."""
     if isinstance(value, dict):
@@ -121,13 +130,13 @@ def test_identify_takes_the_description_file_and_writes_its_device(tmp_path):
         ({"dt": -0.001}, r"stage\.toml: dt: = -0\.001 \(control period, s\): must be > 0"),
         (
             {"plant": {"inertia": 0.0, "damping": 0.1, "command_limit": 24.0}},
-            r"plant: plant\.inertia",
+            r"plant\.inertia: must be > 0, got 0\.0 \(V·s²/mm\)",
         ),
-        ({"sensor": "laser"}, r"sensor: must be one of encoder, ir"),
+        ({"sensor": "laser"}, r"sensor: = 'laser': must be one of encoder, ir"),
         ({"counts_per_rev": 0}, r"counts_per_rev: must be 1\.\.65535 with sensor = 'encoder'"),
         ({"limit": "far"}, r"limit: = 'far' \(safety limit.*mm\): must be a number"),
         ({"bogus": 1}, r"unknown field\(s\) bogus"),
-        ({"friction": {"us_pos": 0.3}}, r"friction: .*missing"),
+        ({"friction": {"us_pos": 0.3}}, r"friction\.us_neg: missing: give it \(V\)"),
         ({"output": "angle"}, r"output: must name the measured output, one of \['position'\]"),
         (
             {"gains": {"pid": {"kp": 1.0, "ki": -1.0, "kd": 0.0}}},
@@ -152,7 +161,7 @@ def test_a_missing_field_is_named_with_its_unit(tmp_path):
     path = tmp_path / "stage.toml"
     path.write_text(device_file.render_toml(table))
     with pytest.raises(
-        DeviceFileError, match=r"stage\.toml: dt: missing: give the control period \(s\)"
+        DeviceFileError, match=r"stage\.toml: dt: missing: give dt \(control period, s\)"
     ):
         devices.load(path)
 
@@ -174,11 +183,10 @@ def test_a_file_that_is_not_a_description_says_so(tmp_path, text, message):
 def test_a_missing_file_and_a_bad_reference_are_named(tmp_path):
     with pytest.raises(DeviceFileError, match=r"cannot read device file .*nowhere\.toml"):
         envs.make(str(tmp_path / "nowhere.toml"))
-    table = device_file.toml_loads(EXAMPLE.read_text())
-    table["references"]["sine"] = {"amplitude": 1.0, "period": -2.0}
-    path = tmp_path / "stage.toml"
-    path.write_text(device_file.render_toml(table))
-    with pytest.raises(DeviceFileError, match=r"stage\.toml: references\.sine: .*period"):
+    references = device_file.toml_loads(EXAMPLE.read_text())["references"]
+    references["sine"] = {"amplitude": 1.0, "period": -2.0}
+    path = variant(tmp_path, "BadSine", references=references)
+    with pytest.raises(DeviceFileError, match=r"BadSine\.toml: references\.sine: .*period"):
         gym.make("frictiongym/Axis-v0", device=str(path))
 
 
@@ -239,6 +247,7 @@ def test_tune_refuses_a_device_it_cannot_step_and_names_a_missing_bound(tmp_path
     table = device_file.toml_loads(EXAMPLE.read_text())
     table["gains"]["pid"]["ki"] = 0.0
     del table["tuning"]  # without bounds, tune takes 0 to 5 times the PID's gains
+    table.update(name="NoKi", kind="noki")
     path = tmp_path / "stage.toml"
     path.write_text(device_file.render_toml(table))
     assert main(["tune", "--device", str(path), "--out", str(tmp_path / "b")]) == 2
@@ -287,11 +296,13 @@ def test_the_table_keys_are_the_fields_of_the_classes_that_read_them():
     def names(*classes: type) -> set[str]:
         return {f.name for cls in classes for f in dataclasses.fields(cls)}
 
-    keys = {k: set(v) for k, v in device_file.TABLE_KEYS.items()}
+    from frictiongym.device_tables import TABLE_RULES
+
+    keys = {k: set(v) for k, v in TABLE_RULES.items()}
     assert keys["identification"] == names(Plan) | {"reversal"}
     assert keys["identification.reversal"] == names(ReversalPlan)
     assert keys["residual"] == names(ResidualConfig) - {"device", "limit"}
-    assert keys["randomization"] == names(DomainRandomization)
+    assert set(device_file.RANDOMIZATION_KEYS) == names(DomainRandomization)
     assert keys["tuning"] == names(StepSpecs, GainBounds)
 
 
@@ -307,10 +318,14 @@ def test_the_table_keys_are_the_fields_of_the_classes_that_read_them():
     ],
 )
 def test_a_bad_entry_of_a_tool_s_table_is_named(tmp_path, table, message):
+    data = device_file.toml_loads(EXAMPLE.read_text())
+    for key, entries in table.items():  # into the example's own tables
+        merged = {**data.get(key, {}), **entries}
+        if "reversal" in entries:
+            merged["reversal"] = {**data[key]["reversal"], **entries["reversal"]}
+        data[key] = merged if key != "randomization" else entries
     path = tmp_path / "stage.toml"
-    path.write_text(
-        device_file.render_toml({**device_file.toml_loads(EXAMPLE.read_text()), **table})
-    )
+    path.write_text(device_file.render_toml(data))
     with pytest.raises(DeviceFileError, match=message):
         devices.load(path)
 
@@ -321,3 +336,125 @@ def test_the_docs_list_every_field_and_table():
         assert f"`{key}`" in text, key
     for table in ("plant", "friction", "lugre", "figures", *device_file.MAPPINGS):
         assert f"[{table}" in text, table
+
+
+# --- what an independent attack found (each a file a stranger could write) -------------------
+
+
+def _residual() -> dict[str, object]:
+    return dict(device_file.toml_loads(EXAMPLE.read_text())["residual"])
+
+
+def _plant(**changes: object) -> dict[str, object]:
+    return {**device_file.toml_loads(EXAMPLE.read_text())["plant"], **changes}
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"env_id": "frictiongym/RotaryServo-v1"}, r"env_id: .*is frictiongym/Axis-v0; omit"),
+        ({"plant": _plant(dead_time=0.0015)}, r"plant\.dead_time: = 0\.0015: must be a whole"),
+        ({"plant": _plant(jitter=0.001)}, r"plant\.jitter: = 0\.001: must be below"),
+        ({"limit": -5.0}, r"limit: = -5\.0: the safety limit ±limit must hold the start"),
+        ({"start": 1e6}, r"limit: .*must hold the start 1000000\.0"),
+        ({"end_stop": -5.0}, r"end_stop: = -5\.0: the end stop must lie ahead of the start"),
+        ({"dt": 1e300}, r"dt: = 1e\+300 .*at most 10 s"),
+        ({"position_unit": "deg", "drawing": "draw_servo"}, r"draw_servo draws a disk, in rad"),
+        ({"references": {"step": {}}}, r"references\.step\.value: = None: must be a nonzero"),
+        ({"references": {"step": 5}}, r"references\.step: = 5: must be a table"),
+        ({"references": {"step": {"value": "ten"}}}, r"references\.step\.value: = 'ten'"),
+        ({"references": {"step": {"value": 0.0}}}, r"references\.step\.value: = 0\.0"),
+        ({"figures": 5}, r"figures: = 5: must be a table"),
+        ({"figures": {"response": 5}}, r"figures\.response: = 5: must be a title"),
+        ({"observation_names": "abc"}, r"observation_names: = 'abc': must be an array of 3"),
+        ({"observation_names": ["x", "x", "r"], "output": "x"}, r"3 distinct names"),
+        ({"gains": {"pid": {"kp": True, "ki": 1.0, "kd": 0.0}}}, r"gains\.pid\.kp: = True"),
+        ({"tuning": {"kp": 5.0}}, r"tuning\.kp: = 5\.0: must be \[low, high\]"),
+        ({"residual": {**_residual(), "scale": -1.0}}, r"residual\.scale: = -1\.0: must be a"),
+        ({"residual": {"scale": 1.0}}, r"residual\.error_scale: missing: \[residual\] needs"),
+        ({"identification": {"levels": []}}, r"identification\.constant_duration: missing"),
+        ({"command_scale": 10_000}, r"stage\.toml: BallScrewStage: .*= 240000 counts.*lower"),
+        ({"plant": _plant(inertia=1e308)}, r"lugre: built from \[friction\] and \[plant\]"),
+    ],
+)
+def test_a_stranger_s_bad_file_gets_one_line(tmp_path, changes, message):
+    path = tmp_path / "stage.toml"
+    path.write_text(
+        device_file.render_toml({**device_file.toml_loads(EXAMPLE.read_text()), **changes})
+    )
+    with pytest.raises(DeviceFileError, match=message):
+        devices.load(path)
+
+
+def test_a_file_that_is_not_utf8_or_repeats_a_key_is_named(tmp_path):
+    path = tmp_path / "stage.toml"
+    path.write_bytes(EXAMPLE.read_bytes() + b"\n# \xff\n")
+    with pytest.raises(DeviceFileError, match=r"stage\.toml: not UTF-8 text"):
+        devices.load(path)
+    twice = tmp_path / "stage.json"
+    twice.write_text('{"name": "A", "name": "B"}')
+    with pytest.raises(DeviceFileError, match=r"stage\.json: key 'name' given twice"):
+        devices.load(twice)
+
+
+def test_two_files_cannot_share_a_name_or_kind_but_an_edited_file_replaces_itself(tmp_path):
+    first = variant(tmp_path, "Twin", dt=0.001)
+    assert devices.load(first).dt == 0.001
+    other = tmp_path / "other" / "Twin.toml"
+    other.parent.mkdir()
+    other.write_text(first.read_text().replace("dt = 0.001", "dt = 0.002"))
+    with pytest.raises(DeviceFileError, match=r"is also that of .*Twin\.toml, loaded in this"):
+        devices.load(other)
+    first.write_text(first.read_text().replace("dt = 0.001", "dt = 0.002"))  # edited
+    assert devices.load(first).dt == 0.002
+    assert devices.get("twin").dt == 0.002
+
+
+def test_a_file_without_a_suffix_is_read(tmp_path):
+    path = tmp_path / "stage_description"
+    path.write_text(variant(tmp_path, "NoSuffix").read_text())
+    assert devices.get(str(path)).name == "NoSuffix"
+
+
+def test_an_unpickled_axis_env_makes_its_device_known(tmp_path):
+    import pickle
+
+    path = variant(tmp_path, "Pickled")
+    env = envs.make(str(path))
+    env.reset(seed=0)
+    data = pickle.dumps(env.unwrapped)
+    del devices._LOADED["Pickled"]  # as in a fresh process
+    copy = pickle.loads(data)
+    assert devices.get("Pickled") == copy.device
+    env.close()
+
+
+def test_device_check_builds_what_the_tools_build(tmp_path, capsys):
+    from frictiongym.cli import main
+
+    path = variant(tmp_path, "BadTraining", training_env={"reference": "nonsense"})
+    assert main(["device", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert "BadTraining.toml: [training_env]: unknown reference 'nonsense'" in err
+    path = variant(tmp_path, "BigResidual", residual={**_residual(), "scale": 100.0})
+    assert main(["device", "check", str(path)]) == 2
+    assert "[residual]: ResidualConfig.scale=100.0 exceeds the action limit" in (
+        capsys.readouterr().err
+    )
+
+
+def test_train_and_benchmark_refuse_a_bad_file_in_one_line(tmp_path, capsys):
+    from frictiongym.cli import main
+
+    references = device_file.toml_loads(EXAMPLE.read_text())["references"]
+    references["sine"] = {"amplitude": 1.0, "period": 0.0}
+    bad = variant(tmp_path, "ZeroPeriod", references=references)
+    assert main(["benchmark", "--device", str(bad), "--out", str(tmp_path / "b")]) == 2
+    assert "references.sine: Sine.period must be > 0" in capsys.readouterr().err
+    table = device_file.toml_loads(EXAMPLE.read_text())
+    del table["residual"]
+    table.update(name="NoResidual", kind="noresidual")
+    path = tmp_path / "NoResidual.toml"
+    path.write_text(device_file.render_toml(table))
+    assert main(["train", "--device", str(path), "--quick", "--out", str(tmp_path / "t")]) == 2
+    assert "[residual] missing: train needs" in capsys.readouterr().err

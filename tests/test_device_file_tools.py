@@ -116,3 +116,16 @@ def test_train_and_sim2real_take_the_description_file(tmp_path):
     result = json.loads((report / "sim2real.json").read_text())
     assert result["env_id"] == EXAMPLE
     assert devices.get(EXAMPLE).name == "BallScrewStage"
+
+
+def test_a_described_device_that_is_not_the_env_s_file_is_refused(tmp_path):
+    from frictiongym.hardware.errors import ProtocolError
+
+    other = tmp_path / "other.toml"
+    text = Path(EXAMPLE).read_text().replace('name = "BallScrewStage"', 'name = "OtherStage"')
+    text = text.replace('kind = "ball-screw"', 'kind = "other-stage"')
+    other.write_text(text.replace("counts_per_rev = 2000", "counts_per_rev = 4096"))
+    devices.load(other)
+    backend = "emulator://other-stage?lockstep=1"
+    with pytest.raises(ProtocolError, match=r"not the one .*describes: counts_per_rev 4096 \("):
+        envs.make(EXAMPLE, backend=backend, log=False)

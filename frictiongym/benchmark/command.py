@@ -10,7 +10,7 @@ import time
 from collections.abc import Sequence
 from functools import partial
 
-from frictiongym import devices
+from frictiongym import devices, envs
 from frictiongym._io import OutputDir, add_output_arguments
 from frictiongym._validation import check_seed
 from frictiongym.benchmark.figures import figure_names, write_figures
@@ -136,7 +136,7 @@ def select(args: argparse.Namespace) -> list[Scenario]:
         raise ValueError(f"--seeds must be at least 1, got {args.seeds}")
     seeds = tuple(range(args.seeds))
     chosen = []
-    device = None if args.device is None else devices.get(args.device)
+    device = None if args.device is None else envs.checked_device(args.device)
     for s in all_scenarios(quick=args.quick, device=device) + _residual(args):
         if args.group and s.group not in args.group:
             continue

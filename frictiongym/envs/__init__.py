@@ -51,6 +51,7 @@ __all__ = [
     "AxisVectorEnv",
     "RotaryServoEnv",
     "RotaryServoVectorEnv",
+    "checked_device",
     "env_arguments",
     "make",
     "make_vec",
@@ -97,6 +98,24 @@ def env_arguments(device: Any, kwargs: dict[str, Any]) -> tuple[str, dict[str, A
         return (device if given else found.env_id), kwargs
     kwargs = {**kwargs, "device": found.source or found}
     return AXIS_ID, kwargs
+
+
+def checked_device(spelling: Any) -> Any:
+    """Return the device ``spelling`` names, checked as its env checks it.
+
+    A described device's reference tables are built here (:func:`frictiongym.envs.axis.
+    axis_device`), so a tool refuses a bad file before its work starts.
+
+    Raises
+    ------
+    ValueError
+        An unknown device, or a description file that cannot be used (``DeviceFileError``).
+    """
+    from frictiongym import devices
+    from frictiongym.envs.axis import axis_device
+
+    found = devices.get(spelling)
+    return found if found in devices.DEVICES else axis_device(found)
 
 
 def make(device: Any, **kwargs: Any) -> Any:

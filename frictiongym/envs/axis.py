@@ -36,7 +36,9 @@ def axis_device(device: str | os.PathLike[str] | Device | None) -> Device:
         )
     if not isinstance(device, Device | str | os.PathLike):
         raise TypeError(f"device must be a description file's path or a Device, got {device!r}")
-    described = devices.get(device) if isinstance(device, Device) else devices.load(device)
+    described = devices.get(device)
+    if described not in devices.DEVICES:
+        devices.register(described)  # a Device built in code, or one from another process
     for kind, arguments in described.references.items():  # the file's tables, built once here
         if kind not in PRESET_CLASSES:
             raise devices.DeviceFileError(
@@ -47,8 +49,7 @@ def axis_device(device: str | os.PathLike[str] | Device | None) -> Device:
             PRESET_CLASSES[kind](**arguments)
         except (TypeError, ValueError) as error:
             raise devices.DeviceFileError(
-                f"{described.source or described.name}: references.{kind}: {error} "
-                f"({described.position_unit})"
+                f"{described.source or described.name}: references.{kind}: {error}"
             ) from None
     return described
 
@@ -78,6 +79,11 @@ class AxisEnv(FrictionEnv):
         kwargs.setdefault("horizon", self.episode_steps)
         super().__init__(**kwargs)
         self._elapsed = 0
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickle, and make the device known to this process (its tools look it up)."""
+        super().__setstate__(state)
+        devices.register(self.device)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -111,6 +117,11 @@ class AxisVectorEnv(FrictionVectorEnv):
         self.device = axis_device(device)
         steps = self.device.episode_steps if max_episode_steps is None else max_episode_steps
         super().__init__(num_envs, max_episode_steps=steps, **kwargs)
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickle, and make the device known to this process (its tools look it up)."""
+        self.__dict__.update(state)
+        devices.register(self.device)
 
 
 __all__ = ["AxisEnv", "AxisVectorEnv", "axis_device"]

@@ -108,6 +108,8 @@ class DeviceSession:
                     f"this env drives {device.title}: pick the env of that device or the "
                     "other port"
                 )
+            if device not in devices.DEVICES:
+                _check_described(device, self.info)
             dt = 1.0 / self.info.rate_hz
             given = kwargs.pop("dt", None)
             if given is not None and abs(given - dt) > 1e-9 * dt:
@@ -314,6 +316,29 @@ class DeviceSession:
         thaw_heap(self)
         if self.log is not None and not self.log.closed:
             self.log.close(timing=self.timing() if self._periods else None)
+
+
+def _check_described(device: devices.Device, info: Any) -> None:
+    """Refuse a device whose Hello disagrees with the description its env was made from.
+
+    The wire names no described device (``DeviceKind.AXIS``); its encoder counts, command
+    limit and rate tell two descriptions apart.
+    """
+    told = {
+        "counts_per_rev": (info.counts_per_rev, device.counts_per_rev),
+        "command limit": (info.command_limit, device.plant.command_limit),
+        "rate (Hz)": (info.rate_hz, round(1.0 / device.dt)),  # whole Hz on the wire
+    }
+    differ = [
+        f"{name} {theirs:g} (the file: {ours:g})"
+        for name, (theirs, ours) in told.items()
+        if abs(theirs - ours) > 1e-6 * max(abs(ours), 1e-12)
+    ]
+    if differ:
+        raise ProtocolError(
+            f"the device at {info.link} is not the one {device.source or device.name} "
+            f"describes: {', '.join(differ)}; give the env the device's own file"
+        )
 
 
 __all__ = ["SIM_ONLY", "DeviceSession"]

@@ -191,7 +191,7 @@ def run(args: argparse.Namespace, command_line: str) -> int:
             freeze_after=args.freeze_after,
         )
         emu = Emulator(
-            devices.get(args.device).kind,  # a file is read here (a ValueError names the field)
+            devices.get(args.device).kind,  # a file is read here (an error names the field)
             params=args.params,
             friction=args.friction,
             sensor_noise=bool(args.noise),

@@ -138,9 +138,14 @@ class Plan:
         required = [f.name for f in fields(cls) if MISSING is f.default is f.default_factory]
         missing = [name for name in required if name not in settings]
         if missing:
+            where = (
+                f"its file's [identification] table ({described.source})"
+                if described.source
+                else "its Device.identification (frictiongym/devices.py)"
+            )
             raise ValueError(
-                f"{described.name} has no identification plan: its Device.identification "
-                f"(frictiongym/devices.py) lacks {', '.join(missing)}"
+                f"{described.name} has no identification plan: {where} lacks "
+                f"{', '.join(missing)} (docs/devices.md); --from-log still works without one"
             )
         if "span" in settings:
             settings["span"] = Span(*settings["span"])
@@ -462,7 +467,7 @@ def plan_for(env_id: str) -> Plan:
     """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
     if env_id not in ENV_IDS:
         try:  # a device description file, or any spelling of a device
-            devices.get(env_id)
+            envs.checked_device(env_id)
         except ValueError as error:
             if isinstance(error, devices.DeviceFileError):
                 raise

@@ -114,7 +114,7 @@ def check_settings(settings: TrainSettings) -> None:
     ids = sorted(n for n in gym.registry if n.startswith("frictiongym/") and n != envs.AXIS_ID)
     if settings.env_id not in ids:
         try:  # a device description file
-            devices.get(settings.env_id)
+            described = envs.checked_device(settings.env_id)
         except ValueError as error:
             if isinstance(error, devices.DeviceFileError):
                 raise TrainingError(str(error)) from None
@@ -122,6 +122,12 @@ def check_settings(settings: TrainSettings) -> None:
                 f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)} or a device "
                 "description file (.toml or .json, docs/devices.md)"
             ) from None
+        if not described.residual:
+            raise TrainingError(
+                f"{described.source}: [residual] missing: train needs the residual policy's "
+                "scale, error_scale, fine_error, velocity_scale and reference_scale "
+                "(docs/devices.md)"
+            )
     if not 0 <= settings.seed <= MAX_SEED:
         raise TrainingError(
             f"--seed must be a whole number from 0 to {MAX_SEED}, got {settings.seed}"
@@ -506,7 +512,10 @@ def _train(
         QUICK_STEPS[algo] if settings.quick else UNBOUNDED if settings.max_time else 200_000
     )
     kwargs = env_kwargs(settings.env_id, settings.randomize)
-    probe = envs.make(settings.env_id, **kwargs)
+    try:
+        probe = envs.make(settings.env_id, **kwargs)
+    except (TypeError, ValueError) as error:  # a description file's [training_env]
+        raise TrainingError(f"{settings.env_id}: training_env: {error}") from None
     device = devices.device_of(probe)
     limit = ResidualConfig.for_env(probe).limit
     config = ResidualConfig.for_env(

@@ -256,7 +256,7 @@ def run_sim2real(
     """
     if env_id not in ENV_IDS:
         try:  # a device description file, or any spelling of a device
-            devices.get(env_id)
+            envs.checked_device(env_id)
         except ValueError as error:
             if isinstance(error, devices.DeviceFileError):
                 raise

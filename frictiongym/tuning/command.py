@@ -11,7 +11,7 @@ import sys
 from collections.abc import Iterator
 from pathlib import Path
 
-from frictiongym import devices
+from frictiongym import devices, envs
 from frictiongym._cluster import ClusterError, ordered_map, ray_session
 from frictiongym._io import OutputDir, add_output_arguments, write_json_atomic
 from frictiongym._validation import check_seed
@@ -222,7 +222,7 @@ def check_args(args: argparse.Namespace) -> tuple[TuningModel, StepSpecs, GainBo
     check_seed(args.seed)
     if args.chunk < 1:
         raise ValueError(f"--chunk must be at least 1, got {args.chunk}")
-    device = devices.get(args.device)
+    device = envs.checked_device(args.device)
     specs, bounds = _specs_and_bounds(args, device)
     if args.horizon is None:
         args.horizon = max(DEFAULT_HORIZON, 2.0 * specs.settling_time)
