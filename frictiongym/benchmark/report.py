@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from frictiongym import devices
 from frictiongym._io import csv_text, write_text_atomic
 from frictiongym.benchmark.run import METRICS, Result
 from frictiongym.tuning.specs import SPEC_FIELDS, StepSpecs
@@ -74,12 +75,19 @@ def format_metric(value: float, fmt: str) -> str:
     return format(value, fmt)
 
 
+def _ended(result: Result) -> str:
+    """How a terminated run ended: at the wall (the IR sensor's), or at the safety limit."""
+    return (
+        "hit the wall" if devices.get(result.scenario.device).end_stop == 0.0 else "hit the limit"
+    )
+
+
 def _table(results: Sequence[Result]) -> list[str]:
     head = ["scenario", "seed", *(h for _, h, _ in COLUMNS)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in results:
         m = r.metrics.as_dict()
-        name = r.scenario.name + (" (hit the wall)" if r.terminated else "")
+        name = r.scenario.name + (f" ({_ended(r)})" if r.terminated else "")
         cells = [name, str(r.seed), *(format_metric(m[f], fmt) for f, _, fmt in COLUMNS)]
         lines.append("| " + " | ".join(cells) + " |")
     return lines
@@ -281,10 +289,14 @@ def to_markdown(results: Sequence[Result], command: str = "") -> str:
         ]
         lines.append("")
     lines += residual_markdown(results)
+    kinds = dict.fromkeys(r.scenario.device for r in results)
+    position = " or ".join(dict.fromkeys(devices.get(k).position_unit for k in kinds)) or "units"
+    named = [devices.get(k).command_unit for k in kinds]
+    command = " or ".join(dict.fromkeys("motor units" if u == "units" else u for u in named))
     lines += [
         "Metrics of the true output against the reference: 10-90 % rise, 2 % settling, SSE "
-        "= mean |r - y| over the last 10 % of the run (rad or cm, and % of the step), IAE and "
-        "ITAE in output units x s (x s), effort = RMS command (V or motor units), LC = a "
+        f"= mean |r - y| over the last 10 % of the run ({position}, and % of the step), IAE "
+        f"and ITAE in output units x s (x s), effort = RMS command ({command}), LC = a "
         "sustained limit cycle in the second half of the run (half peak-to-peak), stuck = "
         "time held by friction after the first motion. `never`: not reached; `-`: none.",
         "",

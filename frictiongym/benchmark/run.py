@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -78,7 +79,16 @@ def run_scenario(
         run = rollout(env, build(env), scenario.steps, seed=list(scenario.seeds))
     finally:
         env.close()
-    return [Result(scenario, seed, run.metrics(i), run, i) for i, seed in enumerate(scenario.seeds)]
+    return [
+        Result(scenario, seed, _metrics(run, i), run, i) for i, seed in enumerate(scenario.seeds)
+    ]
+
+
+def _metrics(run: Rollout, env: int) -> ResponseMetrics:
+    """Return the run's metrics; NaN for a run too short to have any (it ended at once)."""
+    if run.length[env] < 3:  # terminated within two steps: a device's own loop that diverges
+        return ResponseMetrics(**{f.name: math.nan for f in dataclasses.fields(ResponseMetrics)})
+    return run.metrics(env)
 
 
 def run_benchmark(
