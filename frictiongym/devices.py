@@ -206,17 +206,27 @@ def register(device: Device) -> Device:
     """
     for other in (*DEVICES, *_LOADED.values()):
         clash = other.name == device.name or other.kind == device.kind
-        if not clash or other == device or (device.source and other.source == device.source):
+        if not clash or other == device or _same_file(other.source, device.source):
             continue
         raise device_file.DeviceFileError(
             f"{device.source or device.name}: name {device.name!r} or kind {device.kind!r} is "
             f"also that of {other.source or other.name}, loaded in this process; give each "
             "device its own name and kind"
         )
-    for other in [d for d in _LOADED.values() if d.source and d.source == device.source]:
-        del _LOADED[other.name]  # the same file, edited
+    for other in [d for d in _LOADED.values() if _same_file(d.source, device.source)]:
+        del _LOADED[other.name]  # the same file, edited (or named by another path)
     _LOADED[device.name] = device
     return device
+
+
+def _same_file(first: str, second: str) -> bool:
+    """Whether two descriptions' sources are one file, however each path was spelled."""
+    if not first or not second:
+        return False
+    try:
+        return Path(first).resolve() == Path(second).resolve()
+    except OSError:
+        return first == second
 
 
 def _builtin(kind: str) -> Device:

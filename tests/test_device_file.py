@@ -458,3 +458,10 @@ def test_train_and_benchmark_refuse_a_bad_file_in_one_line(tmp_path, capsys):
     path.write_text(device_file.render_toml(table))
     assert main(["train", "--device", str(path), "--quick", "--out", str(tmp_path / "t")]) == 2
     assert "[residual] missing: train needs" in capsys.readouterr().err
+
+
+def test_one_file_named_by_two_paths_is_one_device(monkeypatch):
+    monkeypatch.chdir(REPO)
+    relative = devices.load("examples/ball_screw/ball_screw_stage.toml")
+    absolute = devices.load(EXAMPLE)
+    assert dataclasses.replace(relative, source="") == dataclasses.replace(absolute, source="")
