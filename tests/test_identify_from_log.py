@@ -292,3 +292,19 @@ def test_an_altino_run_log_reads_the_readout_as_a_distance(tmp_path):
     runs, _ = read_trace(_write(tmp_path / "steps.csv", rows, header=header), devices.ALTINO)
     assert runs[0].signal("valid").tolist() == [False, False, True, True, False, True]
     assert runs[0].signal("measured")[2] == pytest.approx(966.0 / 145.0)  # Eq. (1), cm
+
+
+def test_a_described_device_s_log_gives_back_its_law(tmp_path):
+    """The ball-screw example, in mm and V: its map's extrapolation to rest overshoots (one point
+    per direction inside the drop), so the starts from rest bound break-away: within 1 %."""
+    stage = (
+        Path(__file__).resolve().parents[1] / "examples" / "ball_screw" / "ball_screw_stage.toml"
+    )
+    device = devices.load(stage)
+    path = _log(tmp_path / "log.csv", "--device", str(stage))
+    runs, dt = read_trace(path, device)
+    params = identify_trace(runs, device, dt).params("paper")
+    for key in (*FRICTION, "viscous"):
+        expected = getattr(device.paper_friction, key) or device.plant.damping
+        assert getattr(params.friction, key) == pytest.approx(expected, rel=0.01), key
+    assert params.inertia == pytest.approx(device.plant.inertia, rel=0.01)

@@ -184,6 +184,9 @@ def identify_trace(
     """
     started = time.perf_counter()
     described = devices.get(device)
+    reading = Plan.for_device(described).reading
+    # The commands that started the body from rest, per direction: each exceeds break-away.
+    starts = {s: _starts_from_rest(runs, s, reading) for s in (1.0, -1.0)}
     points = [p for run in runs for p in _steady_points(run)]
     enough = all(sum(p.moved and p.sign == s for p in points) >= 3 for s in (1.0, -1.0))
     not_identified: dict[str, str] = {}
@@ -191,7 +194,8 @@ def identify_trace(
     if enough:
         breakaway = extrapolated_breakaway(points)
         law_fit = breakaway_free(points, fit_law(points, breakaway, "paper"))
-        start_law = law_fit.model
+        assert isinstance(law_fit.model, StictionCoulomb)  # the paper's law
+        start_law = _below_starts(law_fit.model, starts)
         inertia_start = est_inertia = inertia_from_map(points, law_fit, min_transient=0.0)[0]
         damping_start = law_fit.values["viscous"]
     else:
@@ -228,8 +232,6 @@ def identify_trace(
     model = result.law(start_law.shape)
     keys = ("us_pos", "us_neg", "uc_pos", "uc_neg", "v0_pos", "v0_neg")
     stderr = {k: se[k] for k in keys} | {"viscous": se["B"]}
-    reading = Plan.for_device(described).reading
-    starts = {s: _starts_from_rest(runs, s, reading) for s in (1.0, -1.0)}
     for sign, key in ((1.0, "us_pos"), (-1.0, "us_neg")):
         if not starts[sign]:
             not_identified[key] = (
@@ -261,7 +263,7 @@ def identify_trace(
             "points": sum(run.t.size for run in runs),
             "runs": len(runs),
             "steady_segments": len(points),
-            "starts_from_rest": {"forward": starts[1.0], "backward": starts[-1.0]},
+            "starts_from_rest": {"forward": len(starts[1.0]), "backward": len(starts[-1.0])},
             "map_inertia": est_inertia,
             "not_identified": not_identified,
         },
@@ -296,8 +298,10 @@ def _steady_points(run: Rollout) -> list[est.SteadyPoint]:
     return points
 
 
-def _starts_from_rest(runs: Sequence[Rollout], sign: float, reading: Reading | None = None) -> int:
-    """How many constant commands of sign ``sign`` start the body from rest.
+def _starts_from_rest(
+    runs: Sequence[Rollout], sign: float, reading: Reading | None = None
+) -> list[float]:
+    """Return the magnitudes of the commands of sign ``sign`` that start the body from rest.
 
     At rest: the last :data:`REST_WINDOW` s before the command spans at most six noise
     standard deviations, which a body sliding at 0.18 rad/s with the servo's one count of
@@ -306,7 +310,7 @@ def _starts_from_rest(runs: Sequence[Rollout], sign: float, reading: Reading | N
     uniform), and the noise is estimated from the quieter half of the second differences: a
     relay's log accelerates nearly all the time, and the median would count that as noise.
     """
-    count = 0
+    commands: list[float] = []
     for run in runs:
         y = run.plant_output()
         z = run.signal("measured") if reading is None else reading.value(run.signal("measured"))
@@ -323,8 +327,23 @@ def _starts_from_rest(runs: Sequence[Rollout], sign: float, reading: Reading | N
             at_rest = float(np.ptp(z[a - window : a + 1])) <= 6.0 * sigma
             moved = abs(z[b - 1] - z[a]) > 20.0 * sigma + 1e-12
             if at_rest and moved and sign * (y[b - 1] - y[a]) > 0.0:
-                count += 1
-    return count
+                commands.append(abs(float(command[a])))
+    return commands
+
+
+def _below_starts(law: StictionCoulomb, starts: dict[float, list[float]]) -> StictionCoulomb:
+    """Return the map's law with break-away at most the least command that started a motion.
+
+    Per direction: the map's extrapolation to rest overshoots when few of its points lie in
+    the drop below ``v0``, and a command that started the body from rest exceeds the level.
+    """
+    levels = {}
+    for sign, us, uc in ((1.0, law.us_pos, law.uc_pos), (-1.0, law.us_neg, law.uc_neg)):
+        bound = min(starts[sign], default=math.inf)
+        levels[sign] = max(min(us, bound), uc)
+    capped = law.replace(us_pos=levels[1.0], us_neg=levels[-1.0])
+    assert isinstance(capped, StictionCoulomb)  # replace keeps the class
+    return capped
 
 
 #: The 25th percentile of ``|N(0, 1)|``: a quantile of the second differences' magnitudes
