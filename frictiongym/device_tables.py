@@ -187,7 +187,8 @@ def _follows(rule: str, value: Any) -> bool:
     if rule == "table":
         return isinstance(value, Mapping)
     if rule in ("n", "n+"):
-        return isinstance(value, int) and not isinstance(value, bool) and value >= len(rule) - 1
+        least = 1 if rule == "n+" else 0
+        return isinstance(value, int) and not isinstance(value, bool) and value >= least
     if rule.startswith("["):
         ok = isinstance(value, tuple) and all(_number(v) for v in value)
         if rule == "[lo,hi]":
