@@ -9,6 +9,7 @@ from typing import Any
 
 from frictiongym import device_file, devices, envs
 from frictiongym.device_file import AXIS_ENV_ID
+from frictiongym.plants import sensors
 
 DESCRIPTION = """\
 Describe a device in a file (TOML or JSON; docs/devices.md), the input of every tool's
@@ -53,12 +54,15 @@ def summary(device: devices.Device) -> str:
     identify = f"plan of {len(plan['levels'])} levels" if "levels" in plan else "no plan"
     identify += ", reversal test" if "reversal" in plan else ""
     tune = "the file's specs" if device.tuning else "the paper's specs"
+    if device.sensor != sensors.SENSOR_ENCODER:
+        tune = "not for this sensor (it steps from rest at 0 of an encoder device)"
     lines = [
         f"{device.name} ({device.kind}): {device.title}, {device.env_id}",
         f"  units: position {device.position_unit}, command {device.command_unit}, "
         f"period {device.dt * 1e3:g} ms",
         f"  plant: J {plant.inertia:g} {units['J']}, B {plant.damping:g} {units['B']}, "
-        f"limit ±{plant.command_limit:g} {device.command_unit}",
+        f"limit ±{plant.command_limit:g} {device.command_unit}, dead time "
+        f"{plant.dead_time * 1e3:g} ms",
         f"  friction: break-away {law.us_pos:g}/{law.us_neg:g}, Coulomb "
         f"{law.uc_pos:g}/{law.uc_neg:g} {device.command_unit}, viscous {law.viscous:g}",
         f"  sensor: {sensor}",

@@ -32,6 +32,7 @@ __all__ = [
     "Device",
     "DeviceFileError",
     "Figures",
+    "described",
     "device_of",
     "get",
     "load",
@@ -191,6 +192,11 @@ def load(path: str | os.PathLike[str]) -> Device:
             f"{device_file.AXIS_ENV_ID}; omit env_id"
         )
     return register(device)
+
+
+def described() -> tuple[Device, ...]:
+    """Return the devices read from description files in this process (:func:`load`)."""
+    return tuple(_LOADED.values())
 
 
 def register(device: Device) -> Device:

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from frictiongym import devices
 from frictiongym._io import write_text_atomic
 from frictiongym._validation import Rule, real_number
 from frictiongym.devices import DEVICES, Device
@@ -414,10 +415,10 @@ class DeviceParams:
 
         ``law`` defaults to ``friction.name`` (``StictionCoulomb`` of any shape is ``paper``);
         ``units`` to the device's (:attr:`frictiongym.devices.Device.units`) when ``device``
-        names one of :data:`frictiongym.devices.DEVICES`.
+        names a built-in device or one read from its file in this process.
         """
         if units is None:
-            known = [d.units for d in DEVICES if d.name == device]
+            known = [d.units for d in (*DEVICES, *devices.described()) if d.name == device]
             units = known[0] if known else {}
         return cls(
             friction,

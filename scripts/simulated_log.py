@@ -9,9 +9,11 @@ rest), or with ``--no-rest`` back to back (the body reverses and never rests)::
     frictiongym identify --env frictiongym/RotaryServo-v1 --from-log servo_log.csv --out results/
 
 The Altino's (``--device altino``) is a relay controller's: from 12 cm, each level of 1.05 to
-1.3 times break-away drives toward the wall until the IR distance reads 4 cm, then away until
+2.5 times break-away drives toward the wall until the IR distance reads 6 cm, then away until
 it reads 16 cm, twice, with 0.5 s of zero command before each level (a start from rest). Its
-position is the IR's distance estimate, out of range (21.47 cm) before the first command.
+position is the IR's distance estimate. Any other device (``--device FILE``) gets the servo's
+holds; ``--levels`` and ``--hold`` change them, and a log that would leave the device's safety
+limit is refused.
 """
 
 from __future__ import annotations
@@ -46,11 +48,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--levels",
         type=lambda text: tuple(float(x) for x in text.split(",")),
-        default=RELAY_MULTIPLES,
         metavar="M,M,...",
-        help="the IR device's relay levels, multiples of break-away (default: "
+        help="levels, multiples of break-away (default: the holds' "
+        + ",".join(f"{m:g}" for m in MULTIPLES)
+        + ", the IR device's relay "
         + ",".join(f"{m:g}" for m in RELAY_MULTIPLES)
         + ")",
+    )
+    parser.add_argument(
+        "--hold", type=float, default=HOLD, metavar="S", help=f"each hold, s (default {HOLD:g})"
     )
     args = parser.parse_args(argv)
     device = devices.get(args.device)
@@ -69,15 +75,21 @@ def _holds(device: devices.Device, args: argparse.Namespace) -> list[tuple[float
     us = device.paper_friction.us_pos
     rest = 0.0 if args.no_rest else REST
     commands: list[float] = []
-    for level in (sign * m * us for m in MULTIPLES for sign in (1.0, -1.0)):
-        commands += [0.0] * round(rest / device.dt) + [level] * round(HOLD / device.dt)
+    for level in (sign * m * us for m in args.levels or MULTIPLES for sign in (1.0, -1.0)):
+        commands += [0.0] * round(rest / device.dt) + [level] * round(args.hold / device.dt)
     env = make(device, sensor_noise=args.noise, max_episode_steps=len(commands) + 1)
     obs, _ = env.reset(seed=args.seed)
     output = device.observation_names.index(device.output)
     rows = []
-    for u in commands:
+    for k, u in enumerate(commands):
         rows.append((u, float(obs[output])))
-        obs, *_ = env.step(np.array([u], dtype=np.float32))
+        obs, _, terminated, *_ = env.step(np.array([u], dtype=np.float32))
+        if terminated:
+            raise SystemExit(
+                f"error: the log left {device.name}'s safety limit ±{device.limit:g} "
+                f"{device.position_unit} at {k * device.dt:.2f} s: give lower --levels or a "
+                "shorter --hold"
+            )
     return rows
 
 
@@ -95,7 +107,7 @@ def _relay(device: devices.Device, args: argparse.Namespace) -> list[tuple[float
         obs, *_ = env.step(np.array([u], dtype=np.float32))
 
     toward = device.direction  # a positive command drives toward the wall: the distance falls
-    for multiple in args.levels:
+    for multiple in args.levels or RELAY_MULTIPLES:
         for _ in range(0 if args.no_rest else round(RELAY_REST / device.dt)):
             hold(0.0)
         for _ in range(RELAY_TRIPS):

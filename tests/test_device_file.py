@@ -114,6 +114,13 @@ def test_identify_takes_the_description_file_and_writes_its_device(tmp_path):
     assert main(["identify", "--device", str(EXAMPLE), "--out", str(tmp_path), "--quiet"]) == 0
     written = json.loads((tmp_path / "friction.json").read_text())
     assert (written["device"], written["env_id"]) == ("BallScrewStage", envs.AXIS_ID)
+    assert written["units"] == {
+        "force": "V",
+        "velocity": "mm/s",
+        "viscous": "V·s/mm",
+        "J": "V·s²/mm",
+        "B": "V·s/mm",
+    }
     truth = devices.load(EXAMPLE)
     law = written
     for name in ("us_pos", "us_neg", "uc_pos", "uc_neg"):

@@ -100,8 +100,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         action="append",
         default=[],
         metavar="DEVICE=MODEL",
-        help=f"add residual scenarios for DEVICE ({', '.join(d.kind for d in devices.DEVICES)}) "
-        "with the model zip MODEL from frictiongym train (repeatable, once per device)",
+        help=f"add residual scenarios for DEVICE ({', '.join(d.kind for d in devices.DEVICES)}, "
+        "or with --device FILE its kind) with the model zip MODEL from frictiongym train "
+        "(repeatable, once per device)",
     )
     parser.add_argument(
         "--heldout",
@@ -165,7 +166,8 @@ def _residual(args: argparse.Namespace) -> list[Scenario]:
         device, sep, path = spec.partition("=")
         if not sep or device not in (d.kind for d in among) or not path:
             takes = " or ".join(f"{d.kind}=MODEL" for d in among)
-            raise ValueError(f"--residual takes {takes}, got {spec!r}")
+            hint = "" if args.device else " (a described device's kind needs --device FILE)"
+            raise ValueError(f"--residual takes {takes}, got {spec!r}{hint}")
         if device in models:
             raise ValueError(f"--residual {device}= given twice; give one model per device")
         models[device] = path

@@ -46,18 +46,21 @@ def add_log_arguments(parser: argparse.ArgumentParser) -> None:
     logs.add_argument(
         "--velocity-unit",
         default=None,
-        help="a map's speeds: rad/s, deg/s or rpm (servo); cm/s, mm/s or m/s (Altino); "
-        "default: the device's",
+        help="a map's speeds, per s of the device's unit or another of its dimension (m, cm, "
+        "mm, um, in; rad, deg, rev; and rpm), e.g. deg/s for a servo in rad; default: the "
+        "device's",
     )
     logs.add_argument(
         "--force-unit",
         default=None,
-        help="the commands (a map's or a log's): V or mV (servo), units (Altino)",
+        help="the commands (a map's or a log's): the device's unit or another of its "
+        "dimension (V, mV; A, mA; N, kN); default: the device's",
     )
     logs.add_argument(
         "--position-unit",
         default=None,
-        help="a log's positions: rad or deg (servo), cm, mm or m (Altino); default: the device's",
+        help="a log's positions: the device's unit or another of its dimension (m, cm, mm, um, "
+        "in; rad, deg, rev); default: the device's",
     )
     logs.add_argument("--time-unit", default="s", help="a log's times: s or ms (default: s)")
     logs.add_argument(

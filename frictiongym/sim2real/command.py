@@ -111,7 +111,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--reference",
         type=float,
         metavar="VALUE",
-        help="step target, rad or cm (default: the env's step)",
+        help="step target, in the device's position unit (default: the env's step)",
     )
     add_output_arguments(parser, "sim2real-results", "the report and the device logs")
     parser.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
