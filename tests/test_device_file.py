@@ -472,3 +472,22 @@ def test_one_file_named_by_two_paths_is_one_device(monkeypatch):
     relative = devices.load("examples/ball_screw/ball_screw_stage.toml")
     absolute = devices.load(EXAMPLE)
     assert dataclasses.replace(relative, source="") == dataclasses.replace(absolute, source="")
+
+
+def test_a_compensator_refuses_another_device_s_model(tmp_path):
+    from frictiongym.controllers import PID, FrictionCompensator, PIDGains
+    from frictiongym.identification.identify import identify, make_env
+    from frictiongym.params import save_params
+
+    env = make_env(str(EXAMPLE))
+    result = identify(env, seed=0)
+    env.close()
+    path = tmp_path / "friction.json"
+    save_params(path, result.params("paper"))
+    servo = gym.make("frictiongym/RotaryServo-v1")
+    with pytest.raises(ValueError, match=r"identified on BallScrewStage, but the loop runs on"):
+        FrictionCompensator(PID.for_env(servo, PIDGains(1.0, 0.0, 0.0)), model=path)
+    stage = envs.make(str(EXAMPLE))
+    FrictionCompensator(PID.for_env(stage, PIDGains(1.0, 0.0, 0.0)), model=path)  # its own
+    servo.close()
+    stage.close()

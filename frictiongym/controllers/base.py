@@ -59,6 +59,9 @@ class LoopSpec:
     dead_zone : float
         The actuator dead zone's half-width that file identified (command units; 0: none), the
         compensator's default: its levels are then the friction's own, below the zone.
+    device : str or None
+        The name of the device the loop runs on (``Device.name``; None: not known). A
+        compensator refuses a model file identified on another device.
     """
 
     dt: float
@@ -70,6 +73,7 @@ class LoopSpec:
     rest_speed: float = 0.0
     friction: FrictionModel | None = None
     dead_zone: float = 0.0
+    device: str | None = None
 
     def __post_init__(self) -> None:
         real_number("LoopSpec.dt", self.dt, "> 0", unit=" s")
@@ -111,6 +115,7 @@ class LoopSpec:
             rest_speed=device.rest_speed,
             friction=base.sim.model_friction,
             dead_zone=(params.dead_zone or 0.0) if params is not None else 0.0,
+            device=device.name,
         )
 
     def split(self, observation: npt.ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:

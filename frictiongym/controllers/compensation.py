@@ -100,6 +100,11 @@ class FrictionCompensator(Controller):
             model, zone = spec.friction, spec.dead_zone
         elif not isinstance(model, FrictionModel):
             params = resolve_params(model)
+            if None not in (params.device, spec.device) and params.device != spec.device:
+                raise ValueError(
+                    f"model {model!r} was identified on {params.device}, but the loop runs on "
+                    f"{spec.device}: give the friction.json of this device"
+                )
             model, zone = params.friction, params.dead_zone or 0.0
         if model is None:
             raise ValueError(
