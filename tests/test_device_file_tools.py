@@ -8,14 +8,12 @@ tests/test_device_file.py.
 from __future__ import annotations
 
 import json
-import select
-import signal
-import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from _emulator_cli import emulator_port
 
 import frictiongym.envs as envs
 from frictiongym import devices
@@ -55,16 +53,8 @@ def test_a_described_device_s_hello_needs_the_host_to_expect_it():
 
 
 def test_emulate_serves_the_described_device_to_its_env(tmp_path):
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", EXAMPLE, "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        ready, _, _ = select.select([proc.stdout], [], [], 60.0)
-        assert ready, proc.stderr.read() if proc.poll() is not None else "no port printed"
-        port = proc.stdout.readline().strip()
+    argv = [sys.executable, "-m", "frictiongym.cli", "emulate", "--device", EXAMPLE, "--quiet"]
+    with emulator_port(argv) as port:
         env = envs.make(EXAMPLE, backend=f"serial://{port}", log=False)
         try:
             obs, _ = env.reset()
@@ -75,12 +65,6 @@ def test_emulate_serves_the_described_device_to_its_env(tmp_path):
             assert obs[0] / 0.0025 == pytest.approx(round(obs[0] / 0.0025))
         finally:
             env.close()
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0, proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 def test_emulate_names_a_bad_description(tmp_path, capsys):

@@ -4,8 +4,6 @@ Real-time tests are loose (CI is a noisy VM); every wait has a deadline, so none
 """
 
 import math
-import select
-import signal
 import subprocess
 import sys
 import threading
@@ -16,6 +14,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 import pytest
+from _emulator_cli import emulator_port
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -657,33 +656,14 @@ def test_bad_arguments_raise():
         emu.serve_pty()
 
 
-def _first_line(proc: subprocess.Popen, timeout: float = 60.0) -> str:
-    ready, _, _ = select.select([proc.stdout], [], [], timeout)
-    assert ready, "the emulator printed nothing"
-    return proc.stdout.readline().strip()
-
-
 def test_cli_prints_a_connectable_port_and_stops_on_sigint():
-    proc = subprocess.Popen(
-        [sys.executable, str(SCRIPT), "--device", "rotary", "--quiet"],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    try:
-        url = _first_line(proc)
+    with emulator_port([sys.executable, str(SCRIPT), "--device", "rotary", "--quiet"]) as url:
         assert url.startswith("/dev/")
         host = Host(url)
         try:
             assert host.hello().kind == protocol.DeviceKind.ROTARY
         finally:
             host.close()
-        proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=10) == 0, proc.stderr.read()
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
 
 
 def test_cli_duration_status_lines_and_bad_input(tmp_path, capsys):
