@@ -13,6 +13,8 @@ paper's: ``friction`` (``paper_friction``: the law the env simulates by default)
 
 from __future__ import annotations
 
+import copy
+import functools
 import json
 import math
 import numbers
@@ -150,16 +152,24 @@ def read(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise DeviceFileError(
             f"{file}: not UTF-8 text (byte {error.start}); save it as UTF-8"
         ) from None
+    # Tools look a device up by its file many times (a benchmark, per scenario and run): the
+    # same text is parsed and checked once. A copy, so no two devices share a mutable table.
+    return copy.deepcopy(_parsed(text, json_file, str(file)))
+
+
+@functools.lru_cache(maxsize=32)
+def _parsed(text: str, json_file: bool, source: str) -> dict[str, Any]:
+    """Parse and check a description's text (:func:`read`); errors are not cached."""
     try:
         data = json.loads(text, object_pairs_hook=_no_repeats) if json_file else toml_loads(text)
     except (TOMLDecodeError, json.JSONDecodeError, RecursionError) as error:
         kind = "JSON" if json_file else "TOML"
-        raise DeviceFileError(f"{file}: not valid {kind}: {error}") from None
+        raise DeviceFileError(f"{source}: not valid {kind}: {error}") from None
     except _RepeatedKey as error:
-        raise DeviceFileError(f"{file}: key {error} given twice") from None
+        raise DeviceFileError(f"{source}: key {error} given twice") from None
     if not isinstance(data, dict):
-        raise DeviceFileError(f"{file}: a device description is a table of fields")
-    return parse(data, str(file))
+        raise DeviceFileError(f"{source}: a device description is a table of fields")
+    return parse(data, source)
 
 
 class _RepeatedKey(Exception):
