@@ -308,3 +308,23 @@ def test_a_described_device_s_log_gives_back_its_law(tmp_path):
         expected = getattr(device.paper_friction, key) or device.plant.damping
         assert getattr(params.friction, key) == pytest.approx(expected, rel=0.01), key
     assert params.inertia == pytest.approx(device.plant.inertia, rel=0.01)
+
+
+def test_a_device_without_an_identification_plan_fits_its_log(tmp_path):
+    """The plan is for experiments; a log needs only the device (docs/devices.md)."""
+    from frictiongym import device_file
+
+    stage = (
+        Path(__file__).resolve().parents[1] / "examples" / "ball_screw" / "ball_screw_stage.toml"
+    )
+    table = device_file.toml_loads(stage.read_text())
+    del table["identification"]
+    table.update(name="PlanlessStage", kind="planless")
+    path = tmp_path / "planless.toml"
+    path.write_text(device_file.render_toml(table))
+    log = _log(tmp_path / "log.csv", "--device", str(path))
+    out = tmp_path / "out"
+    argv = ["--device", str(path), "--from-log", str(log), "--out", str(out), "--quiet"]
+    assert tool_main("identify", [*argv, "--no-figures"]) == 0
+    data = json.loads((out / "friction.json").read_text())
+    assert data["us_pos"] == pytest.approx(0.33, rel=0.01)

@@ -32,7 +32,7 @@ from frictiongym import devices
 from frictiongym.friction import StictionCoulomb
 from frictiongym.identification.estimates import SteadyPoint
 from frictiongym.identification.fit import LAWS, LawFit, fit_law
-from frictiongym.identification.identify import Identification, Plan
+from frictiongym.identification.identify import Identification
 
 #: Units of one dimension, as factors to the first (SI) one: a log's unit converts to the
 #: device's when both are in one row; a device unit in none converts only from itself.
@@ -262,7 +262,7 @@ def identify_map(
         refinement=None,
         env_steps=0,
         seconds=time.perf_counter() - started,
-        plan=Plan.for_device(described),
+        plan=None,  # no experiments: the device needs no plan
         source={
             "kind": "friction map",
             "file": source,

@@ -39,8 +39,8 @@ from frictiongym.identification.from_log import (
     unit_scale,
     units_of,
 )
-from frictiongym.identification.identify import Identification, Plan
-from frictiongym.identification.refine import Reading, refine
+from frictiongym.identification.identify import Identification
+from frictiongym.identification.refine import Reading, refine, sensor_reading
 from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET, SENSOR_IR
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3}
@@ -184,7 +184,7 @@ def identify_trace(
     """
     started = time.perf_counter()
     described = devices.get(device)
-    reading = Plan.for_device(described).reading
+    reading = sensor_reading(described)
     # The commands that started the body from rest, per direction: each exceeds break-away.
     starts = {s: _starts_from_rest(runs, s, reading) for s in (1.0, -1.0)}
     points = [p for run in runs for p in _steady_points(run)]
@@ -219,7 +219,7 @@ def identify_trace(
         dt,
         described.plant.command_limit,
         start_law.shape,
-        reading=Plan.for_device(described).reading,  # the IR's residuals in its counts
+        reading=reading,  # the IR's residuals in its counts
         direction=described.direction,
         max_delay_steps=max_delay_steps,
         # From the map's law a few candidates suffice (16: 9 s on a 36 s servo log, 128: 133
@@ -256,7 +256,7 @@ def identify_trace(
         refinement=result,
         env_steps=sum(run.t.size for run in runs),
         seconds=time.perf_counter() - started,
-        plan=Plan.for_device(described),
+        plan=None,  # no experiments: the device needs no plan
         source={
             "kind": "log",
             "file": source,

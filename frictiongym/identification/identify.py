@@ -175,7 +175,7 @@ class Identification:
     refinement: Refinement | None
     env_steps: int
     seconds: float
-    plan: Plan
+    plan: Plan | None  #: the experiments run; None when fitted to recorded data
     backlash: BacklashEstimate | None = None  #: the reversal test, if it ran
     dead_zone: DeadZoneEstimate | None = None  #: the dead-zone fit, if it ran
     #: Recorded data it was fitted to instead of experiments (``identify --from-log``):

@@ -50,6 +50,7 @@ from scipy.stats import qmc
 from frictiongym.controllers.rollout import Rollout
 from frictiongym.friction import StictionCoulomb
 from frictiongym.plants.plant import Plant, PlantParams
+from frictiongym.plants.sensors import IR_MAX_READOUT, IR_NUMERATOR, IR_OFFSET, SENSOR_IR
 
 FloatArray = npt.NDArray[np.float64]
 IntArray = npt.NDArray[np.int64]
@@ -119,6 +120,16 @@ class ReciprocalReading:
         """Return ``-numerator / d²`` inside the range, 0 where the readout saturates."""
         clipped, inside = self._inside(d)
         return np.where(inside, -self.numerator / clipped**2, 0.0)
+
+
+def sensor_reading(device: Any) -> Reading | None:
+    """Return what a device's sensor reads, where its noise is uniform (None: its output).
+
+    The IR sensor's readout (paper Eq. (1)); an encoder reads the output itself.
+    """
+    if device.sensor == SENSOR_IR:
+        return ReciprocalReading(IR_NUMERATOR, IR_OFFSET, IR_MAX_READOUT)
+    return None
 
 
 @dataclass(frozen=True)
