@@ -440,21 +440,18 @@ class Simulation:
         obs: npt.NDArray[np.float32],
         out: FloatArray,
         flags: BoolArray,
-    ) -> Callable[[], None]:
+    ) -> Callable[[], int]:
         """Return :meth:`run` on these very arrays, bound once (:meth:`Plant.bind`): faster.
 
         The caller updates ``command`` and ``fresh`` in place between calls.
         """
-        run = self.plants.bind(
-            command, self.rows, self.noise_state, self.config, fresh, obs, out, flags
+
+        def refuse(bad: int) -> None:
+            raise ValueError(_bad_action(command, bad))
+
+        return self.plants.bind(
+            command, self.rows, self.noise_state, self.config, fresh, obs, out, flags, refuse=refuse
         )
-
-        def step() -> None:
-            bad = run()
-            if bad >= 0:
-                raise ValueError(_bad_action(command, bad))
-
-        return step
 
     def check_commands(self, command: npt.NDArray[np.floating[Any]]) -> None:
         """Raise the ValueError :meth:`run` would raise for a non-finite command, now."""

