@@ -30,8 +30,7 @@ from numba.extending import intrinsic
 CLAIM_STRIDE = 8
 
 
-@intrinsic
-def _exchange(typingctx: Any, claims: Any, index: Any) -> Any:
+def _typed_exchange(typingctx: Any, claims: Any, index: Any) -> Any:
     """Set ``claims[index]`` to 1 atomically; return what it held (0: the caller claimed it)."""
     signature = types.int64(claims, types.intp)
 
@@ -45,8 +44,11 @@ def _exchange(typingctx: Any, claims: Any, index: Any) -> Any:
     return signature, codegen
 
 
-@intrinsic
-def thread_count(typingctx: Any) -> Any:
+#: ``_exchange(claims, index)`` in compiled code (typed Any: numba's stubs want ``typingctx``)
+_exchange: Any = intrinsic(_typed_exchange)
+
+
+def _typed_thread_count(typingctx: Any) -> Any:
     """Return numba's current number of threads (``numba.get_num_threads()``) in compiled code.
 
     ``numba.get_num_threads`` itself calls the threading layer through a ctypes pointer, which
@@ -63,6 +65,9 @@ def thread_count(typingctx: Any) -> Any:
         return builder.call(function, [])
 
     return types.intp(), codegen
+
+
+thread_count: Any = intrinsic(_typed_thread_count)
 
 
 @njit(cache=True)
