@@ -277,6 +277,23 @@ def test_a_refused_action_after_an_episode_end_spends_none_of_the_resets_draws(k
     assert_same(envs[0].step(action), envs[1].step(action))
 
 
+@pytest.mark.parametrize("kwargs", [{}, RANDOM_KWARGS], ids=["default", "randomize"])
+def test_a_refused_action_after_an_episode_end_changes_nothing(kwargs):
+    env = native(SERVO, AutoresetMode.NEXT_STEP, **kwargs)
+    action = np.full((NUM_ENVS, 1), 0.3, np.float32)
+    env.reset(seed=1)
+    for _ in range(MAX_STEPS):  # every env is truncated: the next step resets them
+        env.step(action)
+    plants = env.unwrapped.sim.plants
+    before = plants.state.copy(), plants.delay_buffer.copy(), plants.rows.copy()
+    bad = action.copy()
+    bad[2] = np.nan
+    with pytest.raises(ValueError, match="not a finite number"):
+        env.step(bad)
+    for kept, now in zip(before, (plants.state, plants.delay_buffer, plants.rows), strict=True):
+        np.testing.assert_array_equal(now, kept)  # the ended envs were not reset either
+
+
 def test_a_single_env_resets_after_a_refused_action():
     env = gym.make(SERVO)
     first = env.reset(seed=0)

@@ -23,6 +23,7 @@ from frictiongym.envs import _kernel as env_kernel
 from frictiongym.envs.references import Reference, resolve_reference
 from frictiongym.friction import FrictionModel
 from frictiongym.params import DeviceParams, device_physics
+from frictiongym.plants._batch import first_non_finite
 from frictiongym.plants.plant import Plant, PlantParams, default_substeps
 from frictiongym.plants.randomization import DomainRandomization, apply_factors
 from frictiongym.plants.sensors import ir_quantum, noise_std, velocity_floor
@@ -455,9 +456,9 @@ class Simulation:
 
     def check_commands(self, command: npt.NDArray[np.floating[Any]]) -> None:
         """Raise the ValueError :meth:`run` would raise for a non-finite command, now."""
-        finite = np.isfinite(command)
-        if not finite.all():
-            raise ValueError(_bad_action(command, int(np.argmin(finite))))
+        bad = first_non_finite(command)  # the kernel's own check: no temporaries, SIMD lanes
+        if bad >= 0:
+            raise ValueError(_bad_action(command, bad))
 
     def observations(self) -> npt.NDArray[np.float32]:
         """Return every env's last observation again, rebuilt from what its state keeps."""

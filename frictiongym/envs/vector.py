@@ -265,8 +265,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 )
             if mode is AutoresetMode.NEXT_STEP:
                 fresh = self._done
-                if self.sim.resets_draw:  # a refused action must not spend the reset's draws
-                    self.sim.check_commands(command)
+                # a refused action must change nothing: neither reset the ended envs nor spend
+                # their draws
+                self.sim.check_commands(command)
                 self.sim.prepare_reset(fresh, self._rng)
         obs, out, flags = self._outputs()
         ended = self.sim.run(command, fresh, obs, out, flags)
