@@ -24,13 +24,6 @@ CartPoleVectorEnv quiet, at least 1.5x beside the learner (a torch process on 2 
 The split uses only what both the current kernel and the one before issue J expose (the
 public ``Plant``, ``sim.plants.run``), so it also runs against an older checkout
 (``PYTHONPATH=<old checkout> python scripts/bench_envs.py --part split``).
-
-**schedule** (``--part schedule``): how the threaded env kernel shares its blocks out. Each env
-at ``--num-envs`` envs three times, timed interleaved: on the threaded kernel as it is (each
-thread its own share of the blocks, then the others' from their ends:
-``frictiongym/plants/_steal.py``); on a twin compiled here that splits the blocks statically,
-as ``prange`` does and the kernel did before (the reference); and on the serial kernel. The
-ratio threaded / static is taken per round.
 """
 
 from __future__ import annotations
@@ -51,7 +44,6 @@ from _bench import Runner, measure, paired_ratios, ratio_stats, single_threaded,
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.plants import Plant
-from frictiongym.plants import _batch as plant_batch
 
 #: Targets of issue J (vector env at N = 4 096 against CartPoleVectorEnv, env-steps/s).
 QUIET_TARGET = 3.0
@@ -220,107 +212,3 @@ def _pieces(env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int) -> li
         Timed("plant", plant_only, n),
         Timed("memory floor", single_threaded(floor), n),
     ]
-
-
-@numba.njit(cache=True, parallel=True)
-def _static_split(  # type: ignore[no-untyped-def]  # numba's types
-    state,
-    delay_buffer,
-    head,
-    command,
-    dt,
-    n_sub,
-    plant_rows,
-    rows,
-    rng,
-    config,
-    fresh,
-    obs,
-    out,
-    flags,
-):
-    """The threaded env kernel with ``prange``'s static split of the blocks (the reference)."""
-    bad = plant_batch.first_non_finite(command)
-    if bad >= 0:
-        return bad
-    command64 = env_kernel.float64_commands(command)
-    ended = 0
-    for block in numba.prange((state.shape[1] + env_kernel.BLOCK - 1) // env_kernel.BLOCK):
-        ended += env_kernel._step_block(
-            np.int64(block),
-            state,
-            delay_buffer,
-            head,
-            command,
-            command64,
-            dt,
-            n_sub,
-            plant_rows,
-            rows,
-            rng,
-            config,
-            fresh,
-            obs,
-            out,
-            flags,
-        )
-    return -1 - ended
-
-
-def schedule_part(
-    args: argparse.Namespace,
-    envs: Sequence[str],
-    actions: Callable[[str, int, int], list[npt.NDArray[Any]]],
-) -> str:
-    """Time the threaded env kernel against a static split and the serial one; markdown."""
-    n = args.num_envs
-    print(
-        f"\nschedule: vector envs at N = {n} on the threaded kernel (blocks taken over), a "
-        f"static split and the serial kernel, {args.repeats} rounds of {args.seconds} s"
-    )
-    lines = [
-        f"The threaded kernel's schedule (N = {_thousands(n)}, env-steps/s, median [min, max] of "
-        f"{args.repeats} rounds; ratio per round):",
-        "",
-        "| env | threaded, blocks taken over | static split | serial | threaded / static |",
-        "|---|---|---|---|---|",
-    ]
-    for env_id in envs:
-        table = actions(env_id, n, args.seed)
-        variants = [
-            Timed("threaded", _stepper(env_id, n, True, table, args.seed), n),
-            Timed("static", _stepper(env_id, n, True, table, args.seed, _static_split), n),
-            Timed("serial", _stepper(env_id, n, False, table, args.seed), n),
-        ]
-        measure(variants, args.repeats, args.seconds, burn_in=256)
-        ratios = paired_ratios(variants[0], variants[1])
-        cells = [stats(v.rates) for v in variants] + [ratio_stats(ratios)]
-        name = env_id.removeprefix("frictiongym/")
-        print(f"  {name:18s} " + "  ".join(cells))
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _stepper(
-    env_id: str,
-    n: int,
-    parallel: bool,
-    table: list[npt.NDArray[Any]],
-    seed: int,
-    kernel: Callable[..., int] | None = None,
-) -> Runner:
-    """A vector env on a forced kernel (``kernel``: in place of the threaded one) stepped with
-    the cycled actions."""
-    env = gym.make_vec(
-        env_id, num_envs=n, vectorization_mode="vector_entry_point", parallel=parallel
-    )
-    env.reset(seed=seed)
-    if kernel is not None:
-        env.unwrapped.sim.plants._step_kernel = kernel
-    rows = cycle(table)
-
-    def run(count: int) -> None:
-        for a in islice(rows, count):
-            env.step(a)
-
-    return run

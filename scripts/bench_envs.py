@@ -52,10 +52,6 @@ reference timed in the same round, so drift of the machine between rounds (up to
 cancels out. A summary prints the two headline ratios (default kwargs) and whether each meets
 its target; the script only reports, it never fails on a target.
 
-The parts ``threads``, ``loads``, ``split`` and ``schedule`` time the kernel near the machine's
-limit (issue J; ``threads`` in ``_load.py``, the others in ``_bench_kernel.py``, whose docstring
-says what each measures).
-
 Run ``python scripts/bench_envs.py --help`` for the options.
 """
 
@@ -445,13 +441,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--part",
-        choices=("all", "cartpole", "threads", "loads", "split", "schedule"),
+        choices=("all", "cartpole", "threads", "loads", "split"),
         default="all",
         help="cartpole: the comparisons with CartPole; threads: the servo's vector env on the "
         "serial, default and threaded kernel under each --loads case; loads: the vector envs "
         "against CartPoleVectorEnv under each --loads case (quiet, busy, learner); split: "
-        "where the time of a vector env-step goes, on one thread; schedule: the threaded "
-        "kernel taking over blocks against a static split of them; all: every part (default)",
+        "where the time of a vector env-step goes, on one thread; all: every part (default)",
     )
     _load.add_arguments(parser, "envs")
     return parser
@@ -498,7 +493,6 @@ def main(argv: list[str] | None = None) -> int:
             args, OURS, lambda env_id, n: vector_variant(env_id, DEFAULT, {}, n, args.seed).run
         ),
         "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
-        "schedule": lambda: _bench_kernel.schedule_part(args, OURS, vector_actions),
     }
     return run_parts(
         [run for name, run in parts.items() if args.part in ("all", name)], args.markdown

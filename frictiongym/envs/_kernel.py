@@ -32,7 +32,6 @@ from numba.extending import overload
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants import _kernel as plant_kernel
-from frictiongym.plants import _steal as steal
 from frictiongym.plants._kernel import I_UMAX
 from frictiongym.plants.sensors import (
     SENSOR_ENCODER,
@@ -758,58 +757,6 @@ def step_envs(
     return -1 - ended
 
 
-@njit(cache=True, inline="always")
-def _steal_blocks(
-    worker: int,
-    workers: int,
-    claims: npt.NDArray[np.int64],
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    given: npt.NDArray[np.floating[Any]],
-    command: npt.NDArray[np.float64],
-    dt: float,
-    n_sub: int,
-    plant_rows: npt.NDArray[np.float64],
-    rows: npt.NDArray[np.float64],
-    rng: npt.NDArray[np.uint64],
-    config: npt.NDArray[np.float64],
-    fresh: npt.NDArray[np.bool_],
-    obs: npt.NDArray[np.float32],
-    out: npt.NDArray[np.float64],
-    flags: npt.NDArray[np.bool_],
-) -> int:
-    """Step the blocks ``worker`` claims; return how many of their envs ended.
-
-    See :mod:`~frictiongym.plants._steal`.
-    """
-    blocks = claims.shape[0] // steal.CLAIM_STRIDE
-    walk = (0, steal.share(worker, workers, blocks)[0], 0)
-    ended = 0
-    while True:
-        block, walk = steal.next_block(claims, walk, worker, workers)
-        if block < 0:
-            return ended
-        ended += _step_block(
-            block,
-            state,
-            delay_buffer,
-            head,
-            given,
-            command,
-            dt,
-            n_sub,
-            plant_rows,
-            rows,
-            rng,
-            config,
-            fresh,
-            obs,
-            out,
-            flags,
-        )
-
-
 @njit(cache=True, parallel=True)
 def step_envs_parallel(
     state: npt.NDArray[np.float64],
@@ -827,24 +774,15 @@ def step_envs_parallel(
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
-    """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results).
-
-    Each thread steps its share of the blocks, then helps with the others' (see
-    :mod:`~frictiongym.plants._steal`).
-    """
+    """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results)."""
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     command64 = float64_commands(command)  # one type for the plant kernel
-    blocks = (state.shape[1] + BLOCK - 1) // BLOCK
-    workers = min(steal.thread_count(), blocks)
-    claims = steal.new_claims(blocks)
     ended = 0
-    for worker in prange(workers):
-        ended += _steal_blocks(
-            np.int64(worker),  # prange's index is unsigned; the body indexes with signed integers
-            workers,
-            claims,
+    for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
+        ended += _step_block(
+            np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
             state,
             delay_buffer,
             head,

@@ -34,7 +34,6 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.friction import _core as friction_core
-from frictiongym.plants import _steal as steal
 from frictiongym.plants._backlash import step_backlash
 from frictiongym.plants._kernel import (
     _MAX_SEGMENTS,
@@ -833,34 +832,6 @@ def step_batch(
     return -1
 
 
-@njit(cache=True, inline="always")
-def _steal_plants(
-    worker: int,
-    workers: int,
-    claims: npt.NDArray[np.int64],
-    state: npt.NDArray[np.float64],
-    delay_buffer: npt.NDArray[np.float64],
-    head: int,
-    command: npt.NDArray[np.float64],
-    h: float,
-    n_sub: int,
-    params: npt.NDArray[np.float64],
-    no_one: npt.NDArray[np.bool_],
-) -> None:
-    """Step the blocks of plants ``worker`` claims (see :mod:`~frictiongym.plants._steal`)."""
-    n = state.shape[1]
-    blocks = claims.shape[0] // steal.CLAIM_STRIDE
-    walk = (0, steal.share(worker, workers, blocks)[0], 0)
-    while True:
-        block, walk = steal.next_block(claims, walk, worker, workers)
-        if block < 0:
-            return
-        lo = block * BLOCK
-        step_plants(
-            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
-        )
-
-
 @njit(cache=True, parallel=True)
 def step_batch_parallel(
     state: npt.NDArray[np.float64],
@@ -871,31 +842,15 @@ def step_batch_parallel(
     n_sub: int,
     params: npt.NDArray[np.float64],
 ) -> int:
-    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results).
-
-    Each thread steps its share of the blocks, then helps with the others' (see
-    :mod:`~frictiongym.plants._steal`).
-    """
+    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results)."""
     bad = first_non_finite(command)
     if bad >= 0:
         return bad
     n = state.shape[1]
     no_one = none_fresh(n)
-    blocks = (n + BLOCK - 1) // BLOCK
-    workers = min(steal.thread_count(), blocks)
-    claims = steal.new_claims(blocks)
-    for worker in prange(workers):
-        _steal_plants(
-            np.int64(worker),  # prange's index is unsigned; the body indexes with signed integers
-            workers,
-            claims,
-            state,
-            delay_buffer,
-            head,
-            command,
-            h,
-            n_sub,
-            params,
-            no_one,
+    for block in prange((n + BLOCK - 1) // BLOCK):
+        lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
+        step_plants(
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
         )
     return -1
