@@ -294,26 +294,16 @@ def test_an_altino_run_log_reads_the_readout_as_a_distance(tmp_path):
     assert runs[0].signal("measured")[2] == pytest.approx(966.0 / 145.0)  # Eq. (1), cm
 
 
-def test_a_described_device_s_log_gives_back_its_law(tmp_path):
-    """The ball-screw example, in mm and V: its map's extrapolation to rest overshoots (one point
-    per direction inside the drop), so the starts from rest bound break-away: within 1 %."""
-    stage = (
-        Path(__file__).resolve().parents[1] / "examples" / "ball_screw" / "ball_screw_stage.toml"
-    )
-    device = devices.load(stage)
-    path = _log(tmp_path / "log.csv", "--device", str(stage))
-    runs, dt = read_trace(path, device)
-    params = identify_trace(runs, device, dt).params("paper")
-    for key in (*FRICTION, "viscous"):
-        expected = getattr(device.paper_friction, key) or device.plant.damping
-        assert getattr(params.friction, key) == pytest.approx(expected, rel=0.01), key
-    assert params.inertia == pytest.approx(device.plant.inertia, rel=0.01)
+@pytest.fixture(scope="module")
+def planless_stage_fit(tmp_path_factory):
+    """``identify --from-log`` on the ball-screw example without its identification plan.
 
-
-def test_a_device_without_an_identification_plan_fits_its_log(tmp_path):
-    """The plan is for experiments; a log needs only the device (docs/devices.md)."""
+    One fit for the two tests below (each fit takes about 20 s): the plan is for experiments,
+    so a log needs only the device (docs/devices.md), and the law comes back the same.
+    """
     from frictiongym import device_file
 
+    tmp_path = tmp_path_factory.mktemp("planless")
     stage = (
         Path(__file__).resolve().parents[1] / "examples" / "ball_screw" / "ball_screw_stage.toml"
     )
@@ -325,6 +315,27 @@ def test_a_device_without_an_identification_plan_fits_its_log(tmp_path):
     log = _log(tmp_path / "log.csv", "--device", str(path))
     out = tmp_path / "out"
     argv = ["--device", str(path), "--from-log", str(log), "--out", str(out), "--quiet"]
-    assert tool_main("identify", [*argv, "--no-figures"]) == 0
+    status = tool_main("identify", [*argv, "--no-figures"])
+    return status, out, devices.load(path)
+
+
+def test_a_described_device_s_log_gives_back_its_law(planless_stage_fit):
+    """The ball-screw example, in mm and V: its map's extrapolation to rest overshoots (one point
+    per direction inside the drop), so the starts from rest bound break-away: within 1 %."""
+    status, out, device = planless_stage_fit
+    assert status == 0
     data = json.loads((out / "friction.json").read_text())
+    for key in (*FRICTION, "viscous"):
+        expected = getattr(device.paper_friction, key) or device.plant.damping
+        assert data[key] == pytest.approx(expected, rel=0.01), key
+    assert data["J"] == pytest.approx(device.plant.inertia, rel=0.01)
+
+
+def test_a_device_without_an_identification_plan_fits_its_log(planless_stage_fit):
+    """The plan is for experiments; a log needs only the device (docs/devices.md)."""
+    status, out, device = planless_stage_fit
+    assert not device.identification  # no plan, no reversal test: the file has none
+    assert status == 0
+    data = json.loads((out / "friction.json").read_text())
+    assert data["device"] == "PlanlessStage"
     assert data["us_pos"] == pytest.approx(0.33, rel=0.01)
