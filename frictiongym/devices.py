@@ -270,7 +270,7 @@ def get(spelling: str | os.PathLike[str] | Device) -> Device:
         return spelling
     path = Path(os.fspath(spelling)) if isinstance(spelling, str | os.PathLike) else None
     if path is not None and path.suffix.lower() in FILE_SUFFIXES:
-        return load(path if isinstance(spelling, os.PathLike) else str(spelling))
+        return load(spelling)
     for device in (*DEVICES, *_LOADED.values()):
         if spelling in (device.kind, device.name):
             return device
@@ -279,7 +279,7 @@ def get(spelling: str | os.PathLike[str] | Device) -> Device:
         if re.fullmatch(rf"frictiongym/{device.name}-v\d+", str(spelling)):
             return device  # another version of its env: the same device, another reward
     if path is not None and path.is_file():  # a description file named otherwise
-        return load(path if isinstance(spelling, os.PathLike) else str(spelling))
+        return load(spelling)
     names = ", ".join(f"{d.kind}, {d.name}, {d.env_id}" for d in DEVICES)
     raise ValueError(
         f"unknown device {spelling!r}; use one of {names}, or the path of a device "

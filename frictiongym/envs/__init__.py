@@ -11,6 +11,7 @@ made.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 import gymnasium as gym
@@ -52,6 +53,7 @@ __all__ = [
     "RotaryServoEnv",
     "RotaryServoVectorEnv",
     "checked_device",
+    "device_of_id",
     "env_arguments",
     "make",
     "make_vec",
@@ -116,6 +118,31 @@ def checked_device(spelling: Any) -> Any:
 
     found = devices.get(spelling)
     return found if found in devices.DEVICES else axis_device(found)
+
+
+def device_of_id(env_id: str, ids: Iterable[str], name: str = "env id") -> Any:
+    """Return the device behind ``env_id``, one of ``ids`` or a description file's path.
+
+    What the tools that take an env id accept (``name`` is how their messages call it).
+
+    Raises
+    ------
+    DeviceFileError
+        A description file that cannot be used (its message names the file and the field).
+    ValueError
+        Neither one of ``ids`` nor a description file: the message lists ``ids``.
+    """
+    from frictiongym import devices
+
+    try:
+        return checked_device(env_id)
+    except devices.DeviceFileError:
+        raise
+    except ValueError:
+        raise ValueError(
+            f"unknown {name} {env_id!r}; use one of {', '.join(ids)} or a device description "
+            "file (.toml or .json, docs/devices.md)"
+        ) from None
 
 
 def make(device: Any, **kwargs: Any) -> Any:

@@ -466,16 +466,7 @@ def _resolution(reading: Reading, direction: float) -> Callable[[FloatArray], Fl
 def plan_for(env_id: str) -> Plan:
     """Return the plan of the device behind a registered env id (:meth:`Plan.for_device`)."""
     if env_id not in ENV_IDS:
-        try:  # a device description file, or any spelling of a device
-            envs.checked_device(env_id)
-        except ValueError as error:
-            if isinstance(error, devices.DeviceFileError):
-                raise
-            ids = ", ".join(ENV_IDS)
-            raise ValueError(
-                f"unknown env id {env_id!r}; choose one of {ids} or a device description file "
-                "(.toml or .json, docs/devices.md)"
-            ) from None
+        envs.device_of_id(env_id, ENV_IDS)  # a description file, or the error that lists ids
     return Plan.for_device(env_id)
 
 

@@ -114,14 +114,9 @@ def check_settings(settings: TrainSettings) -> None:
     ids = sorted(n for n in gym.registry if n.startswith("frictiongym/") and n != envs.AXIS_ID)
     if settings.env_id not in ids:
         try:  # a device description file
-            described = envs.checked_device(settings.env_id)
+            described = envs.device_of_id(settings.env_id, ids, "--env")
         except ValueError as error:
-            if isinstance(error, devices.DeviceFileError):
-                raise TrainingError(str(error)) from None
-            raise TrainingError(
-                f"unknown --env {settings.env_id!r}; use one of {', '.join(ids)} or a device "
-                "description file (.toml or .json, docs/devices.md)"
-            ) from None
+            raise TrainingError(str(error)) from None
         if not described.residual:
             raise TrainingError(
                 f"{described.source}: [residual] missing: train needs the residual policy's "

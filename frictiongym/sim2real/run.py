@@ -255,15 +255,7 @@ def run_sim2real(
         Called with a short text before each run, and when a run ends early.
     """
     if env_id not in ENV_IDS:
-        try:  # a device description file, or any spelling of a device
-            envs.checked_device(env_id)
-        except ValueError as error:
-            if isinstance(error, devices.DeviceFileError):
-                raise
-            raise ValueError(
-                f"unknown env id {env_id!r}; use one of {sorted(ENV_IDS)} or a device "
-                "description file (.toml or .json, docs/devices.md)"
-            ) from None
+        envs.device_of_id(env_id, sorted(ENV_IDS))  # a description file, or the error
     if controller not in CONTROLLERS:
         raise ValueError(f"controller must be one of {CONTROLLERS}, got {controller!r}")
     if not (isinstance(repeats, int) and repeats >= 1):
