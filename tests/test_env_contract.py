@@ -54,6 +54,26 @@ def test_info_masks_are_new_writable_arrays_each_call(env_id: str) -> None:
     assert first["_position"].all()
 
 
+@pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
+@pytest.mark.parametrize("parallel", [False, True])
+def test_info_masks_are_set_for_every_env_of_a_large_batch(mode: str, parallel: bool) -> None:
+    """The kernel's threads set the masks block by block: every env of every block reports."""
+    env = make_vec(ALTINO, 600, parallel=parallel, autoreset_mode=mode, max_episode_steps=25)
+    _, info = env.reset(seed=0)
+    masks = [info["_" + key] for key in ("position", "velocity", "command", "time", "stuck")]
+    rng = np.random.default_rng(0)
+    ended = 0
+    for _ in range(60):
+        _, _, terminated, truncated, info = env.step(rng.uniform(-800, 800, (600, 1)))
+        ended += int(np.count_nonzero(terminated | truncated))
+        masks += [info[key] for key in info if key.startswith("_") and key != "_final_obs"]
+        masks = [m for m in masks if m.dtype == bool]
+    assert ended > 0  # autoresets happened on the way
+    for mask in masks:
+        assert mask.shape == (600,)
+        assert mask.all()
+
+
 @pytest.mark.parametrize(
     "action",
     ["1.5", True, [True], 0.5, np.float64(0.5), np.zeros((1, 1)), [1.0, 2.0], None, ["a"]],

@@ -17,7 +17,8 @@ Layouts (all float64 unless noted):
   episode-end flags and the reward;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
-  (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
+  (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``; a step sets any rows of
+  ``flags`` after those to True (the vector env's info masks).
 """
 
 from __future__ import annotations
@@ -575,7 +576,6 @@ def reset_envs(
     otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
     limit copied from the env's plant row (set before this call).
     """
-    one_row = plant_rows.shape[0] == 1
     index = plant_kernel.selected(mask)
     plant_kernel.reset_selected(index, state, delay_buffer, position, velocity)
     for i in index:
@@ -583,8 +583,41 @@ def reset_envs(
             rows[T_GAIN, i] = 1.0
             for entry in range(REF_SIZE):
                 rows[T_REF + entry, i] = reference[entry]
-        rows[T_OFFSET, i] = 0.0
-        rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
+        _reset_task(i, plant_rows, rows)
+
+
+@njit(cache=True, inline="always")
+def _reset_task(i: int, plant_rows: npt.NDArray[np.float64], rows: npt.NDArray[np.float64]) -> None:
+    """Zero env ``i``'s sensor offset and copy its command limit from its plant row."""
+    rows[T_OFFSET, i] = 0.0
+    rows[T_UMAX, i] = plant_rows[0 if plant_rows.shape[0] == 1 else i, I_UMAX]
+
+
+@njit(cache=True)
+def autoreset_envs(
+    command: npt.NDArray[np.floating[Any]],
+    mask: npt.NDArray[np.bool_],
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+    position: float,
+    velocity: float,
+) -> int:
+    """Check the commands, then put the envs of ``mask`` at the start ``position``, ``velocity``.
+
+    A vector env's autoreset that draws nothing, in one call before the step: what
+    :func:`reset_envs` does without ``set_rows`` (the rows hold the defaults), after the step's
+    own check of the commands, so that a refused step changes nothing. Returns the index of the
+    first non-finite command (then nothing changed), else -1.
+    """
+    bad = plant_batch.first_non_finite(command)
+    if bad >= 0:
+        return bad
+    for i in plant_kernel.selected(mask):
+        plant_kernel.reset_plant(i, position, velocity, state, delay_buffer)
+        _reset_task(i, plant_rows, rows)
+    return -1
 
 
 @njit(cache=True)
@@ -705,6 +738,11 @@ def _step_block(
     )
     for i in range(start, stop):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
+    # rows after the flags: the vector env's info masks, each env reports every key (set here,
+    # by the threads, not by the main thread between the calls)
+    for row in range(FLAG_SIZE, flags.shape[0]):
+        for i in range(np.uint64(start), np.uint64(stop)):
+            flags[row, i] = True
     return observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 

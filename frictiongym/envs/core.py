@@ -149,6 +149,7 @@ class Simulation:
     on_device = False
     _nominal_row: FloatArray
     _default_start: tuple[FloatArray, FloatArray]
+    _start: tuple[float, float]
     _default_reference_row: FloatArray
     _rows_default: bool
 
@@ -211,6 +212,7 @@ class Simulation:
         )
         self.plants = self._new_plants(parallel)
         self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
+        self._start = (device.direction * device.start, 0.0)  #: the same, as floats
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
@@ -414,6 +416,29 @@ class Simulation:
         )
         if jittery:  # after the reset, which zeroes the plant's state
             plants.seed_jitter(np.array(jitter_seeds, dtype=np.float64), mask)
+
+    def autoreset(
+        self,
+        command: npt.NDArray[np.floating[Any]],
+        mask: BoolArray,
+        rng_of: Callable[[int], np.random.Generator],
+    ) -> None:
+        """Check ``command`` as :meth:`run` will, then :meth:`prepare_reset` the envs of ``mask``.
+
+        A vector env's autoreset before its step: a non-finite command raises the ValueError of
+        :meth:`run` before anything changes (no env reset, no draw). A reset that draws nothing
+        is one compiled call, check included (it runs on most steps of an env whose episodes
+        end every few hundred steps).
+        """
+        if self._rows_default:  # the rows hold what this reset would set
+            plants = self.plants
+            args = (plants.state, plants.delay_buffer, plants.rows, self.rows, *self._start)
+            bad = env_kernel.autoreset_envs(command, mask, *args)
+            if bad >= 0:
+                raise ValueError(_bad_action(command, bad))
+            return
+        self.check_commands(command)
+        self.prepare_reset(mask, rng_of)
 
     def run(
         self,

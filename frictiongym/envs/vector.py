@@ -138,7 +138,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         """Return new arrays for a step's observation, outputs and flags.
 
         The flags come with one more row per info key below them, for the ``_key`` masks of
-        :meth:`_info` (one allocation less per step; the kernel reads ``FLAG_SIZE`` rows).
+        :meth:`_info` (one allocation less per step): the kernel sets them.
         """
         n = self.num_envs
         return (
@@ -158,9 +158,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
             return info
         # Every env reports every key: new masks each call, the rows of `flags` below its
-        # flags (written out: this runs every step).
+        # flags, which the kernel set (written out: this runs every step).
         masks = flags[env_kernel.FLAG_SIZE :]
-        masks.fill(True)
         return {
             "position": out[_O_POSITION],
             "_position": masks[0],
@@ -265,10 +264,8 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 )
             if mode is AutoresetMode.NEXT_STEP:
                 fresh = self._done
-                # a refused action must change nothing: neither reset the ended envs nor spend
-                # their draws
-                self.sim.check_commands(command)
-                self.sim.prepare_reset(fresh, self._rng)
+                # a refused action changes nothing: no env reset, no draw spent
+                self.sim.autoreset(command, fresh, self._rng)
         obs, out, flags = self._outputs()
         ended = self.sim.run(command, fresh, obs, out, flags)
         # Rows of this step's own output arrays, fresh every step (copied below only where a
