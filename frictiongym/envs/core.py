@@ -149,7 +149,6 @@ class Simulation:
     on_device = False
     _nominal_row: FloatArray
     _default_start: tuple[FloatArray, FloatArray]
-    _start: tuple[float, float]
     _default_reference_row: FloatArray
     _rows_default: bool
 
@@ -212,7 +211,6 @@ class Simulation:
         )
         self.plants = self._new_plants(parallel)
         self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
-        self._start = (device.direction * device.start, 0.0)  #: the same, as floats
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
@@ -431,9 +429,9 @@ class Simulation:
         end every few hundred steps).
         """
         if self._rows_default:  # the rows hold what this reset would set
-            plants = self.plants
-            args = (plants.state, plants.delay_buffer, plants.rows, self.rows, *self._start)
-            bad = env_kernel.autoreset_envs(command, mask, *args)
+            plants, (x0, v0) = self.plants, self._default_start
+            args = (plants.state, plants.delay_buffer, plants.rows, self.rows)
+            bad = env_kernel.autoreset_envs(command, mask, *args, float(x0[0]), float(v0[0]))
             if bad >= 0:
                 raise ValueError(_bad_action(command, bad))
             return
