@@ -57,7 +57,7 @@ def test_info_masks_are_new_writable_arrays_each_call(env_id: str) -> None:
 @pytest.mark.parametrize("mode", ["NextStep", "SameStep"])
 @pytest.mark.parametrize("parallel", [False, True])
 def test_info_masks_are_set_for_every_env_of_a_large_batch(mode: str, parallel: bool) -> None:
-    """The kernel's threads set the masks block by block: every env of every block reports."""
+    """Every env of a batch the threads step reports every key, through autoresets too."""
     env = make_vec(ALTINO, 600, parallel=parallel, autoreset_mode=mode, max_episode_steps=25)
     _, info = env.reset(seed=0)
     masks = [info["_" + key] for key in ("position", "velocity", "command", "time", "stuck")]

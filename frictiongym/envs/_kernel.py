@@ -17,8 +17,7 @@ Layouts (all float64 unless noted):
   episode-end flags and the reward;
 * config (``CONFIG_SIZE``,): settings shared by all envs (``C_*``);
 * outputs: ``obs`` (N, obs size) float32, ``out`` (``OUT_SIZE``, N) and ``flags``
-  (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``; a step sets any rows of
-  ``flags`` after those to True (the vector env's info masks).
+  (``FLAG_SIZE``, N) bool, rows named by ``O_*`` and ``F_*``.
 """
 
 from __future__ import annotations
@@ -738,11 +737,6 @@ def _step_block(
     )
     for i in range(start, stop):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
-    # rows after the flags: the vector env's info masks, each env reports every key (set here,
-    # by the threads, not by the main thread between the calls)
-    for row in range(FLAG_SIZE, flags.shape[0]):
-        for i in range(np.uint64(start), np.uint64(stop)):
-            flags[row, i] = True
     return observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 

@@ -138,7 +138,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         """Return new arrays for a step's observation, outputs and flags.
 
         The flags come with one more row per info key below them, for the ``_key`` masks of
-        :meth:`_info` (one allocation less per step): the kernel sets them.
+        :meth:`_info` (one allocation less per step; the kernel reads ``FLAG_SIZE`` rows).
         """
         n = self.num_envs
         return (
@@ -158,8 +158,9 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                 info[key], info["_" + key] = np.where(mask, value, value.dtype.type(0)), mask.copy()
             return info
         # Every env reports every key: new masks each call, the rows of `flags` below its
-        # flags, which the kernel set (written out: this runs every step).
+        # flags (written out: this runs every step).
         masks = flags[env_kernel.FLAG_SIZE :]
+        masks.fill(True)
         return {
             "position": out[_O_POSITION],
             "_position": masks[0],
