@@ -154,6 +154,7 @@ class Variant:
     kernel: str = "-"
     episodes: Episodes = field(default_factory=Episodes)
     rates: list[float] = field(default_factory=list)
+    adaptive: AdaptiveKernel | None = None  #: the vector env's kernel, if adaptive
 
     @property
     def name(self) -> str:
@@ -260,7 +261,8 @@ def vector_variant(
         kernel += " (default)"
     if one_thread:
         run, kernel = single_threaded(run), ONE_THREAD
-    return Variant(env_id, setting, run, num_envs, kernel)
+    adaptive = env.unwrapped.sim.plants._step_kernel if kernel.startswith("adaptive") else None
+    return Variant(env_id, setting, run, num_envs, kernel, adaptive=adaptive)
 
 
 def episode_mix(
@@ -564,6 +566,10 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
         if variant.kernel.endswith("(forced)") or variant.kernel == ONE_THREAD:
             variant.episodes = find(vector, variant.env).episodes
     measure(vector, args.repeats, args.seconds, burn_in=2 * VECTOR_ROWS)
+    for variant in vector:  # how often the adaptive kernel ran its threads: a low figure is a
+        if variant.adaptive is not None:  # machine whose second core was busy or slow then
+            serial, threaded = variant.adaptive.calls
+            variant.kernel += f", {threaded / max(serial + threaded, 1):.0%} threaded"
     ref = vector[0]
     print(
         f"\nvector env, N = {n}, gym.make_vec vector_entry_point (env-steps/s, median "
