@@ -59,19 +59,22 @@ def test_info_masks_are_new_writable_arrays_each_call(env_id: str) -> None:
 def test_info_masks_are_set_for_every_env_of_a_large_batch(mode: str, parallel: bool) -> None:
     """Every env of a batch the threads step reports every key, through autoresets too."""
     env = make_vec(ALTINO, 600, parallel=parallel, autoreset_mode=mode, max_episode_steps=25)
-    _, info = env.reset(seed=0)
-    masks = [info["_" + key] for key in ("position", "velocity", "command", "time", "stuck")]
+    keys = ("position", "velocity", "command", "reference", "time", "stuck")
+    env.reset(seed=0)
     rng = np.random.default_rng(0)
     ended = 0
-    for _ in range(60):
+    for step in range(60):
+        if step == 10:  # half the envs restart: their episodes end 10 steps after the others'
+            env.reset(options={"reset_mask": np.arange(600) < 300})
         _, _, terminated, truncated, info = env.step(rng.uniform(-800, 800, (600, 1)))
         ended += int(np.count_nonzero(terminated | truncated))
-        masks += [info[key] for key in info if key.startswith("_") and key != "_final_obs"]
-        masks = [m for m in masks if m.dtype == bool]
+        for key in keys:
+            assert info["_" + key].shape == (600,)
+            assert info["_" + key].all()
+        if "final_info" in info:  # same-step: the ended envs' last info, only theirs
+            for key in keys:
+                np.testing.assert_array_equal(info["final_info"]["_" + key], info["_final_obs"])
     assert ended > 0  # autoresets happened on the way
-    for mask in masks:
-        assert mask.shape == (600,)
-        assert mask.all()
 
 
 @pytest.mark.parametrize(
