@@ -6,6 +6,11 @@ of ``_load.py`` runs (``--loads``: quiet, busy, learner); the ratio ours / CartP
 round, so both sides meet the same load. Targets (reported, never enforced): at least 3x
 CartPoleVectorEnv quiet, at least 1.5x beside the learner (a torch process on 2 threads).
 
+Beside each load it also times a balanced compiled loop over ``--num-envs`` elements (each
+block of 256 the same arithmetic, about as long as a vector env-step) on numba's threads and on
+one thread: their ratio, two for a perfect split, is what the machine gives the threads at that
+time, against which the vector envs' own gain from threads can be read.
+
 **split** (``--part split``): where the time of one vector env-step goes, ns per env-step at
 ``--num-envs`` envs, each piece timed on its own on one thread (numba's serial kernels):
 
@@ -74,18 +79,20 @@ def loads_part(
     )
     lines = [
         f"Vector envs beside other work (N = {_thousands(n)}; ratio = ours / CartPoleVectorEnv in "
-        "env-steps/s, per round, both under the same load):",
+        "env-steps/s, per round, both under the same load; threads' gain = a balanced compiled "
+        "loop's rate on numba's threads / on one thread, per round, 2 for a perfect split):",
         "",
         "| load | CartPoleVectorEnv, env-steps/s | "
         + " | ".join(f"`{e}`, env-steps/s | ratio" for e in envs)
-        + " |",
-        "|---|---|" + "---|---|" * len(envs),
+        + " | threads' gain |",
+        "|---|---|" + "---|---|" * len(envs) + "---|",
     ]
     verdicts = []
     for load in loads:
         variants = [Timed(e, make_runner(e, n), n) for e in ("CartPole-v1", *envs)]
+        probe = [Timed(name, run, n) for name, run in _balanced_runners(n)]
         with _load.competing(load):
-            measure(variants, args.repeats, args.seconds, burn_in=512)
+            measure([*variants, *probe], args.repeats, args.seconds, burn_in=512)
         ref = variants[0]
         cells = [stats(ref.rates)]
         for v in variants[1:]:
@@ -98,11 +105,50 @@ def loads_part(
                     f"{v.name.removeprefix('frictiongym/')} {load}: {ratio_stats(ratios)} "
                     f"(target {target:g}x: {'meets' if met else 'misses'})"
                 )
-        print(f"  {load:8s} " + "  ".join(cells))
+        cells.append(ratio_stats(paired_ratios(probe[0], probe[1])))
+        print(f"  {load:8s} " + "  ".join(cells[:-1]) + f"  threads' gain {cells[-1]}")
         lines.append(f"| {load} | " + " | ".join(cells) + " |")
     summary = "targets of issue J: " + "; ".join(verdicts)
     print(f"  {summary}")
     return "\n".join([*lines, "", summary])
+
+
+@numba.njit(cache=True)
+def _balanced_block(values: npt.NDArray[np.float64], lo: int, hi: int) -> None:
+    """The same arithmetic for every element ``lo`` to ``hi - 1``: a recurrence of 20 steps."""
+    for i in range(lo, hi):
+        x = values[0, i]
+        for k in range(20):
+            x = x * 0.999 + values[k % values.shape[0], i] * 1e-3
+        values[1, i] = x
+
+
+@numba.njit(cache=True)
+def _balanced_serial(values: npt.NDArray[np.float64]) -> None:
+    """:func:`_balanced_block` over every block of 256 elements, on this thread."""
+    for block in range(values.shape[1] // 256):
+        _balanced_block(values, block * 256, block * 256 + 256)
+
+
+@numba.njit(cache=True, parallel=True)
+def _balanced_threaded(values: npt.NDArray[np.float64]) -> None:
+    """:func:`_balanced_serial` with the blocks spread over numba's threads (as the envs')."""
+    for block in numba.prange(values.shape[1] // 256):
+        _balanced_block(values, np.int64(block) * 256, np.int64(block) * 256 + 256)
+
+
+def _balanced_runners(n: int) -> list[tuple[str, Runner]]:
+    """The threaded and the serial balanced loop over ``n`` elements, as named runners."""
+    values = np.random.default_rng(0).random((20, max(n, 256)))
+
+    def runner(kernel: Callable[[npt.NDArray[np.float64]], None]) -> Runner:
+        def run(count: int) -> None:
+            for _ in range(count):
+                kernel(values)
+
+        return run
+
+    return [("threads", runner(_balanced_threaded)), ("one thread", runner(_balanced_serial))]
 
 
 @numba.njit(cache=True)
