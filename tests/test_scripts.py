@@ -170,3 +170,31 @@ def test_threads_part_compares_the_default_with_both_kernels(script, extra):
     for load in ("quiet", "busy"):
         assert f"| {load} | 512 |" in done.stdout
     assert "default within 5% of the serial kernel or faster (median) in every case:" in done.stdout
+
+
+def test_loads_part_reports_the_threads_gain_beside_the_ratios():
+    done = subprocess.run(
+        [
+            sys.executable,
+            str(SCRIPTS / "bench_envs.py"),
+            "--part",
+            "loads",
+            "--quick",
+            "--markdown",
+            "--loads",
+            "quiet",
+            "--repeats",
+            "1",
+            "--seconds",
+            "0.02",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=180,
+    )
+    assert done.returncode == 0, done.stderr
+    assert "| ratio | threads' gain |" in done.stdout
+    quiet = [line for line in done.stdout.splitlines() if line.startswith("| quiet |")]
+    assert len(quiet) == 1
+    assert quiet[0].count("|") == 8  # 7 cells: load, CartPole, two envs' rate and ratio, gain
