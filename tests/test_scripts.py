@@ -7,16 +7,23 @@ import pytest
 SCRIPTS = Path(__file__).resolve().parents[1] / "scripts"
 
 
-def test_plot_friction_writes_a_png(tmp_path):
-    pytest.importorskip("matplotlib")
-    out = tmp_path / "laws.png"
+def run_script(script: str, *args: str, timeout: float = 120) -> str:
+    """Run ``scripts/<script>`` with ``args``; return its standard output (it must succeed)."""
     done = subprocess.run(
-        [sys.executable, str(SCRIPTS / "plot_friction.py"), "--out", str(out)],
+        [sys.executable, str(SCRIPTS / script), *args],
         capture_output=True,
         text=True,
         check=False,
+        timeout=timeout,
     )
     assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def test_plot_friction_writes_a_png(tmp_path):
+    pytest.importorskip("matplotlib")
+    out = tmp_path / "laws.png"
+    run_script("plot_friction.py", "--out", str(out))
     assert out.stat().st_size > 10_000
 
 
@@ -102,34 +109,13 @@ def test_plot_friction_writes_a_png(tmp_path):
     ],
 )
 def test_script_help_explains_its_options(script, options):
-    done = subprocess.run(
-        [sys.executable, str(SCRIPTS / script), "--help"],
-        capture_output=True,
-        text=True,
-        check=False,
-    )
-    assert done.returncode == 0, done.stderr
+    out = run_script(script, "--help")
     for option in options:
-        assert option in done.stdout
+        assert option in out
 
 
 def test_bench_envs_quick_reports_both_headline_ratios():
-    done = subprocess.run(
-        [
-            sys.executable,
-            str(SCRIPTS / "bench_envs.py"),
-            "--quick",
-            "--markdown",
-            "--part",
-            "cartpole",
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=120,
-    )
-    assert done.returncode == 0, done.stderr
-    out = done.stdout
+    out = run_script("bench_envs.py", "--quick", "--markdown", "--part", "cartpole")
     assert "single env, time per step ours / CartPole-v1 (target <= 1)" in out
     assert "env-steps/s ours / CartPoleVectorEnv (target >= 1.5)" in out
     for name in ("RotaryServo-v1", "AltinoDistance-v1"):
@@ -141,60 +127,19 @@ def test_bench_envs_quick_reports_both_headline_ratios():
     ("script", "extra"), [("bench_envs.py", ()), ("bench_plants.py", ("--tuner-chunk", "0"))]
 )
 def test_threads_part_compares_the_default_with_both_kernels(script, extra):
-    done = subprocess.run(
-        [
-            sys.executable,
-            str(SCRIPTS / script),
-            "--part",
-            "threads",
-            "--quick",
-            "--markdown",
-            "--loads",
-            "quiet",
-            "busy",
-            "--thread-sizes",
-            "512",
-            "--repeats",
-            "1",
-            "--seconds",
-            "0.02",
-            *extra,
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=120,
-    )
-    assert done.returncode == 0, done.stderr
-    assert "| load | N | serial kernel" in done.stdout
+    short = ("--quick", "--markdown", "--repeats", "1", "--seconds", "0.02")
+    loads = ("--loads", "quiet", "busy", "--thread-sizes", "512")
+    out = run_script(script, "--part", "threads", *short, *loads, *extra)
+    assert "| load | N | serial kernel" in out
     for load in ("quiet", "busy"):
-        assert f"| {load} | 512 |" in done.stdout
-    assert "default within 5% of the serial kernel or faster (median) in every case:" in done.stdout
+        assert f"| {load} | 512 |" in out
+    assert "default within 5% of the serial kernel or faster (median) in every case:" in out
 
 
 def test_loads_part_reports_the_threads_gain_beside_the_ratios():
-    done = subprocess.run(
-        [
-            sys.executable,
-            str(SCRIPTS / "bench_envs.py"),
-            "--part",
-            "loads",
-            "--quick",
-            "--markdown",
-            "--loads",
-            "quiet",
-            "--repeats",
-            "1",
-            "--seconds",
-            "0.02",
-        ],
-        capture_output=True,
-        text=True,
-        check=False,
-        timeout=180,
-    )
-    assert done.returncode == 0, done.stderr
-    assert "| ratio | threads' gain |" in done.stdout
-    quiet = [line for line in done.stdout.splitlines() if line.startswith("| quiet |")]
+    short = ("--quick", "--markdown", "--repeats", "1", "--seconds", "0.02")
+    out = run_script("bench_envs.py", "--part", "loads", *short, "--loads", "quiet", timeout=180)
+    assert "| ratio | threads' gain |" in out
+    quiet = [line for line in out.splitlines() if line.startswith("| quiet |")]
     assert len(quiet) == 1
     assert quiet[0].count("|") == 8  # 7 cells: load, CartPole, two envs' rate and ratio, gain
