@@ -8,8 +8,9 @@ CartPoleVectorEnv quiet, at least 1.5x beside the learner (a torch process on 2 
 
 Beside each load it also times a balanced compiled loop over ``--num-envs`` elements (each
 block of 256 the same arithmetic; at 4 096 elements a call takes about twice a vector
-env-step's on one thread) on numba's threads and on one thread: their ratio, two for a perfect split, is what the machine gives the threads at that
-time, against which the vector envs' own gain from threads can be read.
+env-step's on one thread) on numba's threads and on one thread: their ratio, two for a
+perfect split, is what the machine gives the threads at that time, against which the vector
+envs' own gain from threads can be read.
 
 **split** (``--part split``): where the time of one vector env-step goes, ns per env-step at
 ``--num-envs`` envs, each piece timed on its own on one thread (numba's serial kernels):
