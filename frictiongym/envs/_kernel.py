@@ -575,6 +575,7 @@ def reset_envs(
     otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
     limit copied from the env's plant row (set before this call).
     """
+    one_row = plant_rows.shape[0] == 1
     index = plant_kernel.selected(mask)
     plant_kernel.reset_selected(index, state, delay_buffer, position, velocity)
     for i in index:
@@ -582,14 +583,8 @@ def reset_envs(
             rows[T_GAIN, i] = 1.0
             for entry in range(REF_SIZE):
                 rows[T_REF + entry, i] = reference[entry]
-        _reset_task(i, plant_rows, rows)
-
-
-@njit(cache=True, inline="always")
-def _reset_task(i: int, plant_rows: npt.NDArray[np.float64], rows: npt.NDArray[np.float64]) -> None:
-    """Zero env ``i``'s sensor offset and copy its command limit from its plant row."""
-    rows[T_OFFSET, i] = 0.0
-    rows[T_UMAX, i] = plant_rows[0 if plant_rows.shape[0] == 1 else i, I_UMAX]
+        rows[T_OFFSET, i] = 0.0
+        rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
 
 
 @njit(cache=True)
@@ -600,22 +595,21 @@ def autoreset_envs(
     delay_buffer: npt.NDArray[np.float64],
     plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
-    position: float,
-    velocity: float,
+    position: npt.NDArray[np.float64],
+    velocity: npt.NDArray[np.float64],
+    reference: npt.NDArray[np.float64],
 ) -> int:
-    """Check the commands, then put the envs of ``mask`` at the start ``position``, ``velocity``.
+    """Check the commands, then :func:`reset_envs` the envs of ``mask`` without ``set_rows``.
 
-    A vector env's autoreset that draws nothing, in one call before the step: what
-    :func:`reset_envs` does without ``set_rows`` (the rows hold the defaults), after the step's
-    own check of the commands, so that a refused step changes nothing. Returns the index of the
-    first non-finite command (then nothing changed), else -1.
+    A vector env's autoreset that draws nothing (the rows hold the defaults), in one call
+    before the step: the step's own check of the commands comes first, so that a refused step
+    changes nothing. Returns the index of the first non-finite command (then nothing changed),
+    else -1.
     """
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
-    for i in plant_kernel.selected(mask):
-        plant_kernel.reset_plant(i, position, velocity, state, delay_buffer)
-        _reset_task(i, plant_rows, rows)
+    reset_envs(mask, state, delay_buffer, plant_rows, rows, position, velocity, reference, False)
     return -1
 
 

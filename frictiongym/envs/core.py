@@ -359,10 +359,7 @@ class Simulation:
         """
         plants = self.plants
         if not options and self._rows_default:  # an autoreset: the rows hold what it would set
-            x0, v0 = self._default_start
-            ref_row = self._default_reference_row
-            args = (plants.state, plants.delay_buffer, plants.rows, self.rows, x0, v0, ref_row)
-            env_kernel.reset_envs(mask, *args, False)
+            env_kernel.reset_envs(mask, *self._reset_args(), False)
             return
         reference = self.reference
         if options:
@@ -401,17 +398,7 @@ class Simulation:
         self._rows_default = (
             not draws and reference is self.reference and (self._rows_default or bool(mask.all()))
         )
-        env_kernel.reset_envs(
-            mask,
-            plants.state,
-            plants.delay_buffer,
-            plants.rows,
-            self.rows,
-            x0,
-            v0,
-            ref_row,
-            not draws,
-        )
+        env_kernel.reset_envs(mask, *self._reset_args((x0, v0), ref_row), not draws)
         if jittery:  # after the reset, which zeroes the plant's state
             plants.seed_jitter(np.array(jitter_seeds, dtype=np.float64), mask)
 
@@ -429,14 +416,27 @@ class Simulation:
         end every few hundred steps).
         """
         if self._rows_default:  # the rows hold what this reset would set
-            plants, (x0, v0) = self.plants, self._default_start
-            args = (plants.state, plants.delay_buffer, plants.rows, self.rows)
-            bad = env_kernel.autoreset_envs(command, mask, *args, float(x0[0]), float(v0[0]))
+            bad = env_kernel.autoreset_envs(command, mask, *self._reset_args())
             if bad >= 0:
                 raise ValueError(_bad_action(command, bad))
             return
         self.check_commands(command)
         self.prepare_reset(mask, rng_of)
+
+    def _reset_args(
+        self,
+        start: tuple[FloatArray, FloatArray] | None = None,
+        reference: FloatArray | None = None,
+    ) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray, FloatArray]:
+        """Return what :func:`~frictiongym.envs._kernel.reset_envs` takes after the mask.
+
+        The arrays it writes, then the start (positions, velocities) and the reference row:
+        the default ones unless given.
+        """
+        x0, v0 = self._default_start if start is None else start
+        row = self._default_reference_row if reference is None else reference
+        plants = self.plants
+        return (plants.state, plants.delay_buffer, plants.rows, self.rows, x0, v0, row)
 
     def run(
         self,
