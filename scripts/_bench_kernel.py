@@ -6,11 +6,13 @@ of ``_load.py`` runs (``--loads``: quiet, busy, learner); the ratio ours / CartP
 round, so both sides meet the same load. Targets (reported, never enforced): at least 3x
 CartPoleVectorEnv quiet, at least 1.5x beside the learner (a torch process on 2 threads).
 
-Beside each load it also times a balanced compiled loop over ``--num-envs`` elements (each
-block of 256 the same arithmetic; at 4 096 elements a call takes about twice a vector
-env-step's on one thread) on numba's threads and on one thread: their ratio, two for a
+Beside each load it also times two balanced compiled loops over ``--num-envs`` elements (each
+block of 256 the same arithmetic) on numba's threads and on one thread: their ratio, two for a
 perfect split, is what the machine gives the threads at that time, against which the vector
-envs' own gain from threads can be read.
+envs' own gain from threads can be read. One loop is scalar code (a chain of dependent steps
+per element), the other SIMD code (independent multiplies, adds and divides in 8 lanes, as
+most of the envs' kernel): on this project's virtual machine the second core has given SIMD
+code less than scalar code, and by an amount that changes from hour to hour.
 
 **split** (``--part split``): where the time of one vector env-step goes, ns per env-step at
 ``--num-envs`` envs, each piece timed on its own on one thread (numba's serial kernels):
@@ -38,7 +40,7 @@ import argparse
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from itertools import cycle, islice
+from itertools import chain, cycle, islice
 from typing import Any
 
 import _load
@@ -81,19 +83,22 @@ def loads_part(
     lines = [
         f"Vector envs beside other work (N = {_thousands(n)}; ratio = ours / CartPoleVectorEnv in "
         "env-steps/s, per round, both under the same load; threads' gain = a balanced compiled "
-        "loop's rate on numba's threads / on one thread, per round, 2 for a perfect split):",
+        "loop's rate on numba's threads / on one thread, per round, 2 for a perfect split, for "
+        "a loop of scalar code and one of SIMD code):",
         "",
         "| load | CartPoleVectorEnv, env-steps/s | "
         + " | ".join(f"`{e}`, env-steps/s | ratio" for e in envs)
-        + " | threads' gain |",
-        "|---|---|" + "---|---|" * len(envs) + "---|",
+        + " | threads' gain, scalar | threads' gain, SIMD |",
+        "|---|---|" + "---|---|" * len(envs) + "---|---|",
     ]
     verdicts = []
     for load in loads:
         variants = [Timed(e, make_runner(e, n), n) for e in ("CartPole-v1", *envs)]
-        probe = [Timed(name, run, n) for name, run in _balanced_runners(n)]
+        probes = [
+            [Timed(name, run, n) for name, run in _balanced_runners(n, kind)] for kind in BALANCED
+        ]
         with _load.competing(load):
-            measure([*variants, *probe], args.repeats, args.seconds, burn_in=512)
+            measure([*variants, *chain(*probes)], args.repeats, args.seconds, burn_in=512)
         ref = variants[0]
         cells = [stats(ref.rates)]
         for v in variants[1:]:
@@ -106,8 +111,14 @@ def loads_part(
                     f"{v.name.removeprefix('frictiongym/')} {load}: {ratio_stats(ratios)} "
                     f"(target {target:g}x: {'meets' if met else 'misses'})"
                 )
-        cells.append(ratio_stats(paired_ratios(probe[0], probe[1])))
-        print(f"  {load:8s} " + "  ".join(cells[:-1]) + f"  threads' gain {cells[-1]}")
+        gains = [ratio_stats(paired_ratios(threads, one)) for threads, one in probes]
+        cells += gains
+        print(
+            f"  {load:8s} "
+            + "  ".join(cells[: -len(gains)])
+            + "  threads' gain "
+            + ", ".join(f"{kind} {gain}" for kind, gain in zip(BALANCED, gains, strict=True))
+        )
         lines.append(f"| {load} | " + " | ".join(cells) + " |")
     summary = "targets of issue J: " + "; ".join(verdicts)
     print(f"  {summary}")
@@ -115,8 +126,8 @@ def loads_part(
 
 
 @numba.njit(cache=True)
-def _balanced_block(values: npt.NDArray[np.float64], lo: int, hi: int) -> None:
-    """The same arithmetic for every element ``lo`` to ``hi - 1``: a recurrence of 20 steps."""
+def _chain_block(values: npt.NDArray[np.float64], lo: int, hi: int) -> None:
+    """Elements ``lo`` to ``hi - 1`` one at a time, each a chain of 20 dependent steps (scalar)."""
     for i in range(lo, hi):
         x = values[0, i]
         for k in range(20):
@@ -124,32 +135,45 @@ def _balanced_block(values: npt.NDArray[np.float64], lo: int, hi: int) -> None:
         values[1, i] = x
 
 
+@numba.njit(cache=True, error_model="numpy")
+def _lanes_block(values: npt.NDArray[np.float64], lo: int, hi: int) -> None:
+    """Elements ``lo`` to ``hi - 1`` in SIMD lanes: 100 passes of a multiply, an add, a divide."""
+    for _ in range(100):
+        for i in range(np.uint64(lo), np.uint64(hi)):  # unsigned: SIMD code (as the kernels)
+            values[1, i] = (values[1, i] * values[0, i] + 0.5) / (1.0 + values[0, i])
+
+
 @numba.njit(cache=True)
-def _balanced_serial(values: npt.NDArray[np.float64]) -> None:
-    """:func:`_balanced_block` over every block of 256 elements, on this thread."""
-    for block in range(values.shape[1] // 256):
-        _balanced_block(values, block * 256, block * 256 + 256)
+def _one_thread(block: Callable[..., None], values: npt.NDArray[np.float64]) -> None:
+    """``block`` over every block of 256 elements, on this thread."""
+    for b in range(values.shape[1] // 256):
+        block(values, b * 256, b * 256 + 256)
 
 
 @numba.njit(cache=True, parallel=True)
-def _balanced_threaded(values: npt.NDArray[np.float64]) -> None:
-    """:func:`_balanced_serial` with the blocks spread over numba's threads (as the envs')."""
-    for block in numba.prange(values.shape[1] // 256):
-        _balanced_block(values, np.int64(block) * 256, np.int64(block) * 256 + 256)
+def _threads(block: Callable[..., None], values: npt.NDArray[np.float64]) -> None:
+    """:func:`_one_thread` with the blocks spread over numba's threads (as the envs')."""
+    for b in numba.prange(values.shape[1] // 256):
+        block(values, np.int64(b) * 256, np.int64(b) * 256 + 256)
 
 
-def _balanced_runners(n: int) -> list[tuple[str, Runner]]:
-    """The threaded and the serial balanced loop over ``n`` elements, as named runners."""
+#: The balanced loops of the threads' gain: the kind of code, and what one block does.
+BALANCED = {"scalar": _chain_block, "SIMD": _lanes_block}
+
+
+def _balanced_runners(n: int, kind: str) -> list[tuple[str, Runner]]:
+    """The threaded and the one-thread balanced loop ``kind`` over ``n`` elements, as runners."""
     values = np.random.default_rng(0).random((20, max(n, 256)))
+    block = BALANCED[kind]
 
-    def runner(kernel: Callable[[npt.NDArray[np.float64]], None]) -> Runner:
+    def runner(kernel: Callable[..., None]) -> Runner:
         def run(count: int) -> None:
             for _ in range(count):
-                kernel(values)
+                kernel(block, values)
 
         return run
 
-    return [("threads", runner(_balanced_threaded)), ("one thread", runner(_balanced_serial))]
+    return [(f"{kind} threads", runner(_threads)), (f"{kind} one thread", runner(_one_thread))]
 
 
 @numba.njit(cache=True)

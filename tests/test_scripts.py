@@ -139,7 +139,9 @@ def test_threads_part_compares_the_default_with_both_kernels(script, extra):
 def test_loads_part_reports_the_threads_gain_beside_the_ratios():
     short = ("--quick", "--markdown", "--repeats", "1", "--seconds", "0.02")
     out = run_script("bench_envs.py", "--part", "loads", *short, "--loads", "quiet", timeout=180)
-    assert "| ratio | threads' gain |" in out
+    assert "| ratio | threads' gain, scalar | threads' gain, SIMD |" in out
     quiet = [line for line in out.splitlines() if line.startswith("| quiet |")]
     assert len(quiet) == 1
-    assert quiet[0].count("|") == 8  # 7 cells: load, CartPole, two envs' rate and ratio, gain
+    assert quiet[0].count("|") == 9  # 8 cells: load, CartPole, two envs' rate and ratio, gains
+    gains = quiet[0].split("|")[-3:-1]
+    assert all(float(gain.split()[0]) > 0 for gain in gains)

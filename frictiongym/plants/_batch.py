@@ -82,6 +82,10 @@ BLOCK = 256
 LANES_MIN = 16
 #: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
 PENDING = 2.0
+#: Pass 1b runs its SIMD loops over a multiple of this many entries: the compiled loops step
+#: 8 plants at a time (AVX-512) and leave the rest to a scalar copy of the loop body, which
+#: for the 15 to 25 pending plants of a block cost more than the padding (zeros, never stored).
+LANE_GROUP = 8
 if I_GAP != 26:  # slide_lanes unpacks the plant row up to the backlash by hand
     raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
 
@@ -621,7 +625,12 @@ def two_phase_lanes(
         work[W_X * BLOCK + m] = state[S_X, i]
         work[W_V * BLOCK + m] = state[S_V, i]
         work[W_U * BLOCK + m] = state[S_FRICTION, i]  # the command due, as pass 1 leaves it
-    n = np.uint64(pending)  # unsigned: no wrap-around of negative indices (SIMD code)
+    padded = (pending + LANE_GROUP - 1) // LANE_GROUP * LANE_GROUP  # <= BLOCK, a multiple
+    for m in range(pending, padded):  # a body at rest under no command: never finished here
+        work[W_X * BLOCK + m] = 0.0
+        work[W_V * BLOCK + m] = 0.0
+        work[W_U * BLOCK + m] = 0.0
+    n = np.uint64(padded)  # unsigned: no wrap-around of negative indices (SIMD code)
     for m in range(n):
         first = _first_phase(
             work[W_X * BLOCK + m], work[W_V * BLOCK + m], work[W_U * BLOCK + m], h, row
