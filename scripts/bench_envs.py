@@ -70,6 +70,7 @@ from itertools import cycle, islice
 from typing import Any
 
 import _bench_kernel
+import _bench_passes
 import _load
 import gymnasium as gym
 import numba
@@ -443,12 +444,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--part",
-        choices=("all", "cartpole", "threads", "loads", "split"),
+        choices=("all", "cartpole", "threads", "loads", "split", "passes"),
         default="all",
         help="cartpole: the comparisons with CartPole; threads: the servo's vector env on the "
         "serial, default and threaded kernel under each --loads case; loads: the vector envs "
         "against CartPoleVectorEnv under each --loads case (quiet, busy, learner); split: "
-        "where the time of a vector env-step goes, on one thread; all: every part (default)",
+        "where the time of a vector env-step goes, on one thread; passes: where its plant "
+        "step goes, pass by pass (scripts/_bench_passes.py); all: every part (default)",
     )
     _load.add_arguments(parser, "envs")
     return parser
@@ -495,6 +497,7 @@ def main(argv: list[str] | None = None) -> int:
             args, OURS, lambda env_id, n: vector_variant(env_id, DEFAULT, {}, n, args.seed).run
         ),
         "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
+        "passes": lambda: _bench_passes.passes_part(args, OURS, vector_actions),
     }
     return run_parts(
         [run for name, run in parts.items() if args.part in ("all", name)], args.markdown

@@ -145,3 +145,14 @@ def test_loads_part_reports_the_threads_gain_beside_the_ratios():
     assert quiet[0].count("|") == 9  # 8 cells: load, CartPole, two envs' rate and ratio, gains
     gains = quiet[0].split("|")[-3:-1]
     assert all(float(gain.split()[0]) > 0 for gain in gains)
+
+
+def test_passes_part_splits_each_plant_step_into_its_passes():
+    out = run_script("bench_envs.py", "--part", "passes", "--quick", "--markdown", timeout=300)
+    assert "| env | pass 1 | pending list | pass 1b | pass 2 | all |" in out
+    for name in ("RotaryServo-v1", "AltinoDistance-v1"):
+        row = next(line for line in out.splitlines() if line.startswith(f"| {name} |"))
+        cells = [cell.strip() for cell in row.strip("|").split("|")]
+        assert float(cells[5].split()[0]) > float(cells[1].split()[0]) > 0  # all > pass 1
+        after_one, after_one_b = (float(cell.removesuffix(" %")) for cell in cells[6:8])
+        assert 0 < after_one_b < after_one < 100  # pass 1b finishes most pending plants
