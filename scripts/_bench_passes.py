@@ -10,8 +10,12 @@ keeps a snapshot of the plants' state every fourth of the next 200 steps with th
 the step after, and steps each snapshot with pass 1 only, then pass 1 and the list, then also
 pass 1b, then all passes. Each snapshot is copied into the stepped arrays before its timed
 call, so the figures are those of a state in cache, and the timed calls are the same work for
-every variant. Each increment is what that pass adds, in ns per plant-step; the shares are of
-the plants each step leaves pending after pass 1 and after pass 1b.
+every variant. The time of the call alone (numba's dispatch, about 0.7 µs) is timed too and
+taken off each variant, per round. Each increment is what that pass adds, in ns per
+plant-step; the shares are of the plants each step leaves pending after pass 1 and after pass
+1b. Every block must hold at least ``LANES_MIN`` (16) plants, as the kernel gives smaller ones
+the element step only: ``--num-envs`` below 16, or one that leaves a last block of fewer, is
+refused.
 
 The passes are the kernel's own compiled functions, called here in its order; this part needs
 the source of this round or later (``PYTHONPATH=<checkout>`` for another one).
@@ -55,9 +59,12 @@ def _passes(
 ) -> tuple[int, int]:
     """Step every block with passes 1 to ``upto`` (0 to 3) as ``_step_lanes`` orders them.
 
-    Returns the plants left pending after pass 1 and after pass 1b (0 where not run).
+    Returns the plants left pending after pass 1 and after pass 1b (0 where not run). With
+    ``upto`` -1 it returns at once: the cost of the call alone.
     """
     after_one, after_one_b = 0, 0
+    if upto < 0:
+        return after_one, after_one_b
     block = plant_batch.BLOCK
     for lo in range(0, state.shape[1], block):
         hi = min(lo + block, state.shape[1])
@@ -133,6 +140,13 @@ def passes_part(
 ) -> str:
     """Time the passes of each env's plant step; print and return the markdown."""
     n = args.num_envs
+    smallest = min(n % plant_batch.BLOCK or plant_batch.BLOCK, n)
+    if smallest < plant_batch.LANES_MIN:
+        raise SystemExit(
+            f"bench_envs.py: error: --part passes needs every block of {plant_batch.BLOCK} "
+            f"plants to hold at least {plant_batch.LANES_MIN} (smaller ones take the element "
+            f"step only); --num-envs {n} leaves one of {smallest}"
+        )
     print(
         f"\npasses: ns per plant-step at N = {n}, one thread, state in cache, median of "
         f"{args.repeats} rounds (each pass: what it adds)"
@@ -148,17 +162,20 @@ def passes_part(
     ]
     for env_id in envs:
         plants, snapshots = _snapshots(env_id, n, actions(env_id, n, args.seed), args.seed)
-        for upto in range(len(VARIANTS)):  # compile, or load numba's cache, untimed
+        for upto in range(-1, len(VARIANTS)):  # compile, or load numba's cache, untimed
             _timed(plants, snapshots[:1], upto)
         ns: list[list[float]] = [[] for _ in VARIANTS]
         counts = (0, 0)
         for round_ in range(args.repeats):
-            order = list(range(len(VARIANTS)))
+            order = list(range(-1, len(VARIANTS)))  # -1: the call alone, taken off the others
+            timed = {}
             for upto in order[round_ % len(order) :] + order[: round_ % len(order)]:
                 seconds, after_one, after_one_b = _timed(plants, snapshots, upto)
-                ns[upto].append(seconds / len(snapshots) / n * 1e9)
+                timed[upto] = seconds
                 if upto == len(VARIANTS) - 1:
                     counts = (after_one, after_one_b)
+            for upto in range(len(VARIANTS)):
+                ns[upto].append((timed[upto] - timed[-1]) / len(snapshots) / n * 1e9)
         added = [ns[0]] + [
             [b - a for a, b in zip(before, after, strict=True)] for before, after in pairwise(ns)
         ]

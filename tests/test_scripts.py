@@ -154,6 +154,19 @@ def test_passes_part_splits_each_plant_step_into_its_passes():
         row = next(line for line in out.splitlines() if line.startswith(f"| {name} |"))
         cells = [cell.strip() for cell in row.strip("|").split("|")]
         medians = [float(cell.split()[0]) for cell in cells[1:6]]  # increments may be < 0
-        assert medians[0] > 0 and medians[4] > 0  # pass 1 and all: whole times
+        assert medians[0] > 0  # pass 1: a whole pass
+        assert medians[4] > 0  # all
         after_one, after_one_b = (float(cell.removesuffix(" %")) for cell in cells[6:8])
         assert 0 < after_one_b < after_one < 100  # pass 1b finishes most pending plants
+
+
+def test_passes_part_refuses_a_block_too_small_for_the_passes():
+    done = subprocess.run(
+        [sys.executable, str(SCRIPTS / "bench_envs.py"), "--part", "passes", "--num-envs", "257"],
+        capture_output=True,
+        text=True,
+        check=False,
+        timeout=120,
+    )
+    assert done.returncode != 0
+    assert "--num-envs 257 leaves one of 1" in done.stderr
