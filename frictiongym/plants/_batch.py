@@ -82,9 +82,9 @@ BLOCK = 256
 LANES_MIN = 16
 #: ``S_STUCK`` of a plant that pass 1 left to pass 2 (1.0 / 0.0 are stuck / sliding).
 PENDING = 2.0
-#: Pass 1b runs its SIMD loops over a multiple of this many entries: the compiled loops step
-#: 8 plants at a time (AVX-512) and leave the rest to a scalar copy of the loop body, which
-#: for the 15 to 25 pending plants of a block cost more than the padding (zeros, never stored).
+#: Pass 1b runs its SIMD loops over a multiple of this many entries, the pending plants padded
+#: with zeros (never stored): the compiled loops step 8 plants at a time (AVX-512), and would
+#: leave the last 1 to 7 of a block's 13 to 22 pending plants to a scalar copy of the loop.
 LANE_GROUP = 8
 if I_GAP != 26:  # slide_lanes unpacks the plant row up to the backlash by hand
     raise ImportError("frictiongym.plants._batch.slide_lanes must unpack every plant row field")
