@@ -10,15 +10,16 @@ keeps a snapshot of the plants' state every fourth of the next 200 steps with th
 the step after, and steps each snapshot with pass 1 only, then pass 1 and the list, then also
 pass 1b, then all passes. Each snapshot is copied into the stepped arrays before its timed
 call, so the figures are those of a state in cache, and the timed calls are the same work for
-every variant. The time of the call alone (numba's dispatch, about 0.7 µs) is timed too and
-taken off each variant, per round. Each increment is what that pass adds, in ns per
+every variant. The time of the call alone (numba's dispatch) is timed too and taken off each
+variant, per round. Each increment is what that pass adds, in ns per
 plant-step; the shares are of the plants each step leaves pending after pass 1 and after pass
 1b. Every block must hold at least ``LANES_MIN`` (16) plants, as the kernel gives smaller ones
 the element step only: ``--num-envs`` below 16, or one that leaves a last block of fewer, is
 refused.
 
-The passes are the kernel's own compiled functions, called here in its order; this part needs
-the source of this round or later (``PYTHONPATH=<checkout>`` for another one).
+The passes are the kernel's own compiled functions, called here in its order: this part runs
+on any source that has them (issue J's second round, with pass 1b, and later), another
+checkout's through ``PYTHONPATH=<checkout>``.
 """
 
 from __future__ import annotations
