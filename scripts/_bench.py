@@ -122,6 +122,14 @@ def thousands(n: int) -> str:
     return f"{n:,}".replace(",", " ")
 
 
+def ns_stats(values: Sequence[float], digits: int = 1) -> str:
+    """``median [min, max]`` of times in ns, with ``digits`` decimals."""
+    low, median, high = (
+        f"{v:.{digits}f}" for v in (min(values), statistics.median(values), max(values))
+    )
+    return f"{median} [{low}, {high}]"
+
+
 def stats(values: Sequence[float]) -> str:
     """``median [min, max]`` of rates."""
     return f"{si(statistics.median(values))} [{si(min(values))}, {si(max(values))}]"

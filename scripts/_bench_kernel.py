@@ -48,7 +48,16 @@ import gymnasium as gym
 import numba
 import numpy as np
 import numpy.typing as npt
-from _bench import Runner, measure, paired_ratios, ratio_stats, single_threaded, stats
+from _bench import (
+    Runner,
+    measure,
+    ns_stats,
+    paired_ratios,
+    ratio_stats,
+    single_threaded,
+    stats,
+    thousands,
+)
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.plants import Plant
@@ -81,7 +90,7 @@ def loads_part(
         f"(env-steps/s, {args.repeats} rounds of {args.seconds} s; ratio per round)"
     )
     lines = [
-        f"Vector envs beside other work (N = {_thousands(n)}; ratio = ours / CartPoleVectorEnv in "
+        f"Vector envs beside other work (N = {thousands(n)}; ratio = ours / CartPoleVectorEnv in "
         "env-steps/s, per round, both under the same load; threads' gain = a balanced compiled "
         "loop's rate on numba's threads / on one thread, per round, 2 for a perfect split, for "
         "a loop of scalar code and one of SIMD code):",
@@ -211,7 +220,7 @@ def split_part(
         f"{args.repeats} rounds"
     )
     lines = [
-        f"Where a vector env-step goes (N = {_thousands(n)}, serial kernels, ns per env-step, "
+        f"Where a vector env-step goes (N = {thousands(n)}, serial kernels, ns per env-step, "
         f"median [min, max] of {args.repeats} rounds):",
         "",
         "| env | vector step | env kernel | plant | observation | bookkeeping | memory floor |",
@@ -231,19 +240,11 @@ def split_part(
             ],
             "memory floor": ns["memory floor"],
         }
-        text = {k: _ns(v) for k, v in cells.items()}
+        text = {k: ns_stats(v) for k, v in cells.items()}
         name = env_id.removeprefix("frictiongym/")
         print(f"  {name:18s} " + "  ".join(f"{k} {v}" for k, v in text.items()))
         lines.append(f"| {name} | " + " | ".join(text.values()) + " |")
     return "\n".join(lines)
-
-
-def _thousands(n: int) -> str:
-    return f"{n:,}".replace(",", " ")
-
-
-def _ns(values: Sequence[float]) -> str:
-    return f"{statistics.median(values):.1f} [{min(values):.1f}, {max(values):.1f}]"
 
 
 def _pieces(env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int) -> list[Timed]:

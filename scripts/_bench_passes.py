@@ -25,7 +25,6 @@ checkout's through ``PYTHONPATH=<checkout>``.
 from __future__ import annotations
 
 import argparse
-import statistics
 import time
 from collections.abc import Callable
 from itertools import cycle, islice, pairwise
@@ -35,12 +34,13 @@ import gymnasium as gym
 import numba
 import numpy as np
 import numpy.typing as npt
+from _bench import ns_stats, thousands
 
 from frictiongym.plants import _batch as plant_batch
 from frictiongym.plants._kernel import S_FRICTION, S_STUCK
 
-#: The cumulative variants: how many of the passes each runs, and its name.
-VARIANTS = ("pass 1", "+ pending list", "+ pass 1b", "+ pass 2")
+#: The passes, in order: variant ``k`` runs the first ``k + 1`` of them.
+VARIANTS = ("pass 1", "pending list", "pass 1b", "pass 2")
 #: Steps run before the first snapshot, and the steps over which snapshots are kept.
 WARM_STEPS, SNAPSHOT_STEPS, SNAPSHOT_EVERY = 400, 200, 4
 
@@ -89,17 +89,12 @@ def _passes(
     return after_one, after_one_b
 
 
-@numba.njit(cache=True)
-def _copy(destination: npt.NDArray[np.float64], source: npt.NDArray[np.float64]) -> None:
-    for k in range(source.shape[0]):
-        for i in range(source.shape[1]):
-            destination[k, i] = source[k, i]
-
-
 Snapshot = tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], int, npt.NDArray[np.float64]]
 
 
-def _snapshots(env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int) -> tuple[Any, list]:
+def _snapshots(
+    env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int
+) -> tuple[Any, list[Snapshot]]:
     """Run the vector env and return its plants and the snapshots (see the module docstring)."""
     env = gym.make_vec(env_id, num_envs=n, vectorization_mode="vector_entry_point", parallel=False)
     env.reset(seed=seed)
@@ -123,8 +118,8 @@ def _timed(plants: Any, snapshots: list[Snapshot], upto: int) -> tuple[float, in
     index = np.empty(plant_batch.BLOCK, dtype=np.int64)
     seconds, after_one, after_one_b = 0.0, 0, 0
     for snapshot_state, snapshot_buffer, head, command in snapshots:
-        _copy(state, snapshot_state)
-        _copy(buffer, snapshot_buffer)
+        np.copyto(state, snapshot_state)
+        np.copyto(buffer, snapshot_buffer)
         start = time.perf_counter()
         counts = _passes(
             upto, state, buffer, head, command, plants.dt, plants.rows, fresh, work, index
@@ -153,12 +148,11 @@ def passes_part(
         f"{args.repeats} rounds (each pass: what it adds)"
     )
     lines = [
-        f"Where a plant step of the vector env goes (N = {n:,}".replace(",", " ")
-        + f", one thread, the state in cache; ns per plant-step, median [min, max] of "
+        f"Where a plant step of the vector env goes (N = {thousands(n)}, one thread, the state "
+        "in cache; ns per plant-step, median [min, max] of "
         f"{args.repeats} rounds; each pass: what it adds to the ones before):",
         "",
-        "| env | pass 1 | pending list | pass 1b | pass 2 | all | pending after pass 1 | "
-        "after pass 1b |",
+        "| env | " + " | ".join(VARIANTS) + " | all | pending after pass 1 | after pass 1b |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for env_id in envs:
@@ -181,13 +175,9 @@ def passes_part(
             [b - a for a, b in zip(before, after, strict=True)] for before, after in pairwise(ns)
         ]
         shares = [f"{100 * c / len(snapshots) / n:.2f} %" for c in counts]
-        cells = [_ns(values) for values in added] + [_ns(ns[-1]), *shares]
+        cells = [ns_stats(values, 2) for values in added] + [ns_stats(ns[-1], 2), *shares]
         name = env_id.removeprefix("frictiongym/")
-        heads = ("pass 1", "pending list", "pass 1b", "pass 2", "all", "pending", "after 1b")
+        heads = (*VARIANTS, "all", "pending", "after 1b")
         print(f"  {name:18s} " + "  ".join(f"{k} {v}" for k, v in zip(heads, cells, strict=True)))
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
-
-
-def _ns(values: list[float]) -> str:
-    return f"{statistics.median(values):.2f} [{min(values):.2f}, {max(values):.2f}]"
