@@ -31,6 +31,7 @@ from numba.extending import overload
 
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _batch as plant_batch
+from frictiongym.plants import _claims as claims
 from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants._kernel import I_UMAX
 from frictiongym.plants.sensors import (
@@ -575,42 +576,58 @@ def reset_envs(
     otherwise the caller has set the rows. The sensor offset is always zeroed, and the command
     limit copied from the env's plant row (set before this call).
     """
-    one_row = plant_rows.shape[0] == 1
     index = plant_kernel.selected(mask)
-    plant_kernel.reset_selected(index, state, delay_buffer, position, velocity)
-    for i in index:
+    for k in range(index.shape[0]):
+        i, at = index[k], k if position.shape[0] > 1 else 0
+        _reset_env(i, position[at], velocity[at], state, delay_buffer, plant_rows, rows)
         if set_rows:
             rows[T_GAIN, i] = 1.0
             for entry in range(REF_SIZE):
                 rows[T_REF + entry, i] = reference[entry]
-        rows[T_OFFSET, i] = 0.0
-        rows[T_UMAX, i] = plant_rows[0 if one_row else i, I_UMAX]
 
 
-@njit(cache=True)
-def autoreset_envs(
-    command: npt.NDArray[np.floating[Any]],
-    mask: npt.NDArray[np.bool_],
+@njit(cache=True, inline="always")
+def _reset_env(
+    i: int,
+    position: float,
+    velocity: float,
     state: npt.NDArray[np.float64],
     delay_buffer: npt.NDArray[np.float64],
     plant_rows: npt.NDArray[np.float64],
     rows: npt.NDArray[np.float64],
-    position: npt.NDArray[np.float64],
-    velocity: npt.NDArray[np.float64],
-    reference: npt.NDArray[np.float64],
-) -> int:
-    """Check the commands, then :func:`reset_envs` the envs of ``mask`` without ``set_rows``.
+) -> None:
+    """Put env ``i``'s plant at ``position`` moving at ``velocity``, and set its task rows.
 
-    A vector env's autoreset that draws nothing (the rows hold the defaults), in one call
-    before the step: the step's own check of the commands comes first, so that a refused step
-    changes nothing. Returns the index of the first non-finite command (then nothing changed),
-    else -1.
+    The rows every reset sets: the sensor offset zeroed, the command limit copied from the
+    env's plant row.
     """
-    bad = plant_batch.first_non_finite(command)
-    if bad >= 0:
-        return bad
-    reset_envs(mask, state, delay_buffer, plant_rows, rows, position, velocity, reference, False)
-    return -1
+    plant_kernel.reset_plant(i, position, velocity, state, delay_buffer)
+    rows[T_OFFSET, i] = 0.0
+    rows[T_UMAX, i] = plant_rows[0 if plant_rows.shape[0] == 1 else i, I_UMAX]
+
+
+@njit(cache=True, inline="always")
+def _reset_fresh(
+    lo: int,
+    hi: int,
+    fresh: npt.NDArray[np.bool_],
+    start: npt.NDArray[np.float64],
+    state: npt.NDArray[np.float64],
+    delay_buffer: npt.NDArray[np.float64],
+    plant_rows: npt.NDArray[np.float64],
+    rows: npt.NDArray[np.float64],
+) -> None:
+    """Reset the fresh envs among ``lo`` to ``hi - 1`` to ``start`` (position, velocity).
+
+    :func:`reset_envs` without ``set_rows``, in the kernel: an autoreset that draws nothing.
+    """
+    count = 0  # first a count without branches: most blocks have none
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        count += np.uint64(fresh[i])
+    if count > 0:
+        for i in range(lo, hi):
+            if fresh[i]:
+                _reset_env(i, start[0], start[1], state, delay_buffer, plant_rows, rows)
 
 
 @njit(cache=True)
@@ -712,6 +729,8 @@ def _step_block(
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
+    reset: bool,
+    start: npt.NDArray[np.float64],
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
@@ -719,19 +738,23 @@ def _step_block(
     """Step the envs of one block (those not ``fresh``), observe them all; return how many ended.
 
     ``given`` holds the caller's commands, ``command`` them as float64 (:func:`float64_commands`;
-    this block converts its own). Two loops, not one: fused into one loop body the plant step
-    and the observation compiled to code half as fast as the two apart (docs/benchmarks.md, "A
-    kernel near the machine's limit"); a block's state stays in cache from the first loop to
-    the second.
+    this block converts its own). With ``reset`` the fresh envs are first reset to ``start``
+    (:func:`_reset_fresh`), by the thread that steps the block: the main thread then touches no
+    line of their state. Two loops, not one: fused into one loop body the plant step and the
+    observation compiled to code half as fast as the two apart (docs/benchmarks.md, "A kernel
+    near the machine's limit"); a block's state stays in cache from the first loop to the
+    second.
     """
-    start, stop = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
-    convert_commands(start, stop, given, command)
+    start_env, stop_env = block * BLOCK, min((block + 1) * BLOCK, state.shape[1])
+    if reset:
+        _reset_fresh(start_env, stop_env, fresh, start, state, delay_buffer, plant_rows, rows)
+    convert_commands(start_env, stop_env, given, command)
     plant_batch.step_plants(
-        start, stop, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
+        start_env, stop_env, state, delay_buffer, head, command, dt, n_sub, plant_rows, fresh
     )
-    for i in range(start, stop):
+    for i in range(start_env, stop_env):
         state[E_STEPS, i] += 0.0 if fresh[i] else 1.0  # steps count from +0.0: no sign to keep
-    return observe_block(start, stop, state, dt, rows, rng, config, fresh, obs, out, flags)
+    return observe_block(start_env, stop_env, state, dt, rows, rng, config, fresh, obs, out, flags)
 
 
 @plant_kernel.serial_njit
@@ -747,11 +770,17 @@ def step_envs(
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
+    reset: bool,
+    start: npt.NDArray[np.float64],
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
     """Step every env not ``fresh`` under ``command`` and observe all of them, in place.
+
+    With ``reset`` the fresh envs are reset first to ``start`` (their position and velocity)
+    as :func:`reset_envs` does without ``set_rows``, once the commands are found finite: the
+    autoreset of envs whose reset draws nothing and whose task rows hold the defaults.
 
     Returns the index of the first non-finite command (then nothing changed), or else -1 minus
     the number of envs whose episode ended on this step (their ``F_DONE`` flags).
@@ -776,6 +805,8 @@ def step_envs(
             rng,
             config,
             fresh,
+            reset,
+            start,
             obs,
             out,
             flags,
@@ -796,33 +827,49 @@ def step_envs_parallel(
     rng: npt.NDArray[np.uint64],
     config: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
+    reset: bool,
+    start: npt.NDArray[np.float64],
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
-    """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results)."""
+    """:func:`step_envs` with the blocks claimed by numba's threads (bit-identical results)."""
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     command64 = float64_commands(command)  # one type for the plant kernel
-    ended = 0
-    for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
-        ended += _step_block(
-            np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
-            state,
-            delay_buffer,
-            head,
-            command,
-            command64,
-            dt,
-            n_sub,
-            plant_rows,
-            rows,
-            rng,
-            config,
-            fresh,
-            obs,
-            out,
-            flags,
-        )
-    return -1 - ended
+    blocks = (state.shape[1] + BLOCK - 1) // BLOCK
+    workers = claims.workers_for(blocks)
+    counters = claims.new_counters(workers)
+    ended_by = np.empty(workers, dtype=np.int64)  # a worker's count, summed below: no reduction
+    for each in prange(workers):
+        worker = np.int64(each)  # prange's index is unsigned; claims count with signed integers
+        ended = 0
+        block = claims.claim(counters, worker, workers, blocks)
+        while block >= 0:
+            ended += _step_block(
+                block,
+                state,
+                delay_buffer,
+                head,
+                command,
+                command64,
+                dt,
+                n_sub,
+                plant_rows,
+                rows,
+                rng,
+                config,
+                fresh,
+                reset,
+                start,
+                obs,
+                out,
+                flags,
+            )
+            block = claims.claim(counters, worker, workers, blocks)
+        ended_by[worker] = ended
+    total = 0
+    for worker in range(workers):
+        total += ended_by[worker]
+    return -1 - total

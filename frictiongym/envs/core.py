@@ -149,6 +149,7 @@ class Simulation:
     on_device = False
     _nominal_row: FloatArray
     _default_start: tuple[FloatArray, FloatArray]
+    _start: FloatArray
     _default_reference_row: FloatArray
     _rows_default: bool
 
@@ -211,6 +212,8 @@ class Simulation:
         )
         self.plants = self._new_plants(parallel)
         self._default_start = (np.array([device.direction * device.start]), np.zeros(1))
+        #: The same start as one array (position, velocity), for the kernel's autoresets.
+        self._start = np.concatenate(self._default_start)
         # A random reference is sampled per env at reset; the zero row only fills the argument.
         self._default_reference_row = (
             self.reference.sample() if not self.reference.random else np.zeros(env_kernel.REF_SIZE)
@@ -402,27 +405,6 @@ class Simulation:
         if jittery:  # after the reset, which zeroes the plant's state
             plants.seed_jitter(np.array(jitter_seeds, dtype=np.float64), mask)
 
-    def autoreset(
-        self,
-        command: npt.NDArray[np.floating[Any]],
-        mask: BoolArray,
-        rng_of: Callable[[int], np.random.Generator],
-    ) -> None:
-        """Check ``command`` as :meth:`run` will, then :meth:`prepare_reset` the envs of ``mask``.
-
-        A vector env's autoreset before its step: a non-finite command raises the ValueError of
-        :meth:`run` before anything changes (no env reset, no draw). A reset that draws nothing
-        is one compiled call, check included (it runs on most steps of an env whose episodes
-        end every few hundred steps).
-        """
-        if self._rows_default:  # the rows hold what this reset would set
-            bad = env_kernel.autoreset_envs(command, mask, *self._reset_args())
-            if bad >= 0:
-                raise ValueError(_bad_action(command, bad))
-            return
-        self.check_commands(command)
-        self.prepare_reset(mask, rng_of)
-
     def _reset_args(
         self,
         start: tuple[FloatArray, FloatArray] | None = None,
@@ -445,13 +427,33 @@ class Simulation:
         obs: npt.NDArray[np.float32],
         out: FloatArray,
         flags: BoolArray,
+        autoreset: Callable[[int], np.random.Generator] | None = None,
     ) -> int:
         """Step the envs not ``fresh`` under ``command``, observe all; write the outputs.
 
+        With ``autoreset`` (each env's generator, as :meth:`prepare_reset` takes them) the
+        fresh envs are reset first: a vector env's autoreset. A non-finite command raises the
+        ValueError before anything changes (no env reset, no draw). A reset that draws nothing
+        is done by the kernel, in the block that steps the env (it runs on most steps of an env
+        whose episodes end every few hundred steps).
+
         Returns how many envs ended their episode (their ``F_DONE`` flags).
         """
+        in_kernel = autoreset is not None and self._rows_default  # the rows hold what it sets
+        if autoreset is not None and not in_kernel:
+            self.check_commands(command)
+            self.prepare_reset(fresh, autoreset)
         bad = self.plants.run(
-            command, self.rows, self.noise_state, self.config, fresh, obs, out, flags
+            command,
+            self.rows,
+            self.noise_state,
+            self.config,
+            fresh,
+            in_kernel,
+            self._start,
+            obs,
+            out,
+            flags,
         )
         if bad >= 0:
             raise ValueError(_bad_action(command, bad))
@@ -473,9 +475,8 @@ class Simulation:
         def refuse(bad: int) -> None:
             raise ValueError(_bad_action(command, bad))
 
-        return self.plants.bind(
-            command, self.rows, self.noise_state, self.config, fresh, obs, out, flags, refuse=refuse
-        )
+        task = (self.rows, self.noise_state, self.config, fresh, False, self._start)
+        return self.plants.bind(command, *task, obs, out, flags, refuse=refuse)
 
     def check_commands(self, command: npt.NDArray[np.floating[Any]]) -> None:
         """Raise the ValueError :meth:`run` would raise for a non-finite command, now."""

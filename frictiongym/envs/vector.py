@@ -255,7 +255,7 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
         else:
             command = self._commands(actions)
         mode = self.autoreset_mode
-        fresh = self._none_fresh
+        fresh, autoreset = self._none_fresh, None
         if self._ended:
             if mode is AutoresetMode.DISABLED:
                 raise gym.error.ResetNeeded(
@@ -264,11 +264,10 @@ class FrictionVectorEnv(VectorEnv[ObsArray, ActArray, Any]):
                     "reset(options={'reset_mask': ...})"
                 )
             if mode is AutoresetMode.NEXT_STEP:
-                fresh = self._done
-                # a refused action changes nothing: no env reset, no draw spent
-                self.sim.autoreset(command, fresh, self._rng)
+                # reset by the run, after its check: a refused action resets no env
+                fresh, autoreset = self._done, self._rng
         obs, out, flags = self._outputs()
-        ended = self.sim.run(command, fresh, obs, out, flags)
+        ended = self.sim.run(command, fresh, obs, out, flags, autoreset)
         # Rows of this step's own output arrays, fresh every step (copied below only where a
         # same-step reset writes them again).
         reward = out[env_kernel.O_REWARD]
