@@ -170,3 +170,23 @@ def test_passes_part_refuses_a_block_too_small_for_the_passes():
     )
     assert done.returncode != 0
     assert "--num-envs 257 leaves one of 1" in done.stderr
+
+
+def test_claims_part_times_each_threaded_kernel_against_the_one_before():
+    out = run_script(
+        "bench_envs.py",
+        "--part",
+        "claims",
+        "--quick",
+        "--num-envs",
+        "1024",
+        "--markdown",
+        timeout=600,
+    )
+    assert "| env | kernel | µs per step | ratio, median of rounds [quartiles] |" in out
+    for name in ("RotaryServo-v1", "AltinoDistance-v1"):
+        rows = [line for line in out.splitlines() if line.startswith(f"| {name} |")]
+        assert len(rows) == 4  # serial, the kernel before, claims, as shipped
+        cells = [[cell.strip() for cell in row.strip("|").split("|")] for row in rows]
+        assert all(float(row[2].split()[0]) > 0 for row in cells)  # µs per step
+        assert cells[1][3].startswith("1.000")  # the reference, against itself
