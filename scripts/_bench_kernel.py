@@ -258,7 +258,7 @@ def _pieces(env_id: str, n: int, table: list[npt.NDArray[Any]], seed: int) -> li
     obs = np.zeros((n, sim.observation_size), np.float32)
     out = np.zeros((env_kernel.OUT_SIZE, n))
     flags = np.zeros((env_kernel.FLAG_SIZE, n), dtype=bool)
-    task = (sim.rows, sim.noise_state, sim.config, fresh, obs, out, flags)
+    task = (sim.rows, sim.noise_state, sim.config, fresh, False, sim._start, obs, out, flags)
     plant = Plant(sim.plant, sim.friction, sim.dt, n, parallel=False)
     state = sim.plants.state.copy()
 

@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 from itertools import cycle, islice
 from typing import Any
 
-import _bench_claims
+import _bench_autoreset
 import _bench_kernel
 import _bench_passes
 import _load
@@ -445,15 +445,15 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument(
         "--part",
-        choices=("all", "cartpole", "threads", "loads", "split", "passes", "claims"),
+        choices=("all", "cartpole", "threads", "loads", "split", "passes", "autoreset"),
         default="all",
         help="cartpole: the comparisons with CartPole; threads: the servo's vector env on the "
         "serial, default and threaded kernel under each --loads case; loads: the vector envs "
         "against CartPoleVectorEnv under each --loads case (quiet, busy, learner); split: "
         "where the time of a vector env-step goes, on one thread; passes: where its plant "
-        "step goes, pass by pass (scripts/_bench_passes.py); claims: the threaded kernel's "
-        "claims and in-kernel autoreset against the kernel before them, in short turns "
-        "(scripts/_bench_claims.py); all: every part (default)",
+        "step goes, pass by pass (scripts/_bench_passes.py); autoreset: the vector "
+        "envs' autoreset in the kernel against one before the call, in short turns "
+        "(scripts/_bench_autoreset.py); all: every part (default)",
     )
     _load.add_arguments(parser, "envs")
     return parser
@@ -501,7 +501,7 @@ def main(argv: list[str] | None = None) -> int:
         ),
         "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
         "passes": lambda: _bench_passes.passes_part(args, OURS, vector_actions),
-        "claims": lambda: _bench_claims.claims_part(args, OURS, vector_actions),
+        "autoreset": lambda: _bench_autoreset.autoreset_part(args, OURS, vector_actions),
     }
     return run_parts(
         [run for name, run in parts.items() if args.part in ("all", name)], args.markdown

@@ -172,21 +172,29 @@ def test_passes_part_refuses_a_block_too_small_for_the_passes():
     assert "--num-envs 257 leaves one of 1" in done.stderr
 
 
-def test_claims_part_times_each_threaded_kernel_against_the_one_before():
+def test_autoreset_part_times_the_autoreset_in_the_kernel_against_one_before_it():
     out = run_script(
         "bench_envs.py",
         "--part",
-        "claims",
+        "autoreset",
         "--quick",
         "--num-envs",
         "1024",
         "--markdown",
         timeout=600,
     )
-    assert "| env | kernel | µs per step | ratio, median of rounds [quartiles] |" in out
+    assert "| env | step | µs per step | ratio, median of rounds [quartiles] |" in out
     for name in ("RotaryServo-v1", "AltinoDistance-v1"):
         rows = [line for line in out.splitlines() if line.startswith(f"| {name} |")]
-        assert len(rows) == 4  # serial, the kernel before, claims, as shipped
+        assert len(rows) == 4  # serial, before, the control, in the kernel
         cells = [[cell.strip() for cell in row.strip("|").split("|")] for row in rows]
         assert all(float(row[2].split()[0]) > 0 for row in cells)  # µs per step
         assert cells[1][3].startswith("1.000")  # the reference, against itself
+
+
+def test_split_part_splits_a_vector_step():
+    out = run_script("bench_envs.py", "--part", "split", "--quick", "--markdown", timeout=600)
+    assert "| env | vector step | env kernel | plant | observation |" in out
+    for name in ("RotaryServo-v1", "AltinoDistance-v1"):
+        row = next(line for line in out.splitlines() if line.startswith(f"| {name} |"))
+        assert float(row.strip("|").split("|")[1].split()[0]) > 0

@@ -31,7 +31,6 @@ from numba.extending import overload
 
 from frictiongym.envs.references import REF_SIZE, reference_at
 from frictiongym.plants import _batch as plant_batch
-from frictiongym.plants import _claims as claims
 from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants._kernel import I_UMAX
 from frictiongym.plants.sensors import (
@@ -833,43 +832,31 @@ def step_envs_parallel(
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
-    """:func:`step_envs` with the blocks claimed by numba's threads (bit-identical results)."""
+    """:func:`step_envs` with the blocks spread over numba's threads (bit-identical results)."""
     bad = plant_batch.first_non_finite(command)
     if bad >= 0:
         return bad
     command64 = float64_commands(command)  # one type for the plant kernel
-    blocks = (state.shape[1] + BLOCK - 1) // BLOCK
-    workers = claims.workers_for(blocks)
-    counters = claims.new_counters(workers)
-    ended_by = np.empty(workers, dtype=np.int64)  # a worker's count, summed below: no reduction
-    for each in prange(workers):
-        worker = np.int64(each)  # prange's index is unsigned; claims count with signed integers
-        ended = 0
-        block = claims.claim(counters, worker, workers, blocks)
-        while block >= 0:
-            ended += _step_block(
-                block,
-                state,
-                delay_buffer,
-                head,
-                command,
-                command64,
-                dt,
-                n_sub,
-                plant_rows,
-                rows,
-                rng,
-                config,
-                fresh,
-                reset,
-                start,
-                obs,
-                out,
-                flags,
-            )
-            block = claims.claim(counters, worker, workers, blocks)
-        ended_by[worker] = ended
-    total = 0
-    for worker in range(workers):
-        total += ended_by[worker]
-    return -1 - total
+    ended = 0
+    for block in prange((state.shape[1] + BLOCK - 1) // BLOCK):
+        ended += _step_block(
+            np.int64(block),  # prange's index is unsigned; the body indexes with signed integers
+            state,
+            delay_buffer,
+            head,
+            command,
+            command64,
+            dt,
+            n_sub,
+            plant_rows,
+            rows,
+            rng,
+            config,
+            fresh,
+            reset,
+            start,
+            obs,
+            out,
+            flags,
+        )
+    return -1 - ended

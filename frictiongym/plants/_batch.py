@@ -34,7 +34,6 @@ import numpy.typing as npt
 from numba import njit, prange
 
 from frictiongym.friction import _core as friction_core
-from frictiongym.plants import _claims as claims
 from frictiongym.plants._backlash import step_backlash
 from frictiongym.plants._kernel import (
     _MAX_SEGMENTS,
@@ -77,7 +76,7 @@ from frictiongym.plants._kernel import (
 )
 
 #: Plants per block: pass 2 of a block follows pass 1 while its state is in cache, and the
-#: threaded kernels hand out whole blocks to their threads (:mod:`._claims`).
+#: threaded kernels spread whole blocks over their threads.
 BLOCK = 256
 #: Blocks of fewer plants take the element step only (a single env, a tuner's small batch).
 LANES_MIN = 16
@@ -852,22 +851,15 @@ def step_batch_parallel(
     n_sub: int,
     params: npt.NDArray[np.float64],
 ) -> int:
-    """:func:`step_batch` with the blocks claimed by numba's threads (bit-identical results)."""
+    """:func:`step_batch` with the blocks spread over numba's threads (bit-identical results)."""
     bad = first_non_finite(command)
     if bad >= 0:
         return bad
     n = state.shape[1]
     no_one = none_fresh(n)
-    blocks = (n + BLOCK - 1) // BLOCK
-    workers = claims.workers_for(blocks)
-    counters = claims.new_counters(workers)
-    for each in prange(workers):
-        worker = np.int64(each)  # prange's index is unsigned; claims count with signed integers
-        block = claims.claim(counters, worker, workers, blocks)
-        while block >= 0:
-            lo = block * BLOCK
-            step_plants(
-                lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
-            )
-            block = claims.claim(counters, worker, workers, blocks)
+    for block in prange((n + BLOCK - 1) // BLOCK):
+        lo = np.int64(block) * BLOCK  # prange's index is unsigned; index with signed integers
+        step_plants(
+            lo, min(lo + BLOCK, n), state, delay_buffer, head, command, h, n_sub, params, no_one
+        )
     return -1

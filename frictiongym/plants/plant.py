@@ -486,7 +486,8 @@ class Plant:
         """Return a function that does :meth:`run` with these very arrays, in less time.
 
         A call through numba's dispatcher types every argument first: about 0.35 µs for the
-        env kernel's 14 arguments, a third of a single env's kernel call. The arrays bound here
+        env kernel's 14 arguments as they were when measured (16 now), a third of a single
+        env's kernel call. The arrays bound here
         (and the plant's own, which keep their types) have the same types at every call, so
         after a first call through the dispatcher, which compiles or loads the code, the
         function calls the compiled entry point for those types directly, with the arguments
