@@ -12,11 +12,12 @@ the threaded kernel with the autoreset before the call as before the round (a wr
 ``Simulation.run`` that does it with the same compiled ``reset_envs``), a second env of that
 kind (a control: the method's own bias between two identical envs), and the threaded kernel as
 shipped. The machine's second core gives the threads a share that changes within seconds here,
-so the envs run in short turns of ``TURN`` steps each, one after another in an order reversed
-every round, for ``300 * --repeats`` rounds: each sees the same spells. Figures are µs per
-vector step (median and quartiles over rounds) and the ratio to the autoreset before the call
-(median of the per-round ratios, quartiles, and the ratio of the total times). Every env's first
-steps are checked to give the serial kernel's observations and rewards, bit for bit.
+so the envs run in short turns of ``TURN`` steps each, one after another in a new random order
+every round, for ``300 * --repeats`` rounds: each sees the same spells, and none always
+follows the same other. Figures are µs per vector step (median and quartiles over rounds) and
+the ratio to the autoreset before the call (median of the per-round ratios, quartiles, and the
+ratio of the total times). Every env's first steps are checked to give the serial kernel's
+observations and rewards, bit for bit.
 """
 
 from __future__ import annotations
@@ -94,9 +95,9 @@ def _turns(envs: Sequence[Any], table: list[npt.NDArray[Any]], rounds: int) -> n
     """Run the envs in turns; returns µs per step, shape (envs, rounds)."""
     times = np.empty((len(envs), rounds))
     place = [CHECK_STEPS] * len(envs)
+    shuffle = np.random.default_rng(0)
     for r in range(rounds):
-        order = range(len(envs)) if r % 2 == 0 else range(len(envs) - 1, -1, -1)
-        for k in order:
+        for k in shuffle.permutation(len(envs)):  # no env always follows the same one
             env, at = envs[k], place[k]
             start = time.perf_counter()
             for t in range(at, at + TURN):
