@@ -487,14 +487,13 @@ class Plant:
 
         A call through numba's dispatcher types every argument first: about 0.35 µs for the
         env kernel's 14 arguments as they were when measured (16 now), a third of a single
-        env's kernel call. The arrays bound here
-        (and the plant's own, which keep their types) have the same types at every call, so
-        after a first call through the dispatcher, which compiles or loads the code, the
-        function calls the compiled entry point for those types directly, with the arguments
-        built once (again only when the kernel, the state, the rows or the dead time's head
-        changed). The caller writes each command into ``command`` in place. ``refuse`` is
-        called with the index of a non-finite command (it should raise); without it the
-        function returns that index, as :meth:`run` does.
+        env's kernel call. The arrays bound here (and the plant's own, which keep their types)
+        have the same types at every call, so after a first call through the dispatcher, which
+        compiles or loads the code, the function calls the compiled entry point for those types
+        directly, with the arguments built once (again only when the kernel, the state, the
+        rows or the dead time's head changed). The caller writes each command into ``command``
+        in place. ``refuse`` is called with the index of a non-finite command (it should
+        raise); without it the function returns that index, as :meth:`run` does.
         """
         # the kernel, the state and rows the call was built for, its entry point and arguments
         bound: list[Any] = [None, None, None, None, ()]
