@@ -24,9 +24,9 @@ code less than scalar code, and by an amount that changes from hour to hour.
 * ``observation``: the env kernel minus the plant (sensor, reference, reward and outputs run
   as one pass, so they are not timed apart);
 * ``bookkeeping``: the vector env's ``step`` minus the env kernel (Python: checks, output
-  arrays, ``info``, autoreset; from 5900f26 on an autoreset that draws nothing runs inside the
-  kernel's call, and the env kernel is timed without resets, so an env whose episodes end
-  often, the Altino's, can show a bookkeeping below zero);
+  arrays, ``info``, the autoreset, which from 5900f26 on runs inside the kernel's call when it
+  draws nothing). The env kernel is timed without resets (an env that ended stays where it
+  ended), so the Altino, whose episodes end at the wall, can show a bookkeeping below zero;
 * ``memory floor``: a compiled loop that only reads and writes, once, every array element
   one step reads or writes (state, commands, outputs, observation, flags): the cost of
   moving the data, with no arithmetic.
