@@ -160,6 +160,52 @@ def test_a_lucky_trial_is_undone_after_one_slow_call(clock: FakeClock) -> None:
     assert ran == [True, False, False]
 
 
+def test_one_stalled_call_in_a_trial_hands_nothing_to_a_slower_twin(clock: FakeClock) -> None:
+    """A trial's figure is its median call: one stall does not make its twin look slow.
+
+    Beside a learner one serial call can stall for tens of ms (the main thread descheduled);
+    taken into the serial trial's mean, such a stall handed the kernel to threads whose every
+    call took 8 ms, for a second of calls (docs/benchmarks.md, "Eighth round").
+    """
+    twins = Twins(clock, serial=100.0, threaded=8000.0)
+    kernel = twins.adaptive()
+    kernel()  # the serial trial's warm-up
+    twins.cost[0] = 40_000.0 * US  # its first measured call stalls
+    kernel()
+    twins.cost[0] = 100.0 * US
+    ran = run(kernel, 2000)
+    assert kernel.switches == 0
+    assert sum(ran) <= 1 + threads.TRIAL_CALLS  # the threads' trial only
+
+
+def test_a_stalled_call_in_a_trial_of_the_serial_twin_does_not_keep_the_threads(
+    clock: FakeClock,
+) -> None:
+    """The threads in use, a trial of the serial twin ends only once its median cannot win."""
+    twins = Twins(clock, serial=1000.0, threaded=100.0)
+    kernel = twins.adaptive()
+    run(kernel, 50)
+    assert kernel.parallel
+    twins.cost[1] = 8000.0 * US  # a learner starts: the threads stall ...
+    while kernel.parallel:
+        kernel()
+    kernel()  # the serial trial's warm-up
+    twins.cost[0] = 40_000.0 * US  # ... and so does the trial's first serial call
+    kernel()
+    twins.cost[0] = 1000.0 * US
+    ran = run(kernel, 200)
+    assert not any(ran[threads.TRIAL_CALLS :])  # the serial twin took over
+
+
+def test_a_trial_of_the_threads_stops_at_its_first_call_too_slow_to_win(
+    clock: FakeClock,
+) -> None:
+    twins = Twins(clock, serial=100.0, threaded=5000.0)
+    kernel = twins.adaptive()
+    ran = run(kernel, 1 + threads.TRIAL_CALLS + 3)
+    assert ran == [False] * (1 + threads.TRIAL_CALLS) + [True, True, False]
+
+
 @needs_threads
 @pytest.mark.parametrize("env_id", IDS)
 def test_switching_twins_mid_run_changes_no_trajectory(

@@ -14,6 +14,7 @@ choice changes how long a call takes, never what it computes.
 
 from __future__ import annotations
 
+import statistics
 import time
 from collections.abc import Callable
 from typing import Any
@@ -37,8 +38,12 @@ BLOCK_CALLS = 8
 #: fast calls between a learner's bursts) is undone after one slow call, not eight.
 PROBATION = 4
 #: Calls measured in a trial of a twin, after one warm-up call whose time counts towards the
-#: trial's cost but not its mean (a worker asleep since the last threaded call must wake). A
-#: trial stops early once its measured calls have taken longer than it could take to win.
+#: trial's cost but not its figure (a worker asleep since the last threaded call must wake).
+#: A trial's figure is the median of its measured calls: beside a learner one call of either
+#: twin can stall for tens of ms (the main thread descheduled), and a serial trial whose mean
+#: took such a stall once handed the kernel to threads whose every call stalled (8 ms a call
+#: for seconds; docs/benchmarks.md, "Eighth round"). A trial of the threads stops at its first
+#: call too slow to win, a trial of the serial twin once its median cannot win.
 TRIAL_CALLS = 3
 #: Weight of the latest block in the running mean call time of the twin in use.
 SMOOTHING = 0.25
@@ -101,15 +106,15 @@ class AdaptiveKernel:
         "_left",
         "_loss",
         "_mean",
-        "_measured",
         "_phase",
         "_probation",
         "_running",
         "_size",
         "_tenure",
         "_time",
+        "_too_slow",
+        "_trial_calls",
         "_trial_cost",
-        "_trial_time",
         "_using",
         "_wait",
         "calls",
@@ -120,7 +125,7 @@ class AdaptiveKernel:
         self._kernels = (serial, parallel)
         self._size = float(size)  # batch elements, 0 if unknown: then nothing is shared
         #: seconds per call of each twin: a running mean for the one in use, the last trial's
-        #: mean for the other
+        #: median for the other
         self._mean = [0.0, 0.0]
         self._using = 0  # the twin in use: 0 serial, 1 threaded
         self._credit = 0.0  # seconds spent on the twin in use since the last trial
@@ -128,8 +133,8 @@ class AdaptiveKernel:
         self._loss = 0.0  # seconds the last trial of the other twin cost beyond the one in use
         self._wait = MAX_WAIT  # the longest wait for the next trial, s of calls
         self._trial_cost = 0.0  # seconds of the trial under way, warm-up included
-        self._trial_time = 0.0  # seconds of its measured calls
-        self._measured = 0  # its measured calls
+        self._trial_calls: list[float] = []  # seconds of each of its measured calls
+        self._too_slow = 0  # its measured calls too slow to win
         self._probation = 0  # single-call blocks left after a switch
         #: since the twin in use took over: its seconds and calls (trial included) and the
         #: other twin's mean then, to charge a takeover that went wrong (none at the start)
@@ -185,17 +190,19 @@ class AdaptiveKernel:
         which, calls, elapsed, mean = self._running, self._block, self._time, self._mean
         self.calls[which] += calls
         if self._phase == _WARM_UP:
-            self._trial_cost, self._trial_time, self._measured = elapsed, 0.0, 0
+            self._trial_cost, self._trial_calls, self._too_slow = elapsed, [], 0
             self._start(which, _TRIAL)
         elif self._phase == _TRIAL:
             self._trial_cost += elapsed
-            self._trial_time += elapsed
-            self._measured += 1
-            hopeless = which != self._using and self._trial_time >= (
-                TRIAL_CALLS * (1.0 - MARGIN) * mean[self._using]
-            )
-            if hopeless or self._measured == TRIAL_CALLS:
-                self._end_trial(which, self._trial_time / self._measured, self._trial_cost)
+            self._trial_calls.append(elapsed)
+            if which != self._using and elapsed >= (1.0 - MARGIN) * mean[self._using]:
+                self._too_slow += 1  # too slow to win
+            # The serial twin is the safe one: a trial that could hand the kernel to the
+            # threads ends at its first call too slow to win, one that could hand it back
+            # once its median cannot win.
+            hopeless = self._too_slow > (TRIAL_CALLS // 2 if which == 0 else 0)
+            if hopeless or len(self._trial_calls) == TRIAL_CALLS:
+                self._end_trial(which, statistics.median(self._trial_calls), self._trial_cost)
             else:
                 self._start(which, _TRIAL)
         else:
@@ -226,7 +233,7 @@ class AdaptiveKernel:
             mean[which] = per_call
             self._start(1 - which, _WARM_UP)
             return
-        calls = 1 + self._measured
+        calls = 1 + len(self._trial_calls)
         if per_call < mean[using] * (1.0 - MARGIN):  # take over
             # Retrying the twin left costs what its own tenure lost against this one (a
             # lucky trial, then a stall beside a learner), or what its mean predicts.
