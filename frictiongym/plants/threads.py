@@ -41,8 +41,8 @@ PROBATION = 4
 #: trial's cost but not its figure (a worker asleep since the last threaded call must wake).
 #: A trial's figure is the median of its measured calls: beside a learner one call of either
 #: twin can stall for tens of ms (the main thread descheduled), and a serial trial whose mean
-#: took such a stall once handed the kernel to threads whose every call stalled (8 ms a call
-#: for seconds; docs/benchmarks.md, "Eighth round"). A trial of the threads stops at its first
+#: took such a stall once handed the kernel to threads whose calls all stalled, for rounds of
+#: a benchmark (docs/benchmarks.md, "Eighth round"). A trial of the threads stops at its first
 #: call too slow to win, a trial of the serial twin once its median cannot win.
 TRIAL_CALLS = 3
 #: Weight of the latest block in the running mean call time of the twin in use.
@@ -78,11 +78,11 @@ class AdaptiveKernel:
 
     It starts with a trial of each twin, then runs the faster one and keeps a running mean of
     its call time. Now and then it tries the other twin again for ``1 + TRIAL_CALLS`` calls and
-    switches if that twin was faster by ``MARGIN``. A trial is due once the time spent since
-    the last one reaches ``1 / BUDGET`` times what that last trial lost (at most ``MAX_WAIT``),
-    so a twin that lost badly, such as the threaded one beside a learner, is retried rarely,
-    while twins close in speed are compared often; if the twin in use slows down past the
-    other's last time, the trial comes at once.
+    switches if that twin's median call was faster by ``MARGIN``. A trial is due once the time
+    spent since the last one reaches ``1 / BUDGET`` times what that last trial lost (at most
+    ``MAX_WAIT``), so a twin that lost badly, such as the threaded one beside a learner, is
+    retried rarely, while twins close in speed are compared often; if the twin in use slows
+    down past the other's last time, the trial comes at once.
 
     Parameters
     ----------
