@@ -112,7 +112,6 @@ class AdaptiveKernel:
         "_size",
         "_tenure",
         "_time",
-        "_too_slow",
         "_trial_calls",
         "_trial_cost",
         "_using",
@@ -134,7 +133,6 @@ class AdaptiveKernel:
         self._wait = MAX_WAIT  # the longest wait for the next trial, s of calls
         self._trial_cost = 0.0  # seconds of the trial under way, warm-up included
         self._trial_calls: list[float] = []  # seconds of each of its measured calls
-        self._too_slow = 0  # its measured calls too slow to win
         self._probation = 0  # single-call blocks left after a switch
         #: since the twin in use took over: its seconds and calls (trial included) and the
         #: other twin's mean then, to charge a takeover that went wrong (none at the start)
@@ -190,17 +188,18 @@ class AdaptiveKernel:
         which, calls, elapsed, mean = self._running, self._block, self._time, self._mean
         self.calls[which] += calls
         if self._phase == _WARM_UP:
-            self._trial_cost, self._trial_calls, self._too_slow = elapsed, [], 0
+            self._trial_cost, self._trial_calls = elapsed, []
             self._start(which, _TRIAL)
         elif self._phase == _TRIAL:
             self._trial_cost += elapsed
             self._trial_calls.append(elapsed)
-            if which != self._using and elapsed >= (1.0 - MARGIN) * mean[self._using]:
-                self._too_slow += 1  # too slow to win
             # The serial twin is the safe one: a trial that could hand the kernel to the
             # threads ends at its first call too slow to win, one that could hand it back
             # once its median cannot win.
-            hopeless = self._too_slow > (TRIAL_CALLS // 2 if which == 0 else 0)
+            too_slow = (1.0 - MARGIN) * mean[self._using]
+            slow_calls = sum(t >= too_slow for t in self._trial_calls)
+            allowed = TRIAL_CALLS // 2 if which == 0 else 0
+            hopeless = which != self._using and slow_calls > allowed
             if hopeless or len(self._trial_calls) == TRIAL_CALLS:
                 self._end_trial(which, statistics.median(self._trial_calls), self._trial_cost)
             else:
