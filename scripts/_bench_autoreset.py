@@ -23,15 +23,14 @@ observations and rewards, bit for bit.
 from __future__ import annotations
 
 import argparse
-import time
 from collections.abc import Callable, Sequence
+from itertools import cycle, islice
 from typing import Any
 
-import gymnasium as gym
 import numba
 import numpy as np
 import numpy.typing as npt
-from _bench import thousands
+from _bench import Runner, thousands, timed
 
 from frictiongym.envs import _kernel as env_kernel
 
@@ -70,15 +69,26 @@ def _reset_before_the_call(sim: Any) -> None:
     sim.run = run_after_reset
 
 
-def _make(env_id: str, n: int, seed: int, threaded: bool, in_kernel: bool) -> Any:
-    env = gym.make_vec(
-        env_id, num_envs=n, vectorization_mode="vector_entry_point", parallel=threaded
-    )
-    sim = env.unwrapped.sim
+#: Makes a vector env and resets it: ``(env id, num envs, kwargs, seed)``.
+MakeVector = Callable[[str, int, dict[str, Any], int], Any]
+
+
+def _make(make: MakeVector, env_id: str, n: int, seed: int, threaded: bool, in_kernel: bool) -> Any:
+    env = make(env_id, n, {"parallel": threaded}, seed)
     if not in_kernel:
-        _reset_before_the_call(sim)
-    env.reset(seed=seed)
+        _reset_before_the_call(env.unwrapped.sim)
     return env
+
+
+def _runner(env: Any, table: list[npt.NDArray[Any]]) -> Runner:
+    """Step ``env`` with the cycled rows of ``table``, going on where the last call stopped."""
+    rows = cycle(table)
+
+    def run(steps: int) -> None:
+        for actions in islice(rows, steps):
+            env.step(actions)
+
+    return run
 
 
 def _check(envs: Sequence[Any], table: list[npt.NDArray[Any]]) -> None:
@@ -91,19 +101,13 @@ def _check(envs: Sequence[Any], table: list[npt.NDArray[Any]]) -> None:
                     raise SystemExit(f"error: {VARIANTS[k][0]!r} differs at step {t}")
 
 
-def _turns(envs: Sequence[Any], table: list[npt.NDArray[Any]], rounds: int) -> npt.NDArray[Any]:
+def _turns(runners: Sequence[Runner], rounds: int) -> npt.NDArray[Any]:
     """Run the envs in turns; returns µs per step, shape (envs, rounds)."""
-    times = np.empty((len(envs), rounds))
-    place = [CHECK_STEPS] * len(envs)
+    times = np.empty((len(runners), rounds))
     shuffle = np.random.default_rng(0)
     for r in range(rounds):
-        for k in shuffle.permutation(len(envs)):  # no env always follows the same one
-            env, at = envs[k], place[k]
-            start = time.perf_counter()
-            for t in range(at, at + TURN):
-                env.step(table[t % len(table)])
-            times[k, r] = (time.perf_counter() - start) / TURN * 1e6
-            place[k] = at + TURN
+        for k in shuffle.permutation(len(runners)):  # no env always follows the same one
+            times[k, r] = timed(runners[k], TURN) / TURN * 1e6
     return times
 
 
@@ -111,6 +115,7 @@ def autoreset_part(
     args: argparse.Namespace,
     env_ids: Sequence[str],
     actions: Callable[[str, int, int], list[npt.NDArray[Any]]],
+    make: MakeVector,
 ) -> str:
     """Time the four envs of each env id in turns; print the table, return it as markdown."""
     n, rounds = args.num_envs, ROUNDS_PER_REPEAT * args.repeats
@@ -126,9 +131,9 @@ def autoreset_part(
     print(f"\n{title}")
     for env_id in env_ids:
         table = actions(env_id, n, args.seed)
-        envs = [_make(env_id, n, args.seed, *variant[1:]) for variant in VARIANTS]
+        envs = [_make(make, env_id, n, args.seed, *variant[1:]) for variant in VARIANTS]
         _check(envs, table)
-        times = _turns(envs, table, rounds)
+        times = _turns([_runner(env, table) for env in envs], rounds)
         for k, (label, *_) in enumerate(VARIANTS):
             q1, mid, q3 = np.percentile(times[k], [25, 50, 75])
             ratio = times[k] / times[BEFORE]

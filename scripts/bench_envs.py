@@ -501,7 +501,9 @@ def main(argv: list[str] | None = None) -> int:
         ),
         "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
         "passes": lambda: _bench_passes.passes_part(args, OURS, vector_actions),
-        "autoreset": lambda: _bench_autoreset.autoreset_part(args, OURS, vector_actions),
+        "autoreset": lambda: _bench_autoreset.autoreset_part(
+            args, OURS, vector_actions, make_vector
+        ),
     }
     return run_parts(
         [run for name, run in parts.items() if args.part in ("all", name)], args.markdown
