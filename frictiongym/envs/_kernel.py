@@ -463,6 +463,15 @@ def _observe_lanes(
         _done(i, flags)
 
 
+@njit(cache=True, inline="always")
+def _fresh_count(lo: int, hi: int, fresh: npt.NDArray[np.bool_]) -> int:
+    """How many of envs ``lo`` to ``hi - 1`` are fresh: a loop without branches (SIMD code)."""
+    count = 0
+    for i in range(np.uint64(lo), np.uint64(hi)):
+        count += np.uint64(fresh[i])
+    return count
+
+
 @njit(cache=True, parallel=True, error_model="numpy")
 def observe_block(
     lo: int,
@@ -497,10 +506,7 @@ def observe_block(
             _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, False)
     # with noise every env, else the fresh ones (the loops took every env as stepped); most
     # blocks have none, found by a count without branches
-    fresh_envs = 0
-    for i in range(np.uint64(lo), np.uint64(hi)):
-        fresh_envs += np.uint64(fresh[i])
-    if noisy or fresh_envs > 0:
+    if noisy or _fresh_count(lo, hi, fresh) > 0:
         for i in range(lo, hi):
             if noisy or fresh[i]:
                 _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
@@ -620,10 +626,7 @@ def _reset_fresh(
 
     :func:`reset_envs` without ``set_rows``, in the kernel: an autoreset that draws nothing.
     """
-    count = 0  # first a count without branches: most blocks have none
-    for i in range(np.uint64(lo), np.uint64(hi)):
-        count += np.uint64(fresh[i])
-    if count > 0:
+    if _fresh_count(lo, hi, fresh) > 0:  # most blocks have none
         for i in range(lo, hi):
             if fresh[i]:
                 _reset_env(i, start[0], start[1], state, delay_buffer, plant_rows, rows)
