@@ -18,10 +18,11 @@ import statistics
 import subprocess
 import time
 from collections.abc import Callable, Sequence
-from typing import Protocol
+from typing import Any, Protocol
 
 import numba
 import numpy as np
+import numpy.typing as npt
 
 import frictiongym
 
@@ -69,6 +70,37 @@ def measure(variants: Sequence[Timed], repeats: int, seconds: float, burn_in: in
         for i in order[shift:] + order[:shift]:
             variant, n = variants[i], steps[i]
             variant.rates.append(variant.batch * n / timed(variant.run, n))
+
+
+def turns(runners: Sequence[Runner], steps: Sequence[int], rounds: int) -> npt.NDArray[Any]:
+    """Run the runners in short turns; returns seconds per step, shape (runners, rounds).
+
+    Every round runs each runner once for its ``steps``, in a new random order (seeded): the
+    machine's spells, which last seconds here (a busy neighbour, a learner's bursts), then fall
+    on every runner alike, and no runner always follows the same other.
+    """
+    times = np.empty((len(runners), rounds))
+    shuffle = np.random.default_rng(0)
+    for r in range(rounds):
+        for k in shuffle.permutation(len(runners)):
+            times[k, r] = timed(runners[k], steps[k]) / steps[k]
+    return times
+
+
+def measure_in_turns(variants: Sequence[Timed], seconds: float, turn: float, burn_in: int) -> None:
+    """:func:`measure` in turns of about ``turn`` s each, ``seconds`` s of turns per variant.
+
+    Each variant's ``rates`` gets one rate per round (see :func:`turns`), so the per-round
+    ratios of :func:`paired_ratios` compare two variants timed a few ms apart.
+    """
+    steps = []
+    for variant in variants:
+        variant.run(burn_in)
+        steps.append(calibrate(variant.run, turn))
+    rounds = max(1, round(seconds / turn))
+    times = turns([variant.run for variant in variants], steps, rounds)
+    for variant, per_step in zip(variants, times, strict=True):
+        variant.rates[:] = (variant.batch / per_step).tolist()
 
 
 def run_parts(parts: Sequence[Callable[[], str | None]], markdown: bool) -> int:
@@ -133,6 +165,14 @@ def ns_stats(values: Sequence[float], digits: int = 1) -> str:
 def stats(values: Sequence[float]) -> str:
     """``median [min, max]`` of rates."""
     return f"{si(statistics.median(values))} [{si(min(values))}, {si(max(values))}]"
+
+
+def quartile_stats(
+    values: Sequence[float], show: Callable[[float], str] = lambda v: f"{v:.3g}"
+) -> str:
+    """``median [first quartile, third quartile]``, formatted by ``show`` (default: 3 digits)."""
+    q1, median, q3 = (show(float(v)) for v in np.percentile(values, [25, 50, 75]))
+    return f"{median} [{q1}, {q3}]"
 
 
 def ratio_stats(values: Sequence[float]) -> str:

@@ -30,7 +30,7 @@ from typing import Any
 import numba
 import numpy as np
 import numpy.typing as npt
-from _bench import Runner, thousands, timed
+from _bench import Runner, thousands, turns
 
 from frictiongym.envs import _kernel as env_kernel
 
@@ -101,16 +101,6 @@ def _check(envs: Sequence[Any], table: list[npt.NDArray[Any]]) -> None:
                     raise SystemExit(f"error: {VARIANTS[k][0]!r} differs at step {t}")
 
 
-def _turns(runners: Sequence[Runner], rounds: int) -> npt.NDArray[Any]:
-    """Run the envs in turns; returns µs per step, shape (envs, rounds)."""
-    times = np.empty((len(runners), rounds))
-    shuffle = np.random.default_rng(0)
-    for r in range(rounds):
-        for k in shuffle.permutation(len(runners)):  # no env always follows the same one
-            times[k, r] = timed(runners[k], TURN) / TURN * 1e6
-    return times
-
-
 def autoreset_part(
     args: argparse.Namespace,
     env_ids: Sequence[str],
@@ -133,7 +123,8 @@ def autoreset_part(
         table = actions(env_id, n, args.seed)
         envs = [_make(make, env_id, n, args.seed, *variant[1:]) for variant in VARIANTS]
         _check(envs, table)
-        times = _turns([_runner(env, table) for env in envs], rounds)
+        runners = [_runner(env, table) for env in envs]
+        times = turns(runners, [TURN] * len(runners), rounds) * 1e6  # µs per step
         for k, (label, *_) in enumerate(VARIANTS):
             q1, mid, q3 = np.percentile(times[k], [25, 50, 75])
             ratio = times[k] / times[BEFORE]

@@ -53,16 +53,21 @@ import numpy.typing as npt
 from _bench import (
     Runner,
     measure,
+    measure_in_turns,
     ns_stats,
     paired_ratios,
-    ratio_stats,
+    quartile_stats,
+    si,
     single_threaded,
-    stats,
     thousands,
 )
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.plants import Plant
+
+#: Length of one variant's turn in the loads part, s: a few ms, so that the machine's spells
+#: (seconds) fall on every variant of a round alike.
+TURN_SECONDS = 0.005
 
 #: Targets of issue J (vector env at N = 4 096 against CartPoleVectorEnv, env-steps/s).
 QUIET_TARGET = 3.0
@@ -87,15 +92,20 @@ def loads_part(
     """Time CartPoleVectorEnv and ``envs`` under each load; print and return the markdown."""
     n = args.num_envs
     loads = [load for load in args.loads if load != "torch"]  # in-process torch: see threads
+    seconds = args.repeats * args.seconds  # of turns, per variant and load
+    rounds = max(1, round(seconds / TURN_SECONDS))
     print(
         f"\nloads: vector envs at N = {n} against CartPoleVectorEnv under each load "
-        f"(env-steps/s, {args.repeats} rounds of {args.seconds} s; ratio per round)"
+        f"(env-steps/s; {rounds} rounds of turns of about {TURN_SECONDS * 1e3:g} ms, "
+        "median [quartiles]; ratio per round)"
     )
     lines = [
-        f"Vector envs beside other work (N = {thousands(n)}; ratio = ours / CartPoleVectorEnv in "
-        "env-steps/s, per round, both under the same load; threads' gain = a balanced compiled "
-        "loop's rate on numba's threads / on one thread, per round, 2 for a perfect split, for "
-        "a loop of scalar code and one of SIMD code):",
+        f"Vector envs beside other work (N = {thousands(n)}; {rounds} rounds, each a turn of "
+        f"about {TURN_SECONDS * 1e3:g} ms of every variant in a new random order; median "
+        "[quartiles] over rounds; ratio = ours / CartPoleVectorEnv in env-steps/s, per round, "
+        "both under the same load; threads' gain = a balanced compiled loop's rate on numba's "
+        "threads / on one thread, per round, 2 for a perfect split, for a loop of scalar code "
+        "and one of SIMD code):",
         "",
         "| load | CartPoleVectorEnv, env-steps/s | "
         + " | ".join(f"`{e}`, env-steps/s | ratio" for e in envs)
@@ -109,20 +119,22 @@ def loads_part(
             [Timed(name, run, n) for name, run in _balanced_runners(n, kind)] for kind in BALANCED
         ]
         with _load.competing(load):
-            measure([*variants, *chain(*probes)], args.repeats, args.seconds, burn_in=512)
+            measure_in_turns([*variants, *chain(*probes)], seconds, TURN_SECONDS, burn_in=512)
         ref = variants[0]
-        cells = [stats(ref.rates)]
+        cells = [quartile_stats(ref.rates, si)]
         for v in variants[1:]:
             ratios = paired_ratios(v, ref)
-            cells += [stats(v.rates), ratio_stats(ratios)]
+            cells += [quartile_stats(v.rates, si), quartile_stats(ratios)]
             target = LEARNER_TARGET if load == "learner" else QUIET_TARGET
             if load in ("quiet", "learner"):
                 met = statistics.median(ratios) >= target
+                totals = _mean_time(ref.rates) / _mean_time(v.rates)
                 verdicts.append(
-                    f"{v.name.removeprefix('frictiongym/')} {load}: {ratio_stats(ratios)} "
-                    f"(target {target:g}x: {'meets' if met else 'misses'})"
+                    f"{v.name.removeprefix('frictiongym/')} {load}: {quartile_stats(ratios)}, "
+                    f"ratio of totals {totals:.3g} (target {target:g}x: "
+                    f"{'meets' if met else 'misses'})"
                 )
-        gains = [ratio_stats(paired_ratios(threads, one)) for threads, one in probes]
+        gains = [quartile_stats(paired_ratios(threads, one)) for threads, one in probes]
         cells += gains
         print(
             f"  {load:8s} "
@@ -131,9 +143,14 @@ def loads_part(
             + ", ".join(f"{kind} {gain}" for kind, gain in zip(BALANCED, gains, strict=True))
         )
         lines.append(f"| {load} | " + " | ".join(cells) + " |")
-    summary = "targets of issue J: " + "; ".join(verdicts)
+    summary = "targets of issue J (median of the per-round ratios): " + "; ".join(verdicts)
     print(f"  {summary}")
     return "\n".join([*lines, "", summary])
+
+
+def _mean_time(rates: Sequence[float]) -> float:
+    """Mean time per env-step over rounds of equal steps: what the ratio of totals compares."""
+    return float(np.mean(1.0 / np.asarray(rates)))
 
 
 @numba.njit(cache=True)

@@ -406,7 +406,9 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         help="timed rounds; each round runs every variant once, in a rotated order, and the "
-        "tables report medians and [min, max] over rounds (default: 5; with --quick: 2)",
+        "tables report medians and [min, max] over rounds (default: 5; with --quick: 2); the "
+        "loads part runs instead --repeats x --seconds s of short turns per variant, and the "
+        "autoreset part 300 x --repeats rounds of short turns",
     )
     parser.add_argument(
         "--seconds",
