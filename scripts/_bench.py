@@ -26,6 +26,10 @@ import numpy.typing as npt
 
 import frictiongym
 
+#: Length of one variant's turn in :func:`measure_in_turns`, s: a few ms, so that the machine's
+#: spells (seconds here) fall on every variant of a round alike.
+TURN_SECONDS = 0.005
+
 #: Runs a given number of steps of one variant.
 Runner = Callable[[int], None]
 

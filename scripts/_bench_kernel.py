@@ -51,6 +51,7 @@ import numba
 import numpy as np
 import numpy.typing as npt
 from _bench import (
+    TURN_SECONDS,
     Runner,
     measure,
     measure_in_turns,
@@ -64,10 +65,7 @@ from _bench import (
 
 from frictiongym.envs import _kernel as env_kernel
 from frictiongym.plants import Plant
-
-#: Length of one variant's turn in the loads part, s: a few ms, so that the machine's spells
-#: (seconds) fall on every variant of a round alike.
-TURN_SECONDS = 0.005
+from frictiongym.plants.threads import AdaptiveKernel
 
 #: Targets of issue J (vector env at N = 4 096 against CartPoleVectorEnv, env-steps/s).
 QUIET_TARGET = 3.0
@@ -87,9 +85,13 @@ class Timed:
 def loads_part(
     args: argparse.Namespace,
     envs: Sequence[str],
-    make_runner: Callable[[str, int], Runner],
+    make_runner: Callable[[str, int], tuple[Runner, AdaptiveKernel | None]],
 ) -> str:
-    """Time CartPoleVectorEnv and ``envs`` under each load; print and return the markdown."""
+    """Time CartPoleVectorEnv and ``envs`` under each load; print and return the markdown.
+
+    ``make_runner(env_id, n)`` returns a runner of the vector env and its adaptive kernel, if
+    it has one (the share of its calls that ran threaded is reported).
+    """
     n = args.num_envs
     loads = [load for load in args.loads if load != "torch"]  # in-process torch: see threads
     seconds = args.repeats * args.seconds  # of turns, per variant and load
@@ -114,7 +116,9 @@ def loads_part(
     ]
     verdicts = []
     for load in loads:
-        variants = [Timed(e, make_runner(e, n), n) for e in ("CartPole-v1", *envs)]
+        ids = ("CartPole-v1", *envs)
+        made = [make_runner(e, n) for e in ids]
+        variants = [Timed(e, run, n) for e, (run, _) in zip(ids, made, strict=True)]
         probes = [
             [Timed(name, run, n) for name, run in _balanced_runners(n, kind)] for kind in BALANCED
         ]
@@ -122,7 +126,7 @@ def loads_part(
             measure_in_turns([*variants, *chain(*probes)], seconds, TURN_SECONDS, burn_in=512)
         ref = variants[0]
         cells = [quartile_stats(ref.rates, si)]
-        for v in variants[1:]:
+        for v, (_, adaptive) in zip(variants[1:], made[1:], strict=True):
             ratios = paired_ratios(v, ref)
             cells += [quartile_stats(v.rates, si), quartile_stats(ratios)]
             target = LEARNER_TARGET if load == "learner" else QUIET_TARGET
@@ -131,7 +135,7 @@ def loads_part(
                 totals = _mean_time(ref.rates) / _mean_time(v.rates)
                 verdicts.append(
                     f"{v.name.removeprefix('frictiongym/')} {load}: {quartile_stats(ratios)}, "
-                    f"ratio of totals {totals:.3g} (target {target:g}x: "
+                    f"ratio of totals {totals:.3g}{_threaded(adaptive)} (target {target:g}x: "
                     f"{'meets' if met else 'misses'})"
                 )
         gains = [quartile_stats(paired_ratios(threads, one)) for threads, one in probes]
@@ -146,6 +150,14 @@ def loads_part(
     summary = "targets of issue J (median of the per-round ratios): " + "; ".join(verdicts)
     print(f"  {summary}")
     return "\n".join([*lines, "", summary])
+
+
+def _threaded(adaptive: AdaptiveKernel | None) -> str:
+    """``, 96% of calls threaded`` for an adaptive kernel, else nothing."""
+    if adaptive is None:
+        return ""
+    serial, threaded = adaptive.calls
+    return f", {threaded / max(serial + threaded, 1):.0%} of calls threaded"
 
 
 def _mean_time(rates: Sequence[float]) -> float:

@@ -44,13 +44,17 @@ Episode ends are reported: single env from the timed loops, vector env from an u
 two episodes' length on a separate env with the same seed and actions (with the mean fraction of
 stuck envs from ``info["stuck"]``).
 
-**Timing** (as ``bench_plants.py``, helpers in ``_bench.py``): a burn-in run (which also loads
-or compiles numba's kernels), a short run to calibrate the step count to ``--seconds``, then
-``--repeats`` rounds in which each variant runs once, in an order rotated every round. Figures
-are medians over rounds with [min, max]; a ratio is the median of the per-round ratios to the
-reference timed in the same round, so drift of the machine between rounds (up to 1.5x here)
-cancels out. A summary prints the two headline ratios (default kwargs) and whether each meets
-its target; the script only reports, it never fails on a target.
+**Timing** (helpers in ``_bench.py``): a burn-in run (which also loads or compiles numba's
+kernels), a short run to calibrate each variant's turn to about 5 ms, then rounds in which each
+variant runs one turn, in a new random order every round, for ``--repeats`` x ``--seconds`` s of
+turns per variant (default 2.5 s: 500 rounds). Figures are medians over rounds with
+[quartiles]; a ratio is the median of the per-round ratios to the reference timed in the same
+round, a few ms apart: the machine's spells, which last seconds here (a slow second core, a
+learner's bursts), fall on both alike, where rounds of 0.5 s each (before issue J's ninth
+round) gave per-round ratios from 1.0 to 3.4 beside a learner. The threads part keeps rounds of
+``--seconds`` each, in an order rotated every round. A summary prints the two headline ratios
+(default kwargs) and whether each meets its target; the script only reports, it never fails on
+a target.
 
 Run ``python scripts/bench_envs.py --help`` for the options.
 """
@@ -78,15 +82,16 @@ import numba
 import numpy as np
 import numpy.typing as npt
 from _bench import (
+    TURN_SECONDS,
     Runner,
     machine_line,
-    measure,
+    measure_in_turns,
     paired_ratios,
-    ratio_stats,
+    quartile_stats,
     run_parts,
+    si,
     single_threaded,
     source_revision,
-    stats,
     thousands,
 )
 
@@ -228,6 +233,16 @@ def make_vector(env_id: str, num_envs: int, kwargs: dict[str, Any], seed: int) -
     env = gym.make_vec(env_id, num_envs=num_envs, vectorization_mode="vector_entry_point", **kwargs)
     env.reset(seed=seed)
     return env
+
+
+def loads_runner(seed: int) -> Any:
+    """``make_runner`` of the loads part: a default vector env's runner and adaptive kernel."""
+
+    def make(env_id: str, num_envs: int) -> tuple[Runner, AdaptiveKernel | None]:
+        variant = vector_variant(env_id, DEFAULT, {}, num_envs, seed)
+        return variant.run, variant.adaptive
+
+    return make
 
 
 def kernel_of(env: Any) -> str:
@@ -405,17 +420,17 @@ def build_parser() -> argparse.ArgumentParser:
         "--repeats",
         type=int,
         default=None,
-        help="timed rounds; each round runs every variant once, in a rotated order, and the "
-        "tables report medians and [min, max] over rounds (default: 5; with --quick: 2); the "
-        "loads part runs instead --repeats x --seconds s of short turns per variant, and the "
-        "autoreset part 300 x --repeats rounds of short turns",
+        help="the cartpole and loads parts run --repeats x --seconds s of turns of about 5 ms "
+        "per variant; the threads part --repeats rounds of --seconds per variant; the autoreset "
+        "part 300 x --repeats rounds of 40-step turns (default: 5; with --quick: 2)",
     )
     parser.add_argument(
         "--seconds",
         type=float,
         default=None,
-        help="target wall time of one timed run of one variant, s; the step count is "
-        "calibrated to it after warm-up (default: 0.5; with --quick: 0.05)",
+        help="see --repeats; for the threads part, the target wall time of one timed run of "
+        "one variant, s, to which its step count is calibrated after warm-up (default: 0.5; "
+        "with --quick: 0.05)",
     )
     parser.add_argument(
         "--num-envs",
@@ -498,9 +513,7 @@ def main(argv: list[str] | None = None) -> int:
     parts = {
         "cartpole": lambda: cartpole_part(args, header),
         "threads": lambda: threads_part(args),
-        "loads": lambda: _bench_kernel.loads_part(
-            args, OURS, lambda env_id, n: vector_variant(env_id, DEFAULT, {}, n, args.seed).run
-        ),
+        "loads": lambda: _bench_kernel.loads_part(args, OURS, loads_runner(args.seed)),
         "split": lambda: _bench_kernel.split_part(args, OURS, vector_actions),
         "passes": lambda: _bench_passes.passes_part(args, OURS, vector_actions),
         "autoreset": lambda: _bench_autoreset.autoreset_part(
@@ -542,16 +555,18 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
             single.append(single_variant(env_id, setting, kwargs, args.seed))
     single.append(single_variant(SERVO, NO_WRAPPERS, {}, args.seed, unwrapped=True))
     single.append(single_variant(CARTPOLE, "env.unwrapped (no wrappers)", {}, args.seed, True))
-    measure(single, args.repeats, args.seconds, burn_in=1000)
+    seconds, turn = args.repeats * args.seconds, TURN_SECONDS
+    rounds = max(1, round(seconds / turn))
+    measure_in_turns(single, seconds, turn, burn_in=1000)
     ref = single[0]
     print(
-        f"\nsingle env, gym.make (µs per step, median [min, max] of {args.repeats} rounds; "
+        f"\nsingle env, gym.make (µs per step, median [quartiles] of {rounds} rounds; "
         "ratio = ours / CartPole-v1 in time per step)"
     )
     for variant in single:
         line = (
             f"  {variant.name:18s} {variant.setting:37s} {us_stats(variant.rates):24s}"
-            f"{'  x CartPole ' + ratio_stats(single_ratios(variant, ref)):34s}"
+            f"{'  x CartPole ' + quartile_stats(single_ratios(variant, ref)):34s}"
             f"  episodes: {variant.episodes.note()}"
         )
         print(line)
@@ -576,7 +591,7 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     for variant in vector:  # the kernel duplicates share their default variant's episodes
         if variant.kernel.endswith("(forced)") or variant.kernel == ONE_THREAD:
             variant.episodes = find(vector, variant.env).episodes
-    measure(vector, args.repeats, args.seconds, burn_in=2 * VECTOR_ROWS)
+    measure_in_turns(vector, seconds, turn, burn_in=2 * VECTOR_ROWS)
     for variant in vector:  # how often the adaptive kernel ran its threads: a low figure is a
         if variant.adaptive is not None:  # machine whose second core was busy or slow then
             serial, threaded = variant.adaptive.calls
@@ -584,14 +599,14 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     ref = vector[0]
     print(
         f"\nvector env, N = {n}, gym.make_vec vector_entry_point (env-steps/s, median "
-        f"[min, max] of {args.repeats} rounds; ratio = ours / CartPoleVectorEnv)"
+        f"[quartiles] of {rounds} rounds; ratio = ours / CartPoleVectorEnv)"
     )
     for variant in vector:
         ns = 1e9 / statistics.median(variant.rates)
         line = (
             f"  {variant.name:18s} {variant.setting:28s} {variant.kernel:21s} "
-            f"{stats(variant.rates):24s} {ns:7.1f} ns/env-step"
-            f"{'  x CartPole ' + ratio_stats(paired_ratios(variant, ref)):34s}"
+            f"{quartile_stats(variant.rates, si):24s} {ns:7.1f} ns/env-step"
+            f"{'  x CartPole ' + quartile_stats(paired_ratios(variant, ref)):34s}"
             f"  {mix_note(variant.episodes)}"
         )
         print(line)
@@ -600,18 +615,17 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     print("\nsummary (targets of issue B; reported, not enforced):")
     for what, target, rows in heads:
         cells = "; ".join(
-            f"{env_id.removeprefix('frictiongym/')} {ratio_stats(ratios)} "
+            f"{env_id.removeprefix('frictiongym/')} {quartile_stats(ratios)} "
             f"({'meets' if met else 'misses'} target)"
             for env_id, ratios, met in rows
         )
         print(f"  {what} (target {target}): {cells}")
-    return markdown(header, single, vector, heads, args.repeats)
+    return markdown(header, single, vector, heads, rounds)
 
 
 def us_stats(rates: Sequence[float]) -> str:
-    """``median [min, max]`` of the time per step, µs, from rates in steps/s."""
-    times = [1e6 / r for r in rates]
-    return f"{statistics.median(times):.3g} [{min(times):.3g}, {max(times):.3g}]"
+    """``median [quartiles]`` of the time per step, µs, from rates in steps/s."""
+    return quartile_stats([1e6 / r for r in rates])
 
 
 def mix_note(episodes: Episodes) -> str:
@@ -627,20 +641,20 @@ def markdown(
     single: Sequence[Variant],
     vector: Sequence[Variant],
     heads: Sequence[tuple[str, str, list[tuple[str, list[float], bool]]]],
-    repeats: int,
+    rounds: int,
 ) -> str:
     """Header lines and results as markdown."""
     lines = [f"- **{key.capitalize()}:** {value}" for key, value in header.items()]
     lines += [
         "",
-        "Headline ratios (median [min, max] of the per-round ratios; default kwargs):",
+        "Headline ratios (median [quartiles] of the per-round ratios; default kwargs):",
         "",
         "| comparison | target | " + " | ".join(f"`{e}`" for e in OURS) + " |",
         "|---|---|" + "---|" * len(OURS),
     ]
     for what, target, rows in heads:
         cells = [
-            f"{ratio_stats(ratios)} ({'meets' if met else 'misses'})" for _, ratios, met in rows
+            f"{quartile_stats(ratios)} ({'meets' if met else 'misses'})" for _, ratios, met in rows
         ]
         lines.append(f"| {what} | {target} | " + " | ".join(cells) + " |")
     ref = single[0]
@@ -648,12 +662,12 @@ def markdown(
         "",
         "Single env (`gym.make`; ratio = ours / CartPole-v1 in time per step):",
         "",
-        f"| env | setting | µs per step, median [min, max] of {repeats} | ratio to "
-        "CartPole-v1, median [min, max] | episodes ended in the runs | terminated |",
+        f"| env | setting | µs per step, median [quartiles] of {rounds} | ratio to "
+        "CartPole-v1, median [quartiles] | episodes ended in the runs | terminated |",
         "|---|---|---|---|---:|---:|",
     ]
     for v in single:
-        ratio = "1 (reference)" if v is ref else ratio_stats(single_ratios(v, ref))
+        ratio = "1 (reference)" if v is ref else quartile_stats(single_ratios(v, ref))
         ended = v.episodes.ended
         term = f"{v.episodes.terminated / ended:.0%}" if ended else "-"
         lines.append(
@@ -667,19 +681,20 @@ def markdown(
         'vectorization_mode="vector_entry_point")`; episodes and stuck fraction from an '
         "untimed run of two episodes' length):",
         "",
-        f"| env | setting | kernel | env-steps/s, median [min, max] of {repeats} | "
-        "ns per env-step | ratio to CartPoleVectorEnv, median [min, max] | episodes ended | "
+        f"| env | setting | kernel | env-steps/s, median [quartiles] of {rounds} | "
+        "ns per env-step | ratio to CartPoleVectorEnv, median [quartiles] | episodes ended | "
         "terminated | stuck (mean) |",
         "|---|---|---|---|---:|---|---:|---:|---:|",
     ]
     for v in vector:
-        ratio = "1 (reference)" if v is ref else ratio_stats(paired_ratios(v, ref))
+        ratio = "1 (reference)" if v is ref else quartile_stats(paired_ratios(v, ref))
         ns = 1e9 / statistics.median(v.rates)
         ended = v.episodes.ended
         term = f"{v.episodes.terminated / ended:.0%}" if ended else "-"
         stuck = "-" if v.episodes.stuck is None else f"{v.episodes.stuck:.0%}"
         lines.append(
-            f"| {v.name} | {v.setting} | {v.kernel} | {stats(v.rates)} | {ns:.1f} | {ratio} | "
+            f"| {v.name} | {v.setting} | {v.kernel} | {quartile_stats(v.rates, si)} | {ns:.1f} | "
+            f"{ratio} | "
             f"{thousands(ended)} | {term} | {stuck} |"
         )
     return "\n".join(lines)
