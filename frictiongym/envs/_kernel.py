@@ -35,10 +35,13 @@ from frictiongym.plants import _kernel as plant_kernel
 from frictiongym.plants._kernel import I_UMAX
 from frictiongym.plants.sensors import (
     SENSOR_ENCODER,
+    box_muller,
     derivative_update,
     ir_estimate,
+    last_normal_draw,
     measure,
     normal_draw,
+    uniform_draw,
 )
 from frictiongym.plants.sensors import SENSOR_IR as SENSOR_IR  # the envs read it here
 
@@ -358,16 +361,15 @@ def _observe_env(
     state: npt.NDArray[np.float64],
     dt: float,
     rows: npt.NDArray[np.float64],
-    rng: npt.NDArray[np.uint64],
+    noise: float,
     config: npt.NDArray[np.float64],
     fresh: npt.NDArray[np.bool_],
     obs: npt.NDArray[np.float32],
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> None:
-    """Read env ``i``'s sensor and write its observation, reward and episode end (scalar)."""
+    """Read env ``i``'s sensor plus ``noise``; write its observation, reward, episode end."""
     cfg = _settings(config)
-    noise = cfg[C_NOISE] * normal_draw(rng, i) if cfg[C_NOISE] > 0.0 else 0.0
     x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
     measured, position, velocity = _reading(x, v, rows[T_GAIN, i], rows[T_OFFSET, i], noise, cfg)
     applied, umax = state[plant_kernel.S_COMMAND, i], rows[T_UMAX, i]
@@ -395,30 +397,30 @@ def _observe_env(
 
 
 @njit(cache=True, inline="always")
-def _observe_lanes(
+def _score_lanes(
     lo: int,
     hi: int,
     state: npt.NDArray[np.float64],
     dt: float,
     rows: npt.NDArray[np.float64],
     config: npt.NDArray[np.float64],
-    obs: npt.NDArray[np.float32],
-    out: npt.NDArray[np.float64],
-    flags: npt.NDArray[np.bool_],
-    encoder: bool,
+    noise: Any,
 ) -> None:
-    """:func:`_observe_env` for envs that are not fresh, without noise, the references given.
+    """:func:`_observe_env`'s reading and scoring of envs not fresh, into their state.
 
-    The references are in ``state[E_REFERENCE]``; ``encoder`` is a constant where this is
-    inlined. Loops free of branches, each over few arrays: the compiler must prove the arrays
-    of a loop apart before it runs the loop in SIMD lanes, and gives up beyond a few.
+    The references are in ``state[E_REFERENCE]``; ``noise`` is the envs' sensor noise (entry
+    ``i - lo``, :func:`_block_noise`) or ``0.0`` for all. A loop free of branches over two
+    arrays (the compiler must prove the arrays of a loop apart before it runs the loop in SIMD
+    lanes, and gives up beyond a few).
     """
     cfg = _settings(config)
+    base = np.uint64(lo)
     # an unsigned index: numba then adds no wrap-around of negative indices, which would hide
     # from the compiler that the loop walks each array with unit stride
     for i in range(np.uint64(lo), np.uint64(hi)):
         x, v = state[plant_kernel.S_X, i], state[plant_kernel.S_V, i]
-        measured, position, velocity = _reading(x, v, rows[T_GAIN, i], rows[T_OFFSET, i], 0.0, cfg)
+        gain, offset, added = rows[T_GAIN, i], rows[T_OFFSET, i], _noise_at(noise, i - base)
+        measured, position, velocity = _reading(x, v, gain, offset, added, cfg)
         applied = state[plant_kernel.S_COMMAND, i]
         umax = rows[T_UMAX, i]
         steps = state[E_STEPS, i]
@@ -440,8 +442,24 @@ def _observe_lanes(
             False,
         )
         _keep(i, measured, scored, state)
-    # the outputs from the state, a loop each: a loop over two arrays is one the compiler
-    # proves safe to run in SIMD lanes, one over many is not
+
+
+@njit(cache=True, inline="always")
+def _output_lanes(
+    lo: int,
+    hi: int,
+    state: npt.NDArray[np.float64],
+    dt: float,
+    obs: npt.NDArray[np.float32],
+    out: npt.NDArray[np.float64],
+    flags: npt.NDArray[np.bool_],
+    encoder: bool,
+) -> None:
+    """Write the outputs of envs ``lo`` to ``hi - 1`` from their state (``encoder``: a constant).
+
+    A loop each: a loop over two arrays is one the compiler proves safe to run in SIMD lanes,
+    one over many is not.
+    """
     for i in range(np.uint64(lo), np.uint64(hi)):
         out[O_REWARD, i] = state[E_REWARD, i]
     for i in range(np.uint64(lo), np.uint64(hi)):
@@ -461,6 +479,41 @@ def _observe_lanes(
             _flag(i, flag, row, state, flags)
     for i in range(np.uint64(lo), np.uint64(hi)):
         _done(i, flags)
+
+
+@njit(cache=True, inline="always")
+def _block_noise(
+    lo: int, hi: int, rng: npt.NDArray[np.uint64], std: float
+) -> npt.NDArray[np.float64]:
+    """Return the sensor noise of envs ``lo`` to ``hi - 1`` (entry ``i - lo``), std ``std``.
+
+    Each env's draw is :func:`~frictiongym.plants.sensors.normal_draw` of its own generator,
+    split in two loops: the generators' uniforms (integer arithmetic, SIMD code), then the
+    Box-Muller transform (calls of ``log`` and ``cos``, scalar).
+    """
+    envs = rng[lo:hi]
+    first, second = np.empty(hi - lo), np.empty(hi - lo)
+    for k in range(np.uint64(hi - lo)):
+        first[k] = uniform_draw(envs, k)
+        second[k] = uniform_draw(envs, k)
+    for k in range(np.uint64(hi - lo)):
+        first[k] = std * box_muller(first[k], second[k])
+    return first
+
+
+def _noise_at(noise: Any, k: int) -> float:
+    """Return entry ``k`` of an array of noise, or the float ``noise`` itself.
+
+    Compiled per type (:func:`_noise_at_overload`): a noiseless block reads no array.
+    """
+    return float(noise[k]) if isinstance(noise, np.ndarray) else float(noise)
+
+
+@overload(_noise_at, inline="always")
+def _noise_at_overload(noise, k):  # type: ignore[no-untyped-def]  # numba matches its signature
+    if isinstance(noise, types.Array):
+        return lambda noise, k: noise[k]
+    return lambda noise, k: noise
 
 
 @njit(cache=True, inline="always")
@@ -486,30 +539,37 @@ def observe_block(
     out: npt.NDArray[np.float64],
     flags: npt.NDArray[np.bool_],
 ) -> int:
-    """Observe envs ``lo`` to ``hi - 1``: in SIMD code, unless sensor noise needs calls.
+    """Observe envs ``lo`` to ``hi - 1`` in SIMD code.
 
     The references are evaluated first, in a loop of their own (a sine needs a call, a step
-    sequence an indirect read); then the rest in SIMD code, as if every env had been stepped;
-    then the fresh envs (just reset, rare) once more on their own. With sensor noise every env
-    takes the scalar path. Compiled on its own (the parallel pipeline starts no threads here; it
-    drops reference counting) with NumPy's error model, so that no exception branch stays in the
-    loops. Both ways compute the same values with the same operations. Returns how many of
-    these envs ended their episode (terminated or truncated).
+    sequence an indirect read), and the sensor noise, if any, in loops of its own
+    (:func:`_block_noise`); then the rest in SIMD code, as if every env had been stepped; then
+    the fresh envs (just reset, rare) once more on their own. Compiled on its own (the parallel
+    pipeline starts no threads here; it drops reference counting) with NumPy's error model, so
+    that no exception branch stays in the loops. Both ways compute the same values with the
+    same operations. Returns how many of these envs ended their episode (terminated or
+    truncated).
     """
-    noisy = config[C_NOISE] > 0.0
-    if not noisy:
+    for i in range(lo, hi):
+        state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
+    if config[C_NOISE] > 0.0:
+        noise = _block_noise(lo, hi, rng, config[C_NOISE])
+        _score_lanes(lo, hi, state, dt, rows, config, noise)
+    else:
+        _score_lanes(lo, hi, state, dt, rows, config, 0.0)
+    if config[C_SENSOR] == SENSOR_ENCODER:
+        _output_lanes(lo, hi, state, dt, obs, out, flags, True)
+    else:
+        _output_lanes(lo, hi, state, dt, obs, out, flags, False)
+    # the fresh envs once more (the loops took every env as stepped); most blocks have none,
+    # found by a count without branches
+    if _fresh_count(lo, hi, fresh) > 0:
         for i in range(lo, hi):
-            state[E_REFERENCE, i] = reference_at(state[E_STEPS, i] * dt, rows, i, T_REF)
-        if config[C_SENSOR] == SENSOR_ENCODER:
-            _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, True)
-        else:
-            _observe_lanes(lo, hi, state, dt, rows, config, obs, out, flags, False)
-    # with noise every env, else the fresh ones (the loops took every env as stepped); most
-    # blocks have none, found by a count without branches
-    if noisy or _fresh_count(lo, hi, fresh) > 0:
-        for i in range(lo, hi):
-            if noisy or fresh[i]:
-                _observe_env(i, state, dt, rows, rng, config, fresh, obs, out, flags)
+            if fresh[i]:
+                # the noise drawn for them above, drawn again from their generators' state
+                std = config[C_NOISE]
+                added = std * last_normal_draw(rng, i) if std > 0.0 else 0.0
+                _observe_env(i, state, dt, rows, added, config, fresh, obs, out, flags)
     ended = 0
     for i in range(np.uint64(lo), np.uint64(hi)):
         ended += flags[F_DONE, i]
@@ -649,9 +709,11 @@ def observe_envs(
     What a same-step autoreset needs: the ended envs are reset and observed after the step that
     ended them, without stepping the rest a second time.
     """
+    std = config[C_NOISE]
     for i in range(mask.shape[0]):
         if mask[i]:
-            _observe_env(i, state, dt, rows, rng, config, mask, obs, out, flags)
+            noise = std * normal_draw(rng, i) if std > 0.0 else 0.0
+            _observe_env(i, state, dt, rows, noise, config, mask, obs, out, flags)
 
 
 @njit(cache=True)

@@ -113,10 +113,16 @@ _S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(
 
 
 @njit(cache=True, inline="always")
-def _uniform(rng: npt.NDArray[np.uint64], i: int) -> float:
+def uniform_draw(rng: npt.NDArray[np.uint64], i: int) -> float:
     """Draw the next uniform in (0, 1] from generator ``i``."""
     z = rng[i] + _GOLDEN
     rng[i] = z
+    return _mixed(z)
+
+
+@njit(cache=True, inline="always")
+def _mixed(z: np.uint64) -> float:
+    """Return the uniform in (0, 1] of splitmix64's state ``z``."""
     z = (z ^ (z >> _S30)) * _MIX1
     z = (z ^ (z >> _S27)) * _MIX2
     z = z ^ (z >> _S31)
@@ -126,8 +132,25 @@ def _uniform(rng: npt.NDArray[np.uint64], i: int) -> float:
 @njit(cache=True, inline="always")
 def normal_draw(rng: npt.NDArray[np.uint64], i: int) -> float:
     """Draw a standard normal from generator ``i`` (Box-Muller, one of the pair)."""
-    u1 = _uniform(rng, i)
-    u2 = _uniform(rng, i)
+    u1 = uniform_draw(rng, i)
+    u2 = uniform_draw(rng, i)
+    return box_muller(u1, u2)
+
+
+@njit(cache=True, inline="always")
+def last_normal_draw(rng: npt.NDArray[np.uint64], i: int) -> float:
+    """Return what the last :func:`normal_draw` of generator ``i`` returned, drawing nothing.
+
+    A splitmix64 draw is a function of the state it leaves, so the last two uniforms are
+    those of the state and of the state one step back.
+    """
+    z = rng[i]
+    return box_muller(_mixed(z - _GOLDEN), _mixed(z))
+
+
+@njit(cache=True, inline="always")
+def box_muller(u1: float, u2: float) -> float:
+    """Return the standard normal of two uniforms in (0, 1] (Box-Muller, one of the pair)."""
     return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
 
 
