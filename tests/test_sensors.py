@@ -1,4 +1,7 @@
 import math
+import os
+import subprocess
+import sys
 
 import control
 import numpy as np
@@ -102,3 +105,33 @@ def test_last_normal_draw_gives_the_last_draw_again_and_draws_nothing():
             np.testing.assert_array_equal(states, kept)
             draws.append(drawn)
     assert len(set(draws)) == len(draws)  # every draw a new value
+
+
+PURE_PYTHON_UFUNCS = """
+import sys
+import numpy as np
+from frictiongym.friction import ROTARY_PAPER
+from frictiongym.plants.sensors import FilteredDerivative, ir_distance, ir_readout, quantize_angle
+
+x = np.linspace(-3.0, 40.0, 57)
+values = [quantize_angle(x), ir_readout(np.abs(x) + 0.5), ir_distance(np.arange(0, 800, 13)),
+          ROTARY_PAPER.force(x)]
+derivative = FilteredDerivative(50.0, 0.002, shape=(2,), resolution=0.003)
+values += [derivative.update(np.array([v, 2 * v])) for v in x]
+np.save(sys.argv[1], np.concatenate([np.ravel(v).astype(np.float64) for v in values]))
+"""
+
+
+def test_the_sensor_and_friction_ufuncs_run_without_numba_and_agree(tmp_path):
+    # NUMBA_DISABLE_JIT=1 with an empty cache: numba's vectorize could not compile functions
+    # that call njit functions left as plain Python (the import failed)
+    script = tmp_path / "ufuncs.py"
+    script.write_text(PURE_PYTHON_UFUNCS)
+    results = []
+    for mode, extra in (("py", {"NUMBA_DISABLE_JIT": "1"}), ("jit", {})):
+        env = {key: val for key, val in os.environ.items() if key != "NUMBA_DISABLE_JIT"}
+        env |= {"NUMBA_CACHE_DIR": str(tmp_path / f"cache-{mode}"), **extra}
+        out = tmp_path / f"{mode}.npy"
+        subprocess.run([sys.executable, str(script), str(out)], env=env, check=True, timeout=300)
+        results.append(np.load(out))
+    np.testing.assert_array_equal(results[0], results[1])

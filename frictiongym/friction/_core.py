@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import math
 
-from numba import float64, njit, vectorize
+from numba import njit
+
+from frictiongym._ufunc import float64_ufunc
 
 # Law codes.
 LAW_STATIC = 0  #: memoryless curve + explicit stick state (none, Coulomb, the paper's law)
@@ -114,7 +116,7 @@ def sliding_level(speed: float, direction: float, p: tuple[float, ...]) -> float
     return level(speed, p[I_LAW], p[I_SHAPE], p[I_US_NEG], p[I_UC_NEG], p[I_V0_NEG])
 
 
-@vectorize([float64(*[float64] * 10)], cache=True)
+@float64_ufunc(10)
 def sliding_force_ufunc(
     v: float,
     law: float,

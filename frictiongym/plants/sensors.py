@@ -13,8 +13,9 @@ import math
 
 import numpy as np
 import numpy.typing as npt
-from numba import float64, njit, vectorize
+from numba import njit
 
+from frictiongym._ufunc import float64_ufunc
 from frictiongym._validation import real_number
 
 FloatArray = npt.NDArray[np.float64]
@@ -185,22 +186,22 @@ def derivative_update(
     return rate
 
 
-@vectorize([float64(float64, float64)], cache=True)
+@float64_ufunc(2)
 def _encoder_ufunc(angle: float, step: float) -> float:
     return encoder_angle(angle, step)
 
 
-@vectorize([float64(float64, float64, float64, float64)], cache=True)
+@float64_ufunc(4)
 def _ir_ufunc(distance: float, gain: float, offset: float, noise: float) -> float:
     return ir_count(distance, gain, offset, noise)
 
 
-@vectorize([float64(float64)], cache=True)
+@float64_ufunc(1)
 def _ir_estimate_ufunc(readout: float) -> float:
     return ir_estimate(readout)
 
 
-@vectorize([float64(float64, float64, float64, float64, float64, float64)], cache=True)
+@float64_ufunc(6)
 def _derivative_ufunc(
     estimate: float, position: float, previous: float, pole: float, dt: float, floor: float
 ) -> float:
