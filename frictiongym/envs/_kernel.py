@@ -410,8 +410,8 @@ def _score_lanes(
 
     The references are in ``state[E_REFERENCE]``; ``noise`` is the envs' sensor noise (entry
     ``i - lo``, :func:`_block_noise`) or ``0.0`` for all. A loop free of branches over two
-    arrays (the compiler must prove the arrays of a loop apart before it runs the loop in SIMD
-    lanes, and gives up beyond a few).
+    arrays, three with noise (the compiler must prove the arrays of a loop apart before it runs
+    the loop in SIMD lanes, and gives up beyond a few).
     """
     cfg = _settings(config)
     base = np.uint64(lo)
