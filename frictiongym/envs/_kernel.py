@@ -506,7 +506,8 @@ def _noise_at(noise: Any, k: int) -> float:
 
     Compiled per type (:func:`_noise_at_overload`): a noiseless block reads no array.
     """
-    return float(noise[k]) if isinstance(noise, np.ndarray) else float(noise)
+    # int(k): under NUMBA_DISABLE_JIT with NumPy 1.x, int - uint64 is a float
+    return float(noise[int(k)]) if isinstance(noise, np.ndarray) else float(noise)
 
 
 @overload(_noise_at, inline="always")
