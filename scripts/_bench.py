@@ -4,7 +4,9 @@ Used by ``bench_plants.py`` and ``bench_envs.py``. The method, in short: every v
 warmed up, its step count is calibrated to a target wall time, then ``repeats`` rounds run
 every variant once each, in an order rotated every round. Rates are medians over rounds; the
 ratio of two variants is the median of their per-round ratios, so drift of the machine
-between rounds cancels out.
+between rounds cancels out. :func:`measure_in_turns` (``bench_envs.py``'s cartpole and loads
+parts) makes the rounds short instead: a turn of about 5 ms per variant, in a new random order
+every round, so that spells of the machine lasting seconds fall on every variant alike.
 
 This module is imported by the scripts as ``_bench`` (the scripts' folder is first on
 ``sys.path`` when they run as ``python scripts/<name>.py``); it is not part of the package.
