@@ -30,6 +30,7 @@ ROOT_LAZY: dict[str, str] = frictiongym._LAZY
 #: Layer of each part, lowest first. A part may import its own layer's parts or lower ones.
 LAYERS: dict[str, int] = {
     "frictiongym._validation": 0,
+    "frictiongym._ufunc": 0,
     "frictiongym._io": 0,
     "frictiongym._cluster": 0,
     "frictiongym.metrics": 0,
