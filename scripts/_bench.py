@@ -20,6 +20,7 @@ import statistics
 import subprocess
 import time
 from collections.abc import Callable, Sequence
+from itertools import cycle, islice
 from typing import Any, Protocol
 
 import numba
@@ -66,16 +67,38 @@ def measure(variants: Sequence[Timed], repeats: int, seconds: float, burn_in: in
 
     A rate is ``batch * steps / wall time`` of one timed run.
     """
-    steps = []
-    for variant in variants:
-        variant.run(burn_in)
-        steps.append(calibrate(variant.run, seconds))
+    steps = warm_up(variants, seconds, burn_in)
     order = list(range(len(variants)))
     for r in range(repeats):
         shift = r % len(variants)
         for i in order[shift:] + order[:shift]:
             variant, n = variants[i], steps[i]
             variant.rates.append(variant.batch * n / timed(variant.run, n))
+
+
+def warm_up(variants: Sequence[Timed], seconds: float, burn_in: int) -> list[int]:
+    """Run each variant ``burn_in`` steps; return the step count of a run of about ``seconds``."""
+    steps = []
+    for variant in variants:
+        variant.run(burn_in)
+        steps.append(calibrate(variant.run, seconds))
+    return steps
+
+
+def cycled_runner(env: Any, actions: Sequence[Any]) -> Runner:
+    """Step ``env`` with the cycled ``actions``, going on where the last call stopped."""
+    rows = cycle(actions)
+
+    def run(steps: int) -> None:
+        for action in islice(rows, steps):
+            env.step(action)
+
+    return run
+
+
+def turn_rounds(seconds: float) -> int:
+    """Rounds of :func:`measure_in_turns` that give each variant ``seconds`` s of turns."""
+    return max(1, round(seconds / TURN_SECONDS))
 
 
 def turns(runners: Sequence[Runner], steps: Sequence[int], rounds: int) -> npt.NDArray[Any]:
@@ -93,18 +116,14 @@ def turns(runners: Sequence[Runner], steps: Sequence[int], rounds: int) -> npt.N
     return times
 
 
-def measure_in_turns(variants: Sequence[Timed], seconds: float, turn: float, burn_in: int) -> None:
-    """:func:`measure` in turns of about ``turn`` s each, ``seconds`` s of turns per variant.
+def measure_in_turns(variants: Sequence[Timed], seconds: float, burn_in: int) -> None:
+    """:func:`measure` in turns of about ``TURN_SECONDS`` each, ``seconds`` s of turns per variant.
 
     Each variant's ``rates`` gets one rate per round (see :func:`turns`), so the per-round
     ratios of :func:`paired_ratios` compare two variants timed a few ms apart.
     """
-    steps = []
-    for variant in variants:
-        variant.run(burn_in)
-        steps.append(calibrate(variant.run, turn))
-    rounds = max(1, round(seconds / turn))
-    times = turns([variant.run for variant in variants], steps, rounds)
+    steps = warm_up(variants, TURN_SECONDS, burn_in)
+    times = turns([variant.run for variant in variants], steps, turn_rounds(seconds))
     for variant, per_step in zip(variants, times, strict=True):
         variant.rates[:] = (variant.batch / per_step).tolist()
 

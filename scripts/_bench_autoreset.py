@@ -24,13 +24,12 @@ from __future__ import annotations
 
 import argparse
 from collections.abc import Callable, Sequence
-from itertools import cycle, islice
 from typing import Any
 
 import numba
 import numpy as np
 import numpy.typing as npt
-from _bench import Runner, thousands, turns
+from _bench import cycled_runner, quartile_stats, thousands, turns
 
 from frictiongym.envs import _kernel as env_kernel
 
@@ -80,17 +79,6 @@ def _make(make: MakeVector, env_id: str, n: int, seed: int, threaded: bool, in_k
     return env
 
 
-def _runner(env: Any, table: list[npt.NDArray[Any]]) -> Runner:
-    """Step ``env`` with the cycled rows of ``table``, going on where the last call stopped."""
-    rows = cycle(table)
-
-    def run(steps: int) -> None:
-        for actions in islice(rows, steps):
-            env.step(actions)
-
-    return run
-
-
 def _check(envs: Sequence[Any], table: list[npt.NDArray[Any]]) -> None:
     """Stop unless every env's first steps give the serial kernel's outputs, bit for bit."""
     for t in range(CHECK_STEPS):
@@ -123,18 +111,15 @@ def autoreset_part(
         table = actions(env_id, n, args.seed)
         envs = [_make(make, env_id, n, args.seed, *variant[1:]) for variant in VARIANTS]
         _check(envs, table)
-        runners = [_runner(env, table) for env in envs]
+        runners = [cycled_runner(env, table) for env in envs]
         times = turns(runners, [TURN] * len(runners), rounds) * 1e6  # µs per step
         for k, (label, *_) in enumerate(VARIANTS):
-            q1, mid, q3 = np.percentile(times[k], [25, 50, 75])
-            ratio = times[k] / times[BEFORE]
-            r1, rmid, r3 = np.percentile(ratio, [25, 50, 75])
             total = times[k].sum() / times[BEFORE].sum()
             cells = (
                 env_id.removeprefix("frictiongym/"),
                 label,
-                f"{mid:.1f} [{q1:.1f}, {q3:.1f}]",
-                f"{rmid:.3f} [{r1:.3f}, {r3:.3f}]",
+                quartile_stats(times[k], lambda v: f"{v:.1f}"),
+                quartile_stats(times[k] / times[BEFORE], lambda v: f"{v:.3f}"),
                 f"{total:.3f}",
             )
             lines.append("| " + " | ".join(cells) + " |")

@@ -61,6 +61,7 @@ from _bench import (
     si,
     single_threaded,
     thousands,
+    turn_rounds,
 )
 
 from frictiongym.envs import _kernel as env_kernel
@@ -95,7 +96,7 @@ def loads_part(
     n = args.num_envs
     loads = [load for load in args.loads if load != "torch"]  # in-process torch: see threads
     seconds = args.repeats * args.seconds  # of turns, per variant and load
-    rounds = max(1, round(seconds / TURN_SECONDS))
+    rounds = turn_rounds(seconds)
     print(
         f"\nloads: vector envs at N = {n} against CartPoleVectorEnv under each load "
         f"(env-steps/s; {rounds} rounds of turns of about {TURN_SECONDS * 1e3:g} ms, "
@@ -123,7 +124,7 @@ def loads_part(
             [Timed(name, run, n) for name, run in _balanced_runners(n, kind)] for kind in BALANCED
         ]
         with _load.competing(load):
-            measure_in_turns([*variants, *chain(*probes)], seconds, TURN_SECONDS, burn_in=512)
+            measure_in_turns([*variants, *chain(*probes)], seconds, burn_in=512)
         ref = variants[0]
         cells = [quartile_stats(ref.rates, si)]
         for v, (_, adaptive) in zip(variants[1:], made[1:], strict=True):

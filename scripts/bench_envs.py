@@ -82,8 +82,8 @@ import numba
 import numpy as np
 import numpy.typing as npt
 from _bench import (
-    TURN_SECONDS,
     Runner,
+    cycled_runner,
     machine_line,
     measure_in_turns,
     paired_ratios,
@@ -93,6 +93,7 @@ from _bench import (
     single_threaded,
     source_revision,
     thousands,
+    turn_rounds,
 )
 
 import frictiongym  # noqa: F401  (registers the frictiongym ids)
@@ -265,12 +266,7 @@ def vector_variant(
 ) -> Variant:
     """A native vector env stepped with cycled pre-generated actions (nothing else timed)."""
     env = make_vector(env_id, num_envs, kwargs, seed)
-    rows = cycle(vector_actions(env_id, num_envs, seed))
-
-    def run(steps: int) -> None:
-        for actions in islice(rows, steps):
-            _obs, _rewards, _terminated, _truncated, _info = env.step(actions)
-
+    run = cycled_runner(env, vector_actions(env_id, num_envs, seed))
     kernel = kernel_of(env)
     if "parallel" in kwargs:
         kernel += " (forced)"
@@ -555,9 +551,9 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
             single.append(single_variant(env_id, setting, kwargs, args.seed))
     single.append(single_variant(SERVO, NO_WRAPPERS, {}, args.seed, unwrapped=True))
     single.append(single_variant(CARTPOLE, "env.unwrapped (no wrappers)", {}, args.seed, True))
-    seconds, turn = args.repeats * args.seconds, TURN_SECONDS
-    rounds = max(1, round(seconds / turn))
-    measure_in_turns(single, seconds, turn, burn_in=1000)
+    seconds = args.repeats * args.seconds  # of turns, per variant
+    rounds = turn_rounds(seconds)
+    measure_in_turns(single, seconds, burn_in=1000)
     ref = single[0]
     print(
         f"\nsingle env, gym.make (µs per step, median [quartiles] of {rounds} rounds; "
@@ -591,7 +587,7 @@ def cartpole_part(args: argparse.Namespace, header: dict[str, str]) -> str:
     for variant in vector:  # the kernel duplicates share their default variant's episodes
         if variant.kernel.endswith("(forced)") or variant.kernel == ONE_THREAD:
             variant.episodes = find(vector, variant.env).episodes
-    measure_in_turns(vector, seconds, turn, burn_in=2 * VECTOR_ROWS)
+    measure_in_turns(vector, seconds, burn_in=2 * VECTOR_ROWS)
     for variant in vector:  # how often the adaptive kernel ran its threads: a low figure is a
         if variant.adaptive is not None:  # machine whose second core was busy or slow then
             serial, threaded = variant.adaptive.calls
